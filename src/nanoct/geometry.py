@@ -1,0 +1,185 @@
+"""Scan geometries (parallel and fan beam) and their presets.
+
+Conventions (the one place they are defined; see ``docs/conventions.md``)
+--------------------------------------------------------------------------
+* Units are image pixels. The image is ``x[row, col]`` of shape (N, N), centred on the
+  rotation axis, with physical coordinates ``r1 = col - (N-1)/2`` (to the right) and
+  ``r2 = (N-1)/2 - row`` (upwards).
+* A sinogram is ``y[k, l]`` of shape (K angles, L detector pixels).
+* View ``k`` has angle ``phi_k = k * angle_range / K`` (counter-clockwise from the r1 axis).
+  In parallel beam the detector coordinate of a point r is ``s = r1 cos(phi) + r2 sin(phi)``
+  and detector pixel ``l`` is centred at ``s = (l - (L-1)/2) * det_spacing``.
+  In fan beam the source sits at ``source_radius * (sin(phi), -cos(phi))`` and the flat
+  detector, centred at ``detector_radius * (-sin(phi), cos(phi))``, has its pixel axis along
+  ``(cos(phi), sin(phi))``; at ``phi = 0`` the rays travel upwards (+r2).
+  These are ASTRA's ``parallel`` / ``fanflat`` conventions, used through its ``*_vec`` forms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+__all__ = ["Geometry", "PRESETS", "get_preset", "preset_names"]
+
+Kind = Literal["parallel", "fan"]
+
+# The paper's geometries (table "Parallel and fan beam geometry").
+_PAPER_N = 255
+_PAPER = {
+    "parallel": {"n_angles": 567, "n_det": 363},
+    "fan": {"n_angles": 133, "n_det": 723, "source_radius": 7773.4},
+}
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Immutable description of a 2D scan geometry.
+
+    Parameters
+    ----------
+    kind : {"parallel", "fan"}
+        Beam geometry.
+    n : int
+        Image size N (the image is N x N pixels of unit size).
+    n_angles : int
+        Number of views K.
+    n_det : int
+        Number of detector pixels L.
+    det_spacing : float
+        Detector pixel size in image pixels (on the detector, i.e. not demagnified).
+    angle_range : float
+        Views are spread uniformly over ``[0, angle_range)`` (pi for parallel, 2 pi for fan).
+    source_radius : float
+        Distance source - rotation axis in pixels (fan beam only, else 0).
+    detector_radius : float
+        Distance rotation axis - detector in pixels (fan beam only, else 0).
+    """
+
+    kind: Kind
+    n: int
+    n_angles: int
+    n_det: int
+    det_spacing: float = 1.0
+    angle_range: float = math.pi
+    source_radius: float = 0.0
+    detector_radius: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("parallel", "fan"):
+            raise ValueError(f"geometry kind {self.kind!r} is unknown; use 'parallel' or 'fan'")
+        for name in ("n", "n_angles", "n_det"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value <= 0:
+                raise ValueError(f"{name}={value!r} must be a positive integer")
+        if not self.det_spacing > 0:
+            raise ValueError(f"det_spacing={self.det_spacing!r} must be > 0")
+        if not 0 < self.angle_range <= 2 * math.pi + 1e-12:
+            raise ValueError(f"angle_range={self.angle_range!r} must lie in (0, 2 pi]")
+        if self.kind == "fan":
+            if not self.source_radius > self.n * math.sqrt(0.5):
+                raise ValueError(
+                    f"source_radius={self.source_radius!r} must exceed the image half-diagonal "
+                    f"{self.n * math.sqrt(0.5):.1f} px"
+                )
+            if not self.detector_radius >= 0:
+                raise ValueError(f"detector_radius={self.detector_radius!r} must be >= 0")
+
+    # ------------------------------------------------------------------ derived values
+    @property
+    def angles(self) -> np.ndarray:
+        """View angles ``phi_k`` in radians, shape (K,), float64."""
+        return np.arange(self.n_angles) * (self.angle_range / self.n_angles)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """Shape (N, N) of an image."""
+        return (self.n, self.n)
+
+    @property
+    def sino_shape(self) -> tuple[int, int]:
+        """Shape (K, L) of a sinogram."""
+        return (self.n_angles, self.n_det)
+
+    @property
+    def magnification(self) -> float:
+        """Geometric magnification at the rotation axis (1 for parallel beam)."""
+        if self.kind == "parallel":
+            return 1.0
+        return (self.source_radius + self.detector_radius) / self.source_radius
+
+    def covers_image(self) -> bool:
+        """Whether every ray through the (circumscribed) image disc hits the detector."""
+        radius = (self.n / 2) * math.sqrt(2.0)
+        half_det = self.n_det * self.det_spacing / 2
+        if self.kind == "parallel":
+            return half_det >= radius
+        src = self.source_radius
+        reach = (src + self.detector_radius) * radius / math.sqrt(src**2 - radius**2)
+        return half_det >= reach
+
+    # ------------------------------------------------------------------ (de)serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON description (stored with every data set)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Geometry:
+        """Inverse of :meth:`to_dict`."""
+        return cls(**data)
+
+    def key(self) -> str:
+        """Short stable string identifying the geometry (used in cache keys)."""
+        d = self.to_dict()
+        return "-".join(f"{k}={d[k]!r}" for k in sorted(d))
+
+
+def _odd_at_least(value: float) -> int:
+    m = math.ceil(value - 1e-9)
+    return m if m % 2 == 1 else m + 1
+
+
+def _scaled(kind: Kind, n: int) -> Geometry:
+    """Paper geometry scaled to image size n, keeping the ratios K/N and L/N."""
+    p = _PAPER[kind]
+    scale = n / _PAPER_N
+    n_angles = max(4, round(p["n_angles"] * scale))
+    n_det = _odd_at_least(p["n_det"] * scale) if n != _PAPER_N else p["n_det"]
+    if kind == "parallel":
+        return Geometry("parallel", n, n_angles, n_det)
+    radius = p["source_radius"] * scale
+    # The paper gives only the source radius. We put the detector as far behind the axis as
+    # the source is in front of it (magnification 2) with 1 px detector pixels: then the
+    # 723 pixels just cover the image's circumscribed circle, as the paper requires.
+    return Geometry("fan", n, n_angles, n_det, 1.0, 2 * math.pi, radius, radius)
+
+
+PRESETS: dict[str, Geometry] = {
+    f"{size}-{kind}": _scaled(kind, n)
+    for size, n in (("paper", 255), ("small", 127), ("tiny", 63))
+    for kind in ("parallel", "fan")
+}
+
+
+def preset_names() -> list[str]:
+    """Names of the geometry presets."""
+    return sorted(PRESETS)
+
+
+def get_preset(name: str) -> Geometry:
+    """Return the geometry preset ``name``.
+
+    Raises
+    ------
+    ValueError
+        If the preset is unknown; the message lists the known ones.
+    """
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown preset {name!r}; choose one of: {', '.join(preset_names())}"
+        ) from None

@@ -1,0 +1,59 @@
+"""Input checks shared by the public functions: clear errors instead of silent garbage."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["check_array"]
+
+
+def check_array(
+    value: Any,
+    name: str,
+    *,
+    shape: tuple[int, ...] | None = None,
+    ndim: int | None = None,
+    dtype: Any = np.float32,
+    finite: bool = True,
+) -> np.ndarray:
+    """Validate an array argument and return it as a contiguous array.
+
+    Parameters
+    ----------
+    value : array_like
+        The argument.
+    name : str
+        Its name, used in error messages.
+    shape : tuple of int, optional
+        Required shape.
+    ndim : int, optional
+        Required number of dimensions (when the exact shape is not fixed).
+    dtype : numpy dtype or None
+        Real dtype to convert to (default float32); ``None`` keeps a real floating dtype.
+    finite : bool
+        Reject NaN and infinite values.
+
+    Returns
+    -------
+    ndarray
+        C-contiguous array of the requested dtype.
+
+    Raises
+    ------
+    ValueError
+        If the shape, dtype or values are wrong; the message names the argument.
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiub":
+        raise ValueError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    if shape is not None and arr.shape != tuple(shape):
+        raise ValueError(f"{name} has shape {arr.shape}, expected {tuple(shape)}")
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name} must have {ndim} dimensions, got shape {arr.shape}")
+    if finite and arr.size and not np.isfinite(arr).all():
+        bad = int(arr.size - np.isfinite(arr).sum())
+        raise ValueError(f"{name} contains {bad} NaN or infinite value(s); clean or regenerate it")
+    target = dtype if dtype is not None else (arr.dtype if arr.dtype.kind == "f" else np.float64)
+    return np.ascontiguousarray(arr, dtype=target)
