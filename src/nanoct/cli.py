@@ -1,0 +1,205 @@
+"""Command-line interface: parses arguments and calls the library; holds no science."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from .errors import NanoctError
+
+app = typer.Typer(
+    help="nanoct: CT reconstruction with inexact (motion-perturbed) forward operators.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+WORKERS = typer.Option(2, "--workers", "-w", help="Local Dask worker processes (0: run in this process).")
+SCHEDULER = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler (instead of a local cluster).")
+QUIET = typer.Option(False, "--quiet", "-q", help="No progress bars.")
+
+
+def _parse_fractions(text: str) -> tuple[float, float, float]:
+    try:
+        parts = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) != 3:
+        raise NanoctError(f"--split-fractions {text!r} must be three comma-separated numbers, e.g. 0.95,0.04,0.01")
+    return parts  # type: ignore[return-value]
+
+
+def _parse_params(items: list[str]) -> dict[str, Any]:
+    params: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise NanoctError(f"--param {item!r} must look like name=value (e.g. relaxation=0.2)")
+        try:
+            params[key] = json.loads(value)
+        except json.JSONDecodeError:
+            params[key] = value
+    return params
+
+
+@app.command()
+def generate(
+    preset: str = typer.Option(..., "--preset", "-p", help="Geometry preset: tiny-/small-/paper- + parallel/fan."),
+    n: int = typer.Option(..., "--n", help="Number of samples."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output store directory (Zarr v3)."),
+    seed: int = typer.Option(0, "--seed", help="Data-set seed; sample i depends only on (seed, i)."),
+    no_motion: bool = typer.Option(False, "--no-motion", help="Unperturbed data (the paper's sanity case)."),
+    max_shift: Optional[float] = typer.Option(None, "--max-shift", help="Bound of the sinusoidal object shift in px (default 2.0)."),
+    oversample: int = typer.Option(2, "--oversample", help="Simulation grid refinement (1 = inverse crime)."),
+    noise_std: float = typer.Option(0.0, "--noise-std", help="Std of additive Gaussian noise on y (default 0, as the paper)."),
+    split_fractions: str = typer.Option("0.95,0.04,0.01", "--split-fractions", help="Train,val,test proportions."),
+    workers: int = WORKERS,
+    scheduler: Optional[str] = SCHEDULER,
+    quiet: bool = QUIET,
+) -> None:
+    """Simulate a data set: phantoms, motion, perturbed and model sinograms, eta, splits.
+
+    Resumable: running the same command again completes an interrupted run and is a no-op
+    when the data set is complete.
+    """
+    from .generate import generate_dataset
+    from .geometry import get_preset
+    from .motion import MotionParams
+    from .simulate import SimulationConfig
+
+    geometry = get_preset(preset)
+    overrides = {} if max_shift is None else {"max_shift": max_shift}
+    config = SimulationConfig(
+        motion=MotionParams.for_kind(geometry.kind, **overrides),
+        perturbed=not no_motion,
+        oversample=oversample,
+        noise_std=noise_std,
+    )
+    store = generate_dataset(
+        out, geometry, n, seed=seed, config=config, split_fractions=_parse_fractions(split_fractions),
+        workers=workers, scheduler=scheduler, progress=not quiet,
+    )
+    info = store.info()
+    typer.echo(f"{store.path}: {info['done']}/{info['n']} samples, splits {info['splits']}")
+
+
+@app.command()
+def reconstruct(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    method: str = typer.Option(..., "--method", "-m", help="fbp | kaczmarz | dremel | resesop"),
+    split: str = typer.Option("all", "--split", help="test | val | train | all"),
+    eta_scale: float = typer.Option(1.0, "--eta-scale", help="RESESOP: scale of eta (paper: 0.8, 1.0, 1.2)."),
+    param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
+    name: Optional[str] = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
+    workers: int = WORKERS,
+    scheduler: Optional[str] = SCHEDULER,
+    quiet: bool = QUIET,
+) -> None:
+    """Reconstruct every sample of a split into reconstructions/<name> (resumable)."""
+    from .recon.batch import reconstruct_dataset
+
+    params = _parse_params(param)
+    if method == "resesop":
+        params.setdefault("eta_scale", eta_scale)
+    elif eta_scale != 1.0:
+        raise NanoctError("--eta-scale applies to --method resesop only")
+    written = reconstruct_dataset(
+        directory, method, split=split, params=params, name=name, overwrite=overwrite,
+        workers=workers, scheduler=scheduler, progress=not quiet,
+    )
+    typer.echo(f"wrote reconstructions/{written}")
+
+
+@app.command()
+def info(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Sizes, splits, geometry, completeness and reconstructions of a data set."""
+    from .store import DataStore
+
+    data = DataStore.open(directory).info()
+    if as_json:
+        typer.echo(json.dumps(data, indent=2))
+        return
+    g = data["geometry"]
+    typer.echo(f"data set   {data['path']}  (nanoct {data['version']}, seed {data['seed']})")
+    typer.echo(f"geometry   {g['kind']} beam, image {g['n']}x{g['n']}, sinogram {g['n_angles']}x{g['n_det']}")
+    typer.echo(f"samples    {data['done']}/{data['n']} generated ({'complete' if data['complete'] else 'INCOMPLETE'})")
+    typer.echo("splits     " + ", ".join(f"{k} {v}" for k, v in data["splits"].items()))
+    sim = data["simulation"]
+    typer.echo(f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
+               f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}")
+    recons = data["reconstructions"]
+    typer.echo("reconstructions " + (", ".join(f"{k} ({v['done']}/{data['n']})" for k, v in recons.items()) or "none"))
+
+
+@app.command()
+def show(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    index: int = typer.Option(0, "--index", "-i", help="Sample index."),
+    out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
+) -> None:
+    """Figure of one sample: phantom, motion, sinograms with and without motion, FBPs."""
+    from .figures import show_sample
+    from .store import DataStore
+
+    store = DataStore.open(directory)
+    if not 0 <= index < store.n:
+        raise NanoctError(f"--index {index} is out of range 0..{store.n - 1}")
+    typer.echo(f"wrote {show_sample(store, index, out)}")
+
+
+@app.command()
+def evaluate(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    split: str = typer.Option("test", "--split", help="Split to evaluate on."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the Markdown table."),
+) -> None:
+    """PSNR/SSIM (mean ± std over a split) of every reconstruction in the store."""
+    from .evaluate import evaluate_store, format_table, write_report_tables
+    from .store import DataStore
+
+    store = DataStore.open(directory)
+    results = evaluate_store(store, split)
+    if not results:
+        raise NanoctError(f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first")
+    md, js = write_report_tables(store, results, out or Path(directory) / "report", split)
+    typer.echo(json.dumps(results, indent=2) if as_json else format_table(results))
+    typer.echo(f"wrote {md} and {js}", err=True)
+
+
+@app.command()
+def reproduce(
+    preset: str = typer.Option("tiny-parallel", "--preset", "-p", help="Study preset (geometry preset name)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output directory (default runs/<preset>)."),
+    n: Optional[int] = typer.Option(None, "--n", help="Override the number of samples of the preset."),
+    no_motion: bool = typer.Option(False, "--no-motion", help="The unperturbed sanity case."),
+    workers: int = WORKERS,
+    scheduler: Optional[str] = SCHEDULER,
+    quiet: bool = QUIET,
+) -> None:
+    """Run the study end to end: generate, reconstruct, evaluate, report (cached, resumable)."""
+    from .reproduce import reproduce_study
+
+    report = reproduce_study(preset, out=out, n=n, perturbed=not no_motion, workers=workers, scheduler=scheduler, progress=not quiet)
+    typer.echo(report.read_text())
+    typer.echo(f"report: {report}", err=True)
+
+
+def main() -> None:
+    """Entry point: run the app, turning user errors into one line and exit status 2."""
+    try:
+        app()
+    except (NanoctError, ValueError) as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        typer.secho("interrupted; run the same command again to resume", fg=typer.colors.YELLOW, err=True)
+        sys.exit(130)

@@ -1,0 +1,11 @@
+"""Exceptions for problems a user can fix (the CLI prints them without a traceback)."""
+
+__all__ = ["NanoctError", "StoreError"]
+
+
+class NanoctError(Exception):
+    """A problem with the user's input or files; the message says what to do."""
+
+
+class StoreError(NanoctError):
+    """A data-set store is missing, damaged or does not match the request."""
