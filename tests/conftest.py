@@ -1,0 +1,30 @@
+"""Shared fixtures: operator cache in a temporary directory, a tiny data set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nanoct.generate import generate_dataset
+from nanoct.geometry import get_preset
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _operator_cache(tmp_path_factory):
+    """Keep the on-disk system-matrix cache out of the home directory."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("NANOCT_CACHE", str(tmp_path_factory.mktemp("nanoct-cache")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="session")
+def tiny_store(tmp_path_factory):
+    """A complete tiny-parallel data set of 12 samples (made in-process)."""
+    path = tmp_path_factory.mktemp("data") / "tiny"
+    return generate_dataset(path, get_preset("tiny-parallel"), 12, seed=3, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)

@@ -1,0 +1,70 @@
+"""The command-line interface: every command's help, user errors as one line + exit 2."""
+
+import json
+import sys
+
+import pytest
+
+from nanoct.cli import main
+
+COMMANDS = ["generate", "reconstruct", "info", "show", "evaluate", "reproduce"]
+
+
+def run(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["nanoct", *map(str, args)])
+    code = 0
+    try:
+        main()
+    except SystemExit as exc:
+        code = exc.code or 0
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help(monkeypatch, capsys, command):
+    code, out, _ = run(monkeypatch, capsys, command, "--help")
+    assert code == 0 and "Usage" in out
+
+
+def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
+    d = tmp_path / "d"
+    code, out, _ = run(monkeypatch, capsys, "generate", "--preset", "tiny-fan", "--n", 4, "--out", d, "--workers", 0, "-q", "--split-fractions", "0.5,0.25,0.25")
+    assert code == 0 and "4/4 samples" in out
+    code, out, _ = run(monkeypatch, capsys, "info", d, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["complete"] and info["geometry"]["kind"] == "fan" and info["reconstructions"] == {}
+    code, out, _ = run(monkeypatch, capsys, "info", d)
+    assert "fan beam" in out and "4/4" in out
+    code, _, err = run(monkeypatch, capsys, "evaluate", d)
+    assert code == 2 and "nanoct reconstruct" in err
+    code, out, _ = run(monkeypatch, capsys, "reconstruct", d, "--method", "fbp", "--workers", 0, "-q")
+    assert code == 0 and "reconstructions/fbp" in out
+    code, out, _ = run(monkeypatch, capsys, "evaluate", d, "--json")
+    assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["fbp"]) == {"psnr_mean", "psnr_std", "ssim_mean", "ssim_std", "n"}
+    assert (d / "report" / "evaluation.md").is_file()
+    png = tmp_path / "fig.png"
+    code, _, _ = run(monkeypatch, capsys, "show", d, "--index", 1, "--out", png)
+    assert code == 0 and png.read_bytes()[:4] == b"\x89PNG"
+    code, _, err = run(monkeypatch, capsys, "show", d, "--index", 9, "--out", png)
+    assert code == 2 and "--index 9" in err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["generate", "--preset", "huge-parallel", "--n", 3, "--out", "X"], "unknown preset 'huge-parallel'"),
+        (["generate", "--preset", "tiny-parallel", "--n", 0, "--out", "X"], "--n 0"),
+        (["generate", "--preset", "tiny-parallel", "--n", 3, "--out", "X", "--split-fractions", "1,2"], "three comma-separated"),
+        (["info", "X"], "no nanoct data set"),
+        (["reconstruct", "X", "--method", "fbp"], "no nanoct data set"),
+        (["reconstruct", "X", "--method", "fbp", "--eta-scale", "0.8"], "--eta-scale applies to --method resesop"),
+        (["reproduce", "--preset", "medium-fan"], "unknown preset"),
+    ],
+)
+def test_user_errors(monkeypatch, capsys, tmp_path, args, message):
+    args = [str(tmp_path / "X") if a == "X" else a for a in args]
+    code, _, err = run(monkeypatch, capsys, *args)
+    assert code == 2
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "X").exists()  # nothing half-written

@@ -1,0 +1,129 @@
+import json
+
+import numpy as np
+import pytest
+
+from nanoct.errors import StoreError
+from nanoct.geometry import get_preset
+from nanoct.store import DataStore, split_assignment
+
+
+def test_paper_split_proportions():
+    labels = split_assignment(32095, seed=0)
+    assert np.bincount(labels).tolist() == [30490, 1284, 321]
+    assert not np.array_equal(labels, split_assignment(32095, seed=1))
+    np.testing.assert_array_equal(labels, split_assignment(32095, seed=0))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 99])
+def test_small_splits(n):
+    counts = np.bincount(split_assignment(n, 0), minlength=3)
+    assert counts.sum() == n
+    if n >= 3:
+        assert counts[1] >= 1 and counts[2] >= 1
+
+
+def test_split_validation():
+    with pytest.raises(ValueError, match="sum"):
+        split_assignment(10, 0, (0.5, 0.5, 0.5))
+    with pytest.raises(ValueError, match="positive"):
+        split_assignment(0, 0)
+
+
+def test_layout(tiny_store):
+    g = tiny_store.geometry
+    root = tiny_store.path
+    meta = json.loads((root / "zarr.json").read_text())["attributes"]["nanoct"]
+    assert meta["geometry"] == g.to_dict() and meta["seed"] == 3 and meta["n"] == 12
+    assert "simulation" in meta and "version" in meta
+    import zarr
+
+    grp = zarr.open_group(str(root), mode="r")
+    expect = {
+        "phantoms": ((12, 63, 63), "float32"),
+        "sinograms": ((12, *g.sino_shape), "float32"),
+        "sinograms_eta": ((12, *g.sino_shape), "float32"),
+        "motion": ((12, g.n_angles, 3), "float32"),
+        "eta": ((12, g.n_angles), "float32"),
+        "split": ((12,), "int8"),
+        "done": ((12,), "bool"),
+    }
+    for name, (shape, dtype) in expect.items():
+        assert grp[name].shape == shape and str(grp[name].dtype) == dtype, name
+        if name != "split":
+            assert grp[name].chunks == (1, *shape[1:]), name  # one chunk per sample
+    assert tiny_store.done.all()
+    info = tiny_store.info()
+    assert info["complete"] and info["splits"] == {"train": 6, "val": 3, "test": 3}
+
+
+def test_reconstruction_roundtrip_and_params(tiny_store, tmp_path):
+    store = DataStore.open(tiny_store.path, mode="r+")
+    store.prepare_reconstruction("unit", {"a": 1}, shifts=True)
+    assert "unit" in store.reconstruction_names() and "unit_shifts" not in store.reconstruction_names()
+    img = np.full(store.geometry.image_shape, 0.5, np.float32)
+    store.write_reconstruction("unit", 4, img, np.arange(store.geometry.n_angles, dtype=np.float32))
+    assert store.reconstruction_done("unit").sum() == 1
+    np.testing.assert_array_equal(store.read_reconstruction("unit", [4])[0], img)
+    with pytest.raises(StoreError, match="missing"):
+        store.read_reconstruction("unit", [3, 4])
+    store.prepare_reconstruction("unit", {"a": 1})  # same params: fine, keeps the work
+    assert store.reconstruction_done("unit")[4]
+    with pytest.raises(StoreError, match="other parameters"):
+        store.prepare_reconstruction("unit", {"a": 2})
+    with pytest.raises(StoreError, match="no reconstruction 'nope'"):
+        store.read_reconstruction("nope")
+    store.delete_reconstruction("unit")
+    assert "unit" not in store.reconstruction_names()
+
+
+def test_create_refuses_a_different_dataset(tiny_store):
+    g = get_preset("tiny-parallel")
+    meta = tiny_store.meta
+    with pytest.raises(StoreError, match="differs in: seed"):
+        DataStore.create(tiny_store.path, g, 12, 4, meta["simulation"], tuple(meta["split_fractions"]))
+    with pytest.raises(StoreError, match="geometry"):
+        DataStore.create(tiny_store.path, get_preset("tiny-fan"), 12, 3, meta["simulation"], tuple(meta["split_fractions"]))
+    same = DataStore.create(tiny_store.path, g, 12, 3, meta["simulation"], tuple(meta["split_fractions"]))
+    assert same.done.all()
+
+
+def test_missing_foreign_and_damaged_stores(tmp_path, tiny_store):
+    with pytest.raises(StoreError, match="no nanoct data set"):
+        DataStore.open(tmp_path / "nothing")
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(StoreError, match="not a nanoct data set"):
+        DataStore.create(foreign, get_preset("tiny-parallel"), 2, 0, {})
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]  # untouched
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "zarr.json").write_text("{not json")
+    with pytest.raises(StoreError, match="damaged"):
+        DataStore.open(broken)
+
+
+def test_damaged_chunk_is_reported(tmp_path):
+    from nanoct.generate import generate_dataset
+
+    store = generate_dataset(tmp_path / "d", get_preset("tiny-parallel"), 2, workers=0, progress=False)
+    chunk = next((store.path / "sinograms" / "c").rglob("*"))
+    while chunk.is_dir():
+        chunk = next(chunk.iterdir())
+    chunk.write_bytes(b"garbage")
+    with pytest.raises(StoreError, match="cannot be read"):
+        for i in range(2):
+            store.read_sample(i)
+
+
+def test_no_leftovers_when_creation_fails(tmp_path, monkeypatch):
+    import nanoct.store as store_mod
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(store_mod, "split_assignment", boom)
+    with pytest.raises(RuntimeError):
+        DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 3, 0, {})
+    assert list(tmp_path.iterdir()) == []
