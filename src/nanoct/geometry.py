@@ -18,7 +18,7 @@ Conventions (the one place they are defined; see ``docs/conventions.md``)
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -73,8 +73,14 @@ class Geometry:
             raise ValueError(f"geometry kind {self.kind!r} is unknown; use 'parallel' or 'fan'")
         for name in ("n", "n_angles", "n_det"):
             value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or value <= 0:
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value <= 0:
                 raise ValueError(f"{name}={value!r} must be a positive integer")
+            object.__setattr__(self, name, int(value))  # plain ints: JSON and cache keys
+        for name in ("det_spacing", "angle_range", "source_radius", "detector_radius"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ValueError(f"{name}={value!r} must be a number")
+            object.__setattr__(self, name, float(value))
         if not self.det_spacing > 0:
             raise ValueError(f"det_spacing={self.det_spacing!r} must be > 0")
         if not 0 < self.angle_range <= 2 * math.pi + 1e-12:
@@ -112,9 +118,13 @@ class Geometry:
         return (self.source_radius + self.detector_radius) / self.source_radius
 
     def covers_image(self) -> bool:
-        """Whether every ray through the (circumscribed) image disc hits the detector."""
+        """Whether every ray through the image is measured.
+
+        True when the shadow of the image's circumscribed circle lies within the centres of
+        the outermost detector pixels, so these pixels only see rays that miss the image.
+        """
         radius = (self.n / 2) * math.sqrt(2.0)
-        half_det = self.n_det * self.det_spacing / 2
+        half_det = (self.n_det - 1) * self.det_spacing / 2
         if self.kind == "parallel":
             return half_det >= radius
         src = self.source_radius
@@ -149,12 +159,16 @@ def _scaled(kind: Kind, n: int) -> Geometry:
     n_angles = max(4, round(p["n_angles"] * scale))
     n_det = _odd_at_least(p["n_det"] * scale) if n != _PAPER_N else p["n_det"]
     if kind == "parallel":
-        return Geometry("parallel", n, n_angles, n_det)
-    radius = p["source_radius"] * scale
-    # The paper gives only the source radius. We put the detector as far behind the axis as
-    # the source is in front of it (magnification 2) with 1 px detector pixels: then the
-    # 723 pixels just cover the image's circumscribed circle, as the paper requires.
-    return Geometry("fan", n, n_angles, n_det, 1.0, 2 * math.pi, radius, radius)
+        geometry = Geometry("parallel", n, n_angles, n_det)
+    else:
+        radius = p["source_radius"] * scale
+        # The paper gives only the source radius. We put the detector as far behind the axis
+        # as the source is in front of it (magnification 2) with 1 px detector pixels: then
+        # the 723 pixels just cover the image's circumscribed circle, as the paper requires.
+        geometry = Geometry("fan", n, n_angles, n_det, 1.0, 2 * math.pi, radius, radius)
+    while not geometry.covers_image():  # rounding can leave the corners' shadow uncovered
+        geometry = replace(geometry, n_det=geometry.n_det + 2)
+    return geometry
 
 
 PRESETS: dict[str, Geometry] = {

@@ -125,7 +125,7 @@ class RayTransform:
                 f"projector {self.projector!r} is not available for {geometry.kind} beam; "
                 f"use one of {_PROJECTORS[geometry.kind]}"
             )
-        if not isinstance(oversample, (int, np.integer)) or oversample < 1:
+        if isinstance(oversample, (bool, np.bool_)) or not isinstance(oversample, (int, np.integer)) or oversample < 1:
             raise ValueError(f"oversample={oversample!r} must be a positive integer")
         self.oversample = int(oversample)
         self.motion = _check_motion(geometry, motion)

@@ -1,0 +1,136 @@
+"""Kaczmarz (ART) kernel: numba vs numpy oracle, convergence, view orders, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from nanoct.geometry import Geometry, get_preset
+from nanoct.operators import RayTransform, system_matrix
+from nanoct.phantoms import random_phantom
+from nanoct.recon.kaczmarz import kaczmarz, kaczmarz_reference, view_order
+
+SMALL = Geometry("parallel", 6, 5, 7)  # 35 rays x 36 pixels
+
+
+def random_csr(geometry: Geometry, seed: int = 0) -> sp.csr_matrix:
+    """Random sparse float32 matrix with an empty row and a row of explicit zeros."""
+    rng = np.random.default_rng(seed)
+    m, n = geometry.n_angles * geometry.n_det, geometry.n * geometry.n
+    dense = rng.uniform(0.1, 1.0, (m, n)) * (rng.uniform(size=(m, n)) < 0.3)
+    dense[3] = 0.0
+    mat = sp.csr_matrix(dense, dtype=np.float32)
+    # row 10 holds stored zeros only
+    row = sp.csr_matrix((np.zeros(3, np.float32), np.array([1, 4, 9]), np.array([0, 3])), shape=(1, n))
+    mat = sp.vstack([mat[:10], row, mat[11:]]).tocsr()
+    mat.sort_indices()
+    assert mat[10].nnz == 3 and mat[3].nnz == 0
+    return mat
+
+
+def consistent(name: str, seed: int = 5):
+    g = get_preset(name)
+    x = random_phantom(np.random.default_rng(seed), g.n).astype(np.float32)
+    y = (system_matrix(g) @ x.ravel()).reshape(g.sino_shape)
+    return g, x, y
+
+
+def psnr(x, gt):
+    return 10 * np.log10((gt.max() - gt.min()) ** 2 / np.mean((x - gt) ** 2))
+
+
+@pytest.mark.parametrize("order", ["sequential", "random", "golden"])
+@pytest.mark.parametrize("omega", [1.0, 0.3, 1.7])
+def test_kernel_matches_numpy_reference(order, omega):
+    mat = random_csr(SMALL)
+    y = np.random.default_rng(1).normal(size=SMALL.sino_shape).astype(np.float32)
+    res = kaczmarz(SMALL, y, n_sweeps=3, relaxation=omega, order=order, nonneg=False, seed=7, matrix=mat)
+    ref = np.zeros(36)
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        kaczmarz_reference(mat, y.ravel().astype(np.float64), ref, view_order(5, order, rng), 7, omega)
+    assert np.all(np.isfinite(res.image))
+    np.testing.assert_allclose(res.image.ravel(), ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())
+
+
+def test_zero_rows_skipped_no_nan():
+    mat = random_csr(SMALL)
+    y = np.ones(SMALL.sino_shape, np.float32)
+    res = kaczmarz(SMALL, y, n_sweeps=2, nonneg=False, matrix=mat)
+    assert np.all(np.isfinite(res.image)) and np.all(np.isfinite(res.residuals))
+
+
+def test_nonneg_projection():
+    mat = random_csr(SMALL)
+    y = np.random.default_rng(2).normal(size=SMALL.sino_shape).astype(np.float32)
+    free = kaczmarz(SMALL, y, n_sweeps=2, nonneg=False, matrix=mat).image
+    pos = kaczmarz(SMALL, y, n_sweeps=2, nonneg=True, matrix=mat).image
+    assert free.min() < 0 and pos.min() >= 0
+
+
+@pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
+def test_converges_on_consistent_data(name):
+    g, x, y = consistent(name)
+    res = kaczmarz(g, y, n_sweeps=15, relaxation=1.0)
+    r = np.asarray(res.residuals)
+    assert res.stop_reason == "max_sweeps" and len(r) == 15
+    assert np.all(np.diff(r) <= 1e-3 * r[0])  # (numerically) non-increasing
+    assert r[-1] < 0.02 * np.linalg.norm(y)
+    assert psnr(res.image, x) > 30
+
+
+def test_accepts_unperturbed_operator_and_rejects_moved_one():
+    g, x, y = consistent("tiny-parallel")
+    a = kaczmarz(RayTransform(g), y, n_sweeps=1).image
+    b = kaczmarz(g, y, n_sweeps=1).image
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="without motion"):
+        kaczmarz(RayTransform(g, np.ones((g.n_angles, 3))), y)
+
+
+def test_callback_stops():
+    g, x, y = consistent("tiny-parallel")
+    res = kaczmarz(g, y, n_sweeps=10, callback=lambda i, im: i == 2)
+    assert res.stop_reason == "callback" and res.n_sweeps == 3
+
+
+def test_view_orders():
+    rng = np.random.default_rng(0)
+    for order in ("sequential", "random", "golden"):
+        v = view_order(140, order, rng)
+        assert sorted(v.tolist()) == list(range(140))
+    gold = view_order(140, "golden")
+    assert np.min(np.abs(np.diff(gold))) >= 140 // 5  # consecutive views are far apart
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(relaxation=0.0), "relaxation"),
+        (dict(relaxation=2.0), "relaxation"),
+        (dict(relaxation=-0.5), "relaxation"),
+        (dict(n_sweeps=0), "n_sweeps"),
+        (dict(order="spiral"), "order"),
+        (dict(x0=np.zeros((3, 3))), "x0"),
+    ],
+)
+def test_bad_parameters(kwargs, match):
+    g, x, y = consistent("tiny-parallel")
+    with pytest.raises(ValueError, match=match):
+        kaczmarz(g, y, **kwargs)
+
+
+def test_bad_sinogram():
+    g, x, y = consistent("tiny-parallel")
+    bad = y.copy()
+    bad[3, 4] = np.nan
+    with pytest.raises(ValueError, match="sino"):
+        kaczmarz(g, bad)
+    bad[3, 4] = np.inf
+    with pytest.raises(ValueError, match="sino"):
+        kaczmarz(g, bad)
+    with pytest.raises(ValueError, match="sino"):
+        kaczmarz(g, y[:, :-1])
+    with pytest.raises(ValueError, match="matrix"):
+        kaczmarz(SMALL, np.zeros(SMALL.sino_shape), matrix=random_csr(SMALL)[:-1])
