@@ -15,10 +15,10 @@ __all__ = ["evaluate_store", "format_table", "write_report_tables"]
 
 
 def evaluate_store(store: DataStore, split: str = "test", names: list[str] | None = None) -> dict[str, dict[str, Any]]:
-    """PSNR/SSIM (mean, std, n) of every reconstruction present, over a split.
+    """PSNR/SSIM (mean, std, n) of reconstructions over a split.
 
-    Reconstructions that do not cover the whole split are skipped (listed under
-    ``"incomplete"`` in :func:`write_report_tables`'s JSON).
+    ``names`` gives the reconstructions and their order (default: all present, sorted);
+    those that do not cover the whole split are left out.
 
     Raises
     ------

@@ -14,6 +14,16 @@ from .store import DataStore
 __all__ = ["compare_reconstructions", "show_sample"]
 
 
+def _save(fig, out: str | os.PathLike[str], dpi: int) -> Path:
+    """Write a figure as PNG atomically (temporary name, then rename)."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp.png")
+    fig.savefig(tmp, dpi=dpi)
+    os.replace(tmp, out)
+    return out
+
+
 def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Path:
     """Write a figure of one sample, like the paper's figures 1-3.
 
@@ -68,12 +78,7 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     image(fig.add_subplot(grid[1, 2]), fbp_eta, "FBP of y_eta (no motion)", vmin=0, vmax=1)
     image(fig.add_subplot(grid[1, 3]), fbp_meas, "FBP of y (motion artefacts)", vmin=0, vmax=1)
     fig.suptitle(f"{store.path.name}: {geometry.kind} beam, N={geometry.n}, K={geometry.n_angles}, L={geometry.n_det}")
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=100)
-    os.replace(tmp, out)
-    return out
+    return _save(fig, out, dpi=100)
 
 
 def compare_reconstructions(store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]) -> Path:
@@ -106,9 +111,4 @@ def compare_reconstructions(store: DataStore, names: list[str], indices: list[in
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=90)
-    os.replace(tmp, out)
-    return out
+    return _save(fig, out, dpi=90)

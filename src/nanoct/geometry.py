@@ -23,6 +23,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .validation import check_int
+
 __all__ = ["Geometry", "PRESETS", "get_preset", "preset_names"]
 
 Kind = Literal["parallel", "fan"]
@@ -71,11 +73,8 @@ class Geometry:
     def __post_init__(self) -> None:
         if self.kind not in ("parallel", "fan"):
             raise ValueError(f"geometry kind {self.kind!r} is unknown; use 'parallel' or 'fan'")
-        for name in ("n", "n_angles", "n_det"):
-            value = getattr(self, name)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value <= 0:
-                raise ValueError(f"{name}={value!r} must be a positive integer")
-            object.__setattr__(self, name, int(value))  # plain ints: JSON and cache keys
+        for name in ("n", "n_angles", "n_det"):  # plain ints: JSON and cache keys
+            object.__setattr__(self, name, check_int(getattr(self, name), name, 1))
         for name in ("det_spacing", "angle_range", "source_radius", "detector_radius"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .validation import check_int, check_rng
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -165,21 +167,6 @@ class MotionParams:
         return cls(**values)
 
 
-def _check_n_angles(n_angles: object) -> int:
-    if isinstance(n_angles, bool) or not isinstance(n_angles, (int, np.integer)) or n_angles < 1:
-        raise ValueError(f"n_angles={n_angles!r} must be a positive integer (number of views)")
-    return int(n_angles)
-
-
-def _check_rng(rng: object) -> np.random.Generator:
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
-            "build one with numpy.random.default_rng((seed, index))"
-        )
-    return rng
-
-
 def sample_motion_components(
     rng: np.random.Generator, n_angles: int, params: MotionParams
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -209,8 +196,8 @@ def sample_motion_components(
         Gaussian jitter ``(t1 [px], t2 [px], theta [deg])``, zero mean, one standard deviation
         ``|N(jitter_std_mean, jitter_std_std^2)|`` per component for the whole sample.
     """
-    rng = _check_rng(rng)
-    n_angles = _check_n_angles(n_angles)
+    rng = check_rng(rng)
+    n_angles = check_int(n_angles, "n_angles", 1)
     if not isinstance(params, MotionParams):
         raise ValueError(f"params must be a MotionParams, got {type(params).__name__}")
     m = params.n_sinusoids
@@ -266,7 +253,7 @@ def sample_motion(rng: np.random.Generator, n_angles: int, params: MotionParams)
 
 def no_motion(n_angles: int) -> np.ndarray:
     """Motion array of a static object: zeros of shape (K, 3), float32."""
-    return np.zeros((_check_n_angles(n_angles), 3), dtype=np.float32)
+    return np.zeros((check_int(n_angles, "n_angles", 1), 3), dtype=np.float32)
 
 
 def rotation_matrix(theta_deg: float | np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .geometry import Geometry
-from .validation import check_array
+from .validation import check_array, check_int
 
 __all__ = [
     "RayTransform",
@@ -125,9 +125,7 @@ class RayTransform:
                 f"projector {self.projector!r} is not available for {geometry.kind} beam; "
                 f"use one of {_PROJECTORS[geometry.kind]}"
             )
-        if isinstance(oversample, (bool, np.bool_)) or not isinstance(oversample, (int, np.integer)) or oversample < 1:
-            raise ValueError(f"oversample={oversample!r} must be a positive integer")
-        self.oversample = int(oversample)
+        self.oversample = check_int(oversample, "oversample", 1)
         self.motion = _check_motion(geometry, motion)
         n, m = geometry.n, geometry.n * self.oversample
         self._vol = astra.create_vol_geom(m, m, -n / 2, n / 2, -n / 2, n / 2)

@@ -27,6 +27,8 @@ from typing import Literal
 
 import numpy as np
 
+from .validation import check_int, check_rng
+
 __all__ = [
     "Shape",
     "PhantomSpec",
@@ -150,23 +152,6 @@ class PhantomSpec:
         return self.shapes[1:]
 
 
-def _check_int(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}={value!r} must be an integer >= {minimum}; pass an int")
-    if value < minimum:
-        raise ValueError(f"{name}={value!r} is too small; use an integer >= {minimum}")
-    return int(value)
-
-
-def _check_rng(rng: object) -> np.random.Generator:
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
-            "build one with numpy.random.default_rng((seed, index))"
-        )
-    return rng
-
-
 def _random_half_axes(
     rng: np.random.Generator, kind: ShapeKind, extent: float
 ) -> tuple[float, float]:
@@ -227,8 +212,8 @@ def random_phantom_spec(rng: np.random.Generator, n: int) -> PhantomSpec:
         Main shape inside the disc of radius ``FOV_FRACTION * (n-1)/2`` and 0-3 sub-shapes
         strictly inside the main shape.
     """
-    rng = _check_rng(rng)
-    n = _check_int(n, "n", MIN_SIZE)
+    rng = check_rng(rng)
+    n = check_int(n, "n", MIN_SIZE)
     fov_radius = FOV_FRACTION * (n - 1) / 2
     kind = _random_kind(rng)
     extent = rng.uniform(*_MAIN_EXTENT) * fov_radius
@@ -265,8 +250,8 @@ def pixel_centers(n: int, oversample: int = 1) -> tuple[np.ndarray, np.ndarray]:
     r2 : ndarray of shape (n*oversample, 1)
         Vertical coordinate of each fine row (decreasing with the row index).
     """
-    n = _check_int(n, "n", 1)
-    oversample = _check_int(oversample, "oversample", 1)
+    n = check_int(n, "n", 1)
+    oversample = check_int(oversample, "oversample", 1)
     fine = (np.arange(n * oversample) + 0.5) / oversample - n / 2
     return fine[np.newaxis, :], -fine[:, np.newaxis]
 
@@ -289,8 +274,8 @@ def rasterize(spec: PhantomSpec, n: int, oversample: int = 1) -> np.ndarray:
     ndarray of shape (n*oversample, n*oversample), float32
         Point samples of the phantom; ``downsample(result, oversample)`` is the pixel image.
     """
-    n = _check_int(n, "n", MIN_SIZE)
-    oversample = _check_int(oversample, "oversample", 1)
+    n = check_int(n, "n", MIN_SIZE)
+    oversample = check_int(oversample, "oversample", 1)
     r1, r2 = pixel_centers(n, oversample)
     image = np.zeros((n * oversample, n * oversample), dtype=np.float32)
     for shape in spec.shapes:
@@ -313,7 +298,7 @@ def downsample(fine: np.ndarray, oversample: int) -> np.ndarray:
     ndarray of shape (n, m), float32
         Block means.
     """
-    oversample = _check_int(oversample, "oversample", 1)
+    oversample = check_int(oversample, "oversample", 1)
     fine = np.asarray(fine)
     if fine.ndim != 2 or fine.shape[0] % oversample or fine.shape[1] % oversample:
         raise ValueError(
@@ -345,6 +330,6 @@ def random_phantom(rng: np.random.Generator, n: int, *, oversample: int = 1) -> 
     ndarray of shape (n*oversample, n*oversample), float32
         Values in [0, 1]; ``downsample(result, oversample)`` is the ground-truth phantom.
     """
-    n = _check_int(n, "n", MIN_SIZE)
-    oversample = _check_int(oversample, "oversample", 1)
+    n = check_int(n, "n", MIN_SIZE)
+    oversample = check_int(oversample, "oversample", 1)
     return rasterize(random_phantom_spec(rng, n), n, oversample)

@@ -92,7 +92,7 @@ def reproduce_study(
     for name, (method, params) in recons.items():
         reconstruct_dataset(data, method, params=params, name=name, workers=workers, scheduler=scheduler, progress=progress)
     report_dir = out / "report"
-    results = evaluate_store(store, "test")
+    results = evaluate_store(store, "test", names=list(recons))
     write_report_tables(store, results, report_dir, "test")
     test = [int(i) for i in store.indices("test")[:3]]
     compare_reconstructions(store, list(recons), test, report_dir / "reconstructions.png")

@@ -23,6 +23,7 @@ from .motion import MotionParams, sample_motion
 from .operators import RayTransform
 from .phantoms import downsample, random_phantom
 from .store import Sample
+from .validation import check_int
 
 __all__ = ["SimulationConfig", "model_error", "sample_rngs", "simulate_sample"]
 
@@ -55,8 +56,7 @@ class SimulationConfig:
     noise_std: float = 0.0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.oversample, (int, np.integer)) or self.oversample < 1:
-            raise ValueError(f"oversample={self.oversample!r} must be a positive integer")
+        object.__setattr__(self, "oversample", check_int(self.oversample, "oversample", 1))
         if not (np.isfinite(self.noise_std) and self.noise_std >= 0):
             raise ValueError(f"noise_std={self.noise_std!r} must be a finite number >= 0")
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_array"]
+__all__ = ["check_array", "check_int", "check_rng"]
 
 
 def check_array(
@@ -57,3 +57,34 @@ def check_array(
         raise ValueError(f"{name} contains {bad} NaN or infinite value(s); clean or regenerate it")
     target = dtype if dtype is not None else (arr.dtype if arr.dtype.kind == "f" else np.float64)
     return np.ascontiguousarray(arr, dtype=target)
+
+
+def check_int(value: Any, name: str, minimum: int) -> int:
+    """Validate an integer argument (bools and floats rejected) and return it as ``int``.
+
+    Raises
+    ------
+    ValueError
+        If ``value`` is not an integer or is below ``minimum``; the message names it.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name}={value!r} must be an integer >= {minimum}; pass an int")
+    if value < minimum:
+        raise ValueError(f"{name}={value!r} is too small; use an integer >= {minimum}")
+    return int(value)
+
+
+def check_rng(rng: Any) -> np.random.Generator:
+    """Require a ``numpy.random.Generator`` (never global random state).
+
+    Raises
+    ------
+    TypeError
+        For anything else.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
+            "build one with numpy.random.default_rng((seed, index))"
+        )
+    return rng
