@@ -7,9 +7,10 @@ Usage::
 
 Measures, on one core (threads pinned to 1):
 
-* one Kaczmarz sweep (numba) vs ASTRA's CPU ``ART`` over the same rays, vs streaming the CSR
-  matrix once (numba ``||A x - y||`` pass and scipy ``A @ x``), vs a straightforward numpy row
-  loop (a few hundred rows timed, extrapolated to all rows);
+* one Kaczmarz sweep (numba) vs ASTRA's CPU ``ART`` over the same rays, vs reading the CSR
+  arrays once (``max``: the memory-bandwidth floor) and streaming the CSR matrix once (numba
+  ``||A x - y||`` pass and scipy ``A @ x``), vs a straightforward numpy row loop (a few hundred
+  rows timed, extrapolated to all rows);
 * full RESESOP (20 sweeps) and Dremel (32 iterations) per sample, with peak memory
   (tracemalloc peak of Python/numpy allocations during the call, and the process max RSS),
   vs a straightforward numpy implementation of the same algorithm (a few hundred rays /
@@ -40,6 +41,7 @@ from nanoct.recon.kaczmarz import (  # noqa: E402
     kaczmarz_reference,
     residual_norm,
     row_norms_squared,
+    unsigned_indices,
     view_order,
 )
 from nanoct.recon.resesop import resesop, resesop_reference  # noqa: E402
@@ -157,18 +159,22 @@ def main() -> None:
         print(f"\n=== {name}: N={g.n}, K={k_all}, L={l_all}, rays={n_rays}, nnz={mat.nnz / 1e6:.1f} M, "
               f"matrix load/build {t_mat:.2f} s")
 
-        # ---- one Kaczmarz sweep
+        # ---- one Kaczmarz sweep (unsigned column indices, as kaczmarz() passes them)
+        ind = unsigned_indices(mat)
         x = np.zeros(mat.shape[1], np.float32)
         views = view_order(k_all, "random", np.random.default_rng(0))
-        _kaczmarz_sweep(mat.indptr, mat.indices, mat.data, norms, yf, x, views, l_all, 1.0)  # warm up / compile
+        _kaczmarz_sweep(mat.indptr, ind, mat.data, norms, yf, x, views, l_all, 1.0)  # warm up / compile
 
         def sweep():
-            _kaczmarz_sweep(mat.indptr, mat.indices, mat.data, norms, yf, x, views, l_all, 1.0)
+            _kaczmarz_sweep(mat.indptr, ind, mat.data, norms, yf, x, views, l_all, 1.0)
 
         t_sweep = timeit(sweep, args.repeat)
-        t_stream = timeit(lambda: residual_norm(mat.indptr, mat.indices, mat.data, yf, x), args.repeat)
+        t_bw = timeit(lambda: (mat.data.max(), ind.max()), args.repeat)
+        t_stream = timeit(lambda: residual_norm(mat.indptr, ind, mat.data, yf, x), args.repeat)
         t_spmv = timeit(lambda: mat @ x, args.repeat)
+        gb = (mat.data.nbytes + ind.nbytes) / 1e9
         print(f"Kaczmarz sweep (numba):            {t_sweep * 1e3:8.1f} ms")
+        print(f"read data + indices once (max):    {t_bw * 1e3:8.1f} ms  ({gb / t_bw:.1f} GB/s) -> sweep / read = {t_sweep / t_bw:.2f}")
         print(f"stream CSR once (numba A x - y):   {t_stream * 1e3:8.1f} ms  -> sweep / stream = {t_sweep / t_stream:.2f}")
         print(f"scipy A @ x:                        {t_spmv * 1e3:8.1f} ms  -> sweep / spmv = {t_sweep / t_spmv:.2f}")
         if not args.skip_astra:

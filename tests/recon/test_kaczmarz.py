@@ -134,3 +134,21 @@ def test_bad_sinogram():
         kaczmarz(g, y[:, :-1])
     with pytest.raises(ValueError, match="matrix"):
         kaczmarz(SMALL, np.zeros(SMALL.sino_shape), matrix=random_csr(SMALL)[:-1])
+
+
+def test_row_dot_and_residual_norm_match_float64():
+    """float32-accumulated row products agree with a float64 dot to float32 rounding."""
+    from nanoct.recon.kaczmarz import residual_norm, row_dot, unsigned_indices
+
+    g = get_preset("tiny-parallel")
+    mat = system_matrix(g)
+    ind = unsigned_indices(mat)
+    assert ind.dtype.kind == "u" and np.shares_memory(ind, mat.indices)
+    x = np.random.default_rng(3).uniform(0, 1, mat.shape[1]).astype(np.float32)
+    ref = mat.astype(np.float64) @ x.astype(np.float64)
+    got = np.array([row_dot(ind, mat.data, x, mat.indptr[r], mat.indptr[r + 1]) for r in range(mat.shape[0])])
+    np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
+    y = (ref + np.random.default_rng(4).normal(size=ref.size)).astype(np.float32)
+    exact = np.linalg.norm(ref - y.astype(np.float64))
+    for indices in (mat.indices, ind):
+        assert abs(residual_norm(mat.indptr, indices, mat.data, y, x) - exact) <= 1e-5 * exact

@@ -15,6 +15,13 @@ For each view ``k`` (in the chosen view order) one iteration does
    (:func:`shift_cross_corr`: cross-correlation of the 2x upsampled, mean-subtracted,
    zero-padded projections, cropped and weighted against the zero-padding bias).
 
+A whole iteration runs in one compiled (numba) call: the view step over the cached float32
+CSR matrix (row products accumulated in float32, see
+:func:`~nanoct.recon.kaczmarz.row_dot`) and the shift estimate, whose correlation is computed
+directly for every lag of the cropped window (``n_SR`` lags, ``O(n_SR^2)`` multiply-adds,
+vectorised) instead of by the FFT of :func:`shift_cross_corr`; both give the same arg-max up
+to rounding (checked on random signals in the tests).
+
 Sign convention of the shifts
 -----------------------------
 The returned ``motion[k]`` estimates the object shift ``t_k . e_u`` along the detector axis
@@ -59,6 +66,8 @@ from .kaczmarz import (
     check_relaxation,
     prepare_problem,
     resolve_geometry,
+    row_dot,
+    unsigned_indices,
     view_order,
 )
 from .result import ReconResult
@@ -109,6 +118,9 @@ class _XCorr:
         elif self.mode == "overlap":
             c = c * self.weight
         i = int(np.argmax(c))
+        zero = int(np.flatnonzero(self.lags == 0)[0])
+        if c[i] <= c[zero]:  # ties (e.g. an all-zero model projection) mean no evidence of a shift
+            i = zero
         lag = float(self.lags[i])
         if subpixel and 0 < i < c.size - 1:
             # parabola through the peak and its neighbours (not in the paper)
@@ -183,14 +195,16 @@ def _interp_weights(pos, n):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg,
                p, z, g):  # pragma: no cover - compiled
-    """One Dremel view step in place; fills ``z`` (model projection) and returns ``||z - y_k||^2``."""
+    """One Dremel view step in place; fills ``z`` (model projection) and returns ``||z - y_k||^2``.
+
+    Pass ``indices`` as unsigned integers (:func:`~nanoct.recon.kaczmarz.unsigned_indices`).
+    The forward projection accumulates in float32 (:func:`~nanoct.recon.kaczmarz.row_dot`)
+    and each pixel's increment ``c * a_rj / C_j`` is formed in float32.
+    """
     base = k * n_det
     for l in range(n_det):
         r = base + l
-        s = 0.0
-        for q in range(indptr[r], indptr[r + 1]):
-            s += data[q] * x[indices[q]]
-        p[l] = s
+        p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
     res2 = 0.0
     for l in range(n_det):
         g[l] = 0.0
@@ -214,21 +228,107 @@ def _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega,
             if 0 <= i0 + 1 < n_det:
                 g[i0 + 1] += w1 * e
     for l in range(n_det):
-        c = g[l]
-        if c == 0.0:
+        if g[l] == 0.0:
             continue
-        c = -omega * c
+        c = np.float32(-omega * g[l])
         r = base + l
+        idx = indices[indptr[r]:indptr[r + 1]]
+        a = data[indptr[r]:indptr[r + 1]]
         if nonneg:
-            for q in range(indptr[r], indptr[r + 1]):
-                j = indices[q]
-                v = x[j] + np.float32(c * data[q] * inv_col[j])
-                x[j] = v if v > 0.0 else np.float32(0.0)
+            for q in range(idx.shape[0]):
+                j = idx[q]
+                v = x[j] + c * a[q] * inv_col[j]
+                x[j] = v if v > np.float32(0.0) else np.float32(0.0)
         else:
-            for q in range(indptr[r], indptr[r + 1]):
-                j = indices[q]
-                x[j] += np.float32(c * data[q] * inv_col[j])
+            for q in range(idx.shape[0]):
+                j = idx[q]
+                x[j] += c * a[q] * inv_col[j]
     return res2
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "nsz", "contract"})
+def _lag_dot(a, b, n):  # pragma: no cover - compiled
+    """``sum(a[m] * b[m] for m in range(n))`` (vectorised float64; contiguous slices)."""
+    s = 0.0
+    for m in range(n):
+        s += a[m] * b[m]
+    return s
+
+
+@numba.njit(cache=True, nogil=True)
+def _upsample_centre(signal, f_sr, out):  # pragma: no cover - compiled
+    """``np.interp(arange(n * f_sr) / f_sr, arange(n), signal)`` minus its mean, into ``out``."""
+    n = signal.shape[0]
+    tot = 0.0
+    for m in range(out.shape[0]):
+        pos = m / f_sr
+        j = int(math.floor(pos))
+        if j >= n - 1:
+            v = signal[n - 1]
+        else:
+            v = (signal[j + 1] - signal[j]) * (pos - j) + signal[j]
+        out[m] = v
+        tot += v
+    mean = tot / out.shape[0]
+    for m in range(out.shape[0]):
+        out[m] -= mean
+    return mean
+
+
+@numba.njit(cache=True, nogil=True)
+def _xcorr_shift(zc, zmean, yc, ymean, f_sr, mode, subpixel, c):  # pragma: no cover - compiled
+    """Arg-max lag / ``f_sr`` of the cropped, bias-corrected correlation (as :meth:`_XCorr.shift`).
+
+    ``zc``, ``yc``: up-sampled, mean-subtracted signals (:func:`_upsample_centre`) of length
+    ``n_SR``; ``mode`` 0 = "additive", 1 = "overlap", 2 = "none"; ``c``: work array (n_SR,).
+    The correlation ``c_l = sum_m yc[m] zc[m + l]`` over the overlap of the zero-padded
+    signals is computed directly for every lag ``-floor(n_SR/2) <= l < n_SR - floor(n_SR/2)``
+    (the same values as the zero-padded FFT correlation, up to rounding).
+    """
+    n_sr = zc.shape[0]
+    half = n_sr // 2
+    mm = zmean * ymean
+    best = 0
+    for i in range(n_sr):
+        lag = i - half
+        if lag >= 0:
+            v = _lag_dot(yc, zc[lag:], n_sr - lag)
+        else:
+            v = _lag_dot(yc[-lag:], zc, n_sr + lag)
+        a = abs(lag)
+        if mode == 0:
+            v = v + a * mm
+        elif mode == 1:
+            v = v * (n_sr / (n_sr - a))
+        c[i] = v
+        if v > c[best]:
+            best = i
+    if c[best] <= c[half]:  # ties (e.g. an all-zero model projection): no evidence of a shift
+        best = half
+    lag = float(best - half)
+    if subpixel and 0 < best < n_sr - 1:
+        den = c[best - 1] - 2.0 * c[best] + c[best + 1]
+        if den < 0.0:
+            lag += min(max(0.5 * (c[best - 1] - c[best + 1]) / den, -0.5), 0.5)
+    return lag / f_sr
+
+
+@numba.njit(cache=True, nogil=True)
+def _dremel_sweep(indptr, indices, data, rowsum, inv_col, y, x, views, n_det, shifts, det_per_obj,
+                  omega, nonneg, correct, lam, f_sr, mode, subpixel, ycorr, ymean,
+                  p, z, g, zc, c):  # pragma: no cover - compiled
+    """One Dremel iteration (view steps and shift updates) in place; returns the summed ``||z - y_k||^2``."""
+    run = 0.0
+    for i in range(views.shape[0]):
+        k = views[i]
+        d = shifts[k] * det_per_obj
+        run += _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg,
+                          p, z, g)
+        if correct:
+            zmean = _upsample_centre(z, f_sr, zc)
+            sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
+            shifts[k] += lam * sigma / det_per_obj
+    return run
 
 
 @numba.njit(cache=True, nogil=True)
@@ -240,10 +340,7 @@ def _shifted_residual(indptr, indices, data, y, x, n_det, dshift, p):  # pragma:
         base = k * n_det
         for l in range(n_det):
             r = base + l
-            s = 0.0
-            for q in range(indptr[r], indptr[r + 1]):
-                s += data[q] * x[indices[q]]
-            p[l] = s
+            p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
         for l in range(n_det):
             i0, w0, w1 = _interp_weights(l + dshift[k], n_det)
             zz = 0.0
@@ -419,32 +516,30 @@ def dremel(
         shifts = check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
     rowsum, inv_col = _row_col_sums(mat, n_views)
     det_per_obj = geometry.magnification / geometry.det_spacing  # detector px per object px
-    xc = _XCorr(n_det, int(f_sr), weighting)
+    f_sr = int(f_sr)
+    n_sr = f_sr * n_det
     y2 = y.reshape(n_views, n_det)
-    y_conj = []
+    ycorr = np.empty((n_views, n_sr))  # up-sampled, mean-subtracted measured projections
+    ymean = np.empty(n_views)
     for k in range(n_views):
-        spec, mean = xc.spectrum(y2[k].astype(np.float64))
-        y_conj.append((np.conj(spec), mean))
+        ymean[k] = _upsample_centre(y2[k].astype(np.float64), f_sr, ycorr[k])
+    mode = WEIGHTINGS.index(weighting)
+    indices = unsigned_indices(mat)
     rng = np.random.default_rng(seed)
     p = np.zeros(n_det)
     z = np.zeros(n_det)
     g = np.zeros(n_det)
+    zc = np.zeros(n_sr)
+    c = np.zeros(n_sr)
     residuals: list[float] = []
     stop = "max_iter"
-    args = (mat.indptr, mat.indices, mat.data, rowsum, inv_col, y, x)
     for it in range(n_iter):
-        correct = it >= correction_start
         views = view_order(n_views, order, rng)
-        run = 0.0
-        for k in views:
-            k = int(k)
-            d = shifts[k] * det_per_obj
-            run += _view_step(*args, k, n_det, d, omega, nonneg, p, z, g)
-            if correct:
-                sigma = xc.shift(xc.spectrum(z), y_conj[k], subpixel)
-                shifts[k] += lam * sigma / det_per_obj
+        run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, views, n_det, shifts,
+                            det_per_obj, omega, bool(nonneg), it >= correction_start, lam, f_sr, mode,
+                            bool(subpixel), ycorr, ymean, p, z, g, zc, c)
         if residual == "exact":
-            residuals.append(float(_shifted_residual(mat.indptr, mat.indices, mat.data, y, x, n_det,
+            residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det,
                                                      shifts * det_per_obj, p)))
         else:
             residuals.append(math.sqrt(run))

@@ -183,14 +183,15 @@ def prepare_problem(
 
 @numba.njit(cache=True, nogil=True)
 def residual_norm(indptr, indices, data, y, x):  # pragma: no cover - compiled
-    """``||A x - y||_2`` for a CSR matrix given by its arrays (numba)."""
+    """``||A x - y||_2`` for a CSR matrix given by its arrays (numba).
+
+    Row products ``<a, x>`` as in :func:`row_dot` (float32 accumulation), the sum of squares
+    in float64.
+    """
     m = indptr.shape[0] - 1
     tot = 0.0
     for r in range(m):
-        s = 0.0
-        for p in range(indptr[r], indptr[r + 1]):
-            s += data[p] * x[indices[p]]
-        d = s - y[r]
+        d = row_dot(indices, data, x, indptr[r], indptr[r + 1]) - y[r]
         tot += d * d
     return math.sqrt(tot)
 
@@ -204,12 +205,46 @@ def clip_nonneg(x):  # pragma: no cover - compiled
 
 
 # ---------------------------------------------------------------------------------- kernel
+#: LLVM flags of :func:`row_dot`: reassociation lets the reduction vectorise (AVX2/AVX-512
+#: gathers); no ``nnan``/``ninf`` assumptions.
+_DOT_FASTMATH = {"reassoc", "nsz", "contract"}
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_DOT_FASTMATH)
+def row_dot(indices, data, x, p0, p1):  # pragma: no cover - compiled
+    """``sum(data[p] * x[indices[p]] for p in range(p0, p1))`` with float32 accumulation.
+
+    The products and the partial sums are float32 and the summation order is left to the
+    compiler (vectorised gathers, ~1.7x faster than a sequential float64 sum); the relative
+    rounding error is a few float32 ulps, the same order as that of storing ``x`` in float32.
+    Pass ``indices`` as unsigned integers (``indices.view(np.uint32)``) to spare the
+    negative-index checks.
+    """
+    idx = indices[p0:p1]
+    a = data[p0:p1]
+    s = np.float32(0.0)
+    for q in range(p1 - p0):
+        s += a[q] * x[idx[q]]
+    return np.float64(s)
+
+
+def unsigned_indices(matrix: sp.csr_matrix) -> np.ndarray:
+    """The column indices of a CSR matrix viewed as unsigned integers (no copy).
+
+    CSR column indices are non-negative, so the view is exact; numba then omits the
+    wrap-around handling of negative indices in the kernels' gathers and scatters.
+    """
+    ind = matrix.indices
+    return ind.view(np.uint32 if ind.dtype.itemsize == 4 else np.uint64)
+
+
 @numba.njit(cache=True, nogil=True)
 def _kaczmarz_sweep(indptr, indices, data, rownorm2, y, x, views, n_det, omega):  # pragma: no cover
     """One Kaczmarz sweep in place; returns the sum of squared pre-update residuals.
 
     Rows are visited view by view (``views``), within a view in detector order. A row whose
-    squared norm is 0 (empty, or only explicit zeros) is skipped.
+    squared norm is 0 (empty, or only explicit zeros) is skipped. ``<a, x>`` is accumulated
+    in float32 (:func:`row_dot`), the step ``omega * res / ||a||^2`` in float64.
     """
     run = 0.0
     for i in range(views.shape[0]):
@@ -221,14 +256,13 @@ def _kaczmarz_sweep(indptr, indices, data, rownorm2, y, x, views, n_det, omega):
                 continue
             p0 = indptr[r]
             p1 = indptr[r + 1]
-            s = 0.0
-            for p in range(p0, p1):
-                s += data[p] * x[indices[p]]
-            res = y[r] - s
+            res = y[r] - row_dot(indices, data, x, p0, p1)
             run += res * res
             c = np.float32(omega * res / nr)
-            for p in range(p0, p1):
-                x[indices[p]] += c * data[p]
+            idx = indices[p0:p1]  # slices: a zero-based loop compiles to a faster scatter
+            a = data[p0:p1]
+            for q in range(p1 - p0):
+                x[idx[q]] += c * a[q]
     return run
 
 
@@ -330,16 +364,17 @@ def kaczmarz(
         raise ValueError(f"residual={residual!r} must be 'exact' or 'running'")
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     norms = row_norms_squared(mat)
+    indices = unsigned_indices(mat)
     rng = np.random.default_rng(seed)
     residuals: list[float] = []
     stop = "max_sweeps"
     for sweep in range(n_sweeps):
         views = view_order(geometry.n_angles, order, rng)
-        run = _kaczmarz_sweep(mat.indptr, mat.indices, mat.data, norms, y, x, views, geometry.n_det, omega)
+        run = _kaczmarz_sweep(mat.indptr, indices, mat.data, norms, y, x, views, geometry.n_det, omega)
         if nonneg:
             clip_nonneg(x)
         if residual == "exact":
-            residuals.append(float(residual_norm(mat.indptr, mat.indices, mat.data, y, x)))
+            residuals.append(float(residual_norm(mat.indptr, indices, mat.data, y, x)))
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(sweep, x.reshape(geometry.image_shape)):
