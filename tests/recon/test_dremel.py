@@ -224,5 +224,6 @@ def test_numba_correlation_zero_signal_matches_numpy():
 
 def test_first_view_from_empty_image_gets_no_spurious_shift():
     g, gt, y, true = translated("tiny-parallel", 11)
-    res = dremel(g, y, n_iter=1)
-    assert np.abs(res.motion).max() < 5.0  # an arg-max over a flat correlation would give -45 px
+    res = dremel(g, y, n_iter=1, order="sequential")
+    assert res.motion[0] == 0.0  # view 0 sees an empty model: an arg-max over a flat correlation gave -45 px
+    assert np.abs(res.motion[1:]).max() > 0
