@@ -483,3 +483,13 @@ def test_unknown_projector_raises(name: str, projector: str, tmp_path) -> None:
 def test_bad_oversample_raises(oversample) -> None:
     with pytest.raises(ValueError, match="oversample"):
         RayTransform(get_preset("tiny-parallel"), oversample=oversample)
+
+
+@pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
+def test_oversampled_system_matrix_matches_forward(name: str, tmp_path) -> None:
+    g = get_preset(name)
+    mat = system_matrix(g, oversample=2, directory=tmp_path)
+    assert mat.shape == (g.n_angles * g.n_det, (2 * g.n) ** 2) and mat.dtype == np.float32
+    x = np.random.default_rng(0).random((2 * g.n, 2 * g.n)).astype(np.float32)
+    np.testing.assert_allclose((mat @ x.ravel()).reshape(g.sino_shape), RayTransform(g, oversample=2).forward(x), rtol=1e-5, atol=1e-4)
+    assert system_matrix(g, directory=tmp_path).shape[1] == g.n**2  # a separate cache entry
