@@ -1,0 +1,1 @@
+"""Learned post-processing of first reconstructions (UNet, conditional invertible networks)."""

@@ -1,0 +1,41 @@
+"""The interface every post-processing network implements, so one trainer serves them all.
+
+A post-processor maps a first reconstruction ``x_tilde`` (batch, 1, H, W) to an estimate of
+the ground truth ``x``. Networks that model the whole conditional distribution p(x | x_tilde)
+also return a pixel-wise standard deviation.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import nn
+
+__all__ = ["PostProcessor"]
+
+
+class PostProcessor(nn.Module):
+    """Base class of post-processing networks.
+
+    Subclasses set ``name`` (the registry name, e.g. ``"unet"``), store the keyword arguments
+    they were built with in ``self.hparams`` (a JSON-compatible dict, so a checkpoint can
+    rebuild and validate the architecture), and implement :meth:`loss` and
+    :meth:`reconstruct`. Inputs of any size H, W are accepted: networks that need multiples of
+    2^scales pad internally and crop their outputs back.
+    """
+
+    name: str = ""
+
+    def __init__(self, **hparams: Any) -> None:
+        super().__init__()
+        self.hparams: dict[str, Any] = dict(hparams)
+
+    def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        """Training loss of a batch and named scalars to log (e.g. ``{"mse": ...}``)."""
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def reconstruct(self, x_tilde: torch.Tensor, **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Estimate ``x`` from ``x_tilde``: returns (mean, std), std None for point estimators."""
+        raise NotImplementedError
