@@ -41,3 +41,21 @@ def test_bad_input(rng):
         psnr(np.full((8, 8), np.nan), rng.random((8, 8)))
     with pytest.raises(ValueError, match="no images"):
         summarize(np.zeros((0, 8, 8)), np.zeros((0, 8, 8)))
+
+
+def test_uncertainty_summary_on_a_calibrated_gaussian(rng):
+    from nanoct.metrics import uncertainty_summary
+
+    std = rng.uniform(0.01, 0.2, (4, 32, 32))
+    gts = rng.random((4, 32, 32))
+    recos = gts + rng.normal(0, 1, std.shape) * std  # errors drawn with exactly that std
+    u = uncertainty_summary(std, recos, gts)
+    for k, expected in u["calibration"]["expected"].items():
+        assert u["calibration"]["observed"][k] == pytest.approx(expected, abs=0.02)
+    assert u["std_error_corr"] > 0.4  # larger std, larger errors
+    over = uncertainty_summary(std * 3, recos, gts)  # over-dispersed: covers too much
+    assert over["calibration"]["observed"]["1"] > 0.95
+    unrelated = uncertainty_summary(rng.permutation(std.ravel()).reshape(std.shape), recos, gts)
+    assert abs(unrelated["std_error_corr"]) < 0.1
+    with pytest.raises(ValueError, match="negative"):
+        uncertainty_summary(-std, recos, gts)

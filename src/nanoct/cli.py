@@ -162,8 +162,12 @@ def evaluate(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the Markdown table."),
 ) -> None:
-    """PSNR/SSIM (mean ± std over a split) of every reconstruction in the store."""
-    from .evaluate import evaluate_store, format_table, write_report_tables
+    """PSNR/SSIM (mean ± std over a split) of every reconstruction in the store.
+
+    Also the input-mixing tables (models applied to inputs they were not trained on) and,
+    for sampling models, the std/error correlation and calibration.
+    """
+    from .evaluate import evaluate_store, write_report_tables
     from .store import DataStore
 
     store = DataStore.open(directory)
@@ -171,7 +175,7 @@ def evaluate(
     if not results:
         raise NanoctError(f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first")
     md, js = write_report_tables(store, results, out or Path(directory) / "report", split)
-    typer.echo(json.dumps(results, indent=2) if as_json else format_table(results))
+    typer.echo(json.dumps(results, indent=2) if as_json else md.read_text())
     typer.echo(f"wrote {md} and {js}", err=True)
 
 

@@ -12,7 +12,10 @@ from skimage.metrics import structural_similarity
 
 from .validation import check_array
 
-__all__ = ["psnr", "ssim", "summarize"]
+__all__ = ["GAUSSIAN_COVERAGE", "psnr", "ssim", "summarize", "uncertainty_summary"]
+
+#: Probability of |N(0, s^2)| <= k s for k = 1, 2, 3.
+GAUSSIAN_COVERAGE = {"1": 0.6827, "2": 0.9545, "3": 0.9973}
 
 
 def _data_range(gt: np.ndarray) -> float:
@@ -59,4 +62,32 @@ def summarize(recos: np.ndarray, gts: np.ndarray) -> dict[str, float | int]:
         "ssim_mean": float(s.mean()),
         "ssim_std": float(s.std()),
         "n": int(len(gts)),
+    }
+
+
+def uncertainty_summary(stds: np.ndarray, recos: np.ndarray, gts: np.ndarray) -> dict[str, object]:
+    """How well a pixel-wise std predicts the actual error, over all pixels of all images.
+
+    Returns
+    -------
+    dict
+        ``std_error_corr``: Pearson correlation between std and absolute error;
+        ``calibration``: for k = 1, 2, 3 the fraction of pixels whose absolute error is at
+        most k std, next to the Gaussian expectation (``expected``); ``mean_std`` and
+        ``mean_abs_error``.
+    """
+    stds = check_array(stds, "std", ndim=3, dtype=np.float64)
+    recos = check_array(recos, "reconstructions", shape=stds.shape, dtype=np.float64)
+    gts = check_array(gts, "ground truths", shape=stds.shape, dtype=np.float64)
+    if (stds < 0).any():
+        raise ValueError("std contains negative values")
+    err = np.abs(recos - gts).ravel()
+    std = stds.ravel()
+    corr = float(np.corrcoef(std, err)[0, 1]) if std.std() > 0 and err.std() > 0 else float("nan")
+    coverage = {k: float(np.mean(err <= int(k) * std)) for k in GAUSSIAN_COVERAGE}
+    return {
+        "std_error_corr": corr,
+        "calibration": {"observed": coverage, "expected": dict(GAUSSIAN_COVERAGE)},
+        "mean_std": float(std.mean()),
+        "mean_abs_error": float(err.mean()),
     }

@@ -12,6 +12,7 @@ Layout (n samples, image N x N, sinogram K x L)::
       done            (n,)       bool      sample i is completely written
       reconstructions/<name>  (n, N, N) float32, attrs["params"]: parameters used
       reconstructions/<name>_shifts (n, K) float32: estimated motion of methods that have one
+      uncertainty/<name>      (n, N, N) float32: pixel-wise std of sampling post-processors
       progress/<name>         (n,) bool: which samples of reconstructions/<name> are written
 
 Every chunk is written atomically by Zarr's local store, and a sample's ``done`` flag (or
@@ -264,8 +265,11 @@ class DataStore:
         group = self._group["reconstructions"]
         return sorted(k for k in group.array_keys() if group[k].ndim == 3)
 
-    def prepare_reconstruction(self, name: str, params: dict[str, Any], shifts: bool = False) -> None:
+    def prepare_reconstruction(self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False) -> None:
         """Create ``reconstructions/<name>`` (and its progress flags) if missing.
+
+        ``shifts`` adds ``reconstructions/<name>_shifts`` (n, K) for estimated motion,
+        ``uncertainty`` adds ``uncertainty/<name>`` (n, N, N) for a pixel-wise std.
 
         Raises
         ------
@@ -289,12 +293,16 @@ class DataStore:
                 f"reconstructions/{name}_shifts", shape=(self.n, self.geometry.n_angles), chunks=(1, self.geometry.n_angles),
                 dtype="float32", fill_value=0, overwrite=True,
             )
+        if uncertainty:
+            self._group.create_array(
+                f"uncertainty/{name}", shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True
+            )
         arr = self._group.create_array(key, shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True)
         arr.attrs["params"] = params  # written last: marks the reconstruction as set up
 
     def delete_reconstruction(self, name: str) -> None:
-        """Remove ``reconstructions/<name>`` with its shifts and progress flags."""
-        for key in (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"progress/{name}"):
+        """Remove ``reconstructions/<name>`` with its shifts, uncertainty and progress flags."""
+        for key in (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"uncertainty/{name}", f"progress/{name}"):
             if key in self._group:
                 del self._group[key]
 
@@ -305,11 +313,15 @@ class DataStore:
             return np.zeros(self.n, dtype=bool)
         return np.asarray(self._group[key][:], dtype=bool)
 
-    def write_reconstruction(self, name: str, index: int, image: np.ndarray, shifts: np.ndarray | None = None) -> None:
-        """Write one reconstruction (and estimated shifts); the progress flag is set last."""
+    def write_reconstruction(
+        self, name: str, index: int, image: np.ndarray, shifts: np.ndarray | None = None, std: np.ndarray | None = None
+    ) -> None:
+        """Write one reconstruction (with estimated shifts or std); the progress flag is set last."""
         self._group[f"reconstructions/{name}"][index] = image
         if shifts is not None:
             self._group[f"reconstructions/{name}_shifts"][index] = shifts
+        if std is not None:
+            self._group[f"uncertainty/{name}"][index] = std
         self._group[f"progress/{name}"][index] = True
 
     def read_reconstruction(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
@@ -328,6 +340,20 @@ class DataStore:
             raise StoreError(f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. {missing[:5].tolist()}); run 'nanoct reconstruct' again")
         arr = self._group[f"reconstructions/{name}"]
         return np.stack([arr[i] for i in idx]) if idx.size else np.zeros((0, *self.geometry.image_shape), np.float32)
+
+    def has_uncertainty(self, name: str) -> bool:
+        """Whether reconstruction ``name`` comes with a pixel-wise std (``uncertainty/<name>``)."""
+        return f"uncertainty/{name}" in self._group
+
+    def read_uncertainty(self, name: str, indices: Iterable[int]) -> np.ndarray:
+        """Pixel-wise std of reconstruction ``name`` for the given (completed) samples."""
+        if not self.has_uncertainty(name):
+            raise StoreError(f"reconstruction '{name}' in {self.path} has no uncertainty map")
+        idx = np.asarray(list(indices), dtype=int)
+        missing = idx[~self.reconstruction_done(name)[idx]]
+        if missing.size:
+            raise StoreError(f"uncertainty of '{name}' is missing {missing.size} requested sample(s); run 'nanoct predict' again")
+        return self._group[f"uncertainty/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
 
     def reconstruction_params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
