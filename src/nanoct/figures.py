@@ -11,7 +11,7 @@ from .motion import plot_motion
 from .recon.fbp import fbp
 from .store import DataStore
 
-__all__ = ["compare_reconstructions", "show_sample"]
+__all__ = ["compare_reconstructions", "show_sample", "uncertainty_maps"]
 
 
 def _save(fig, out: str | os.PathLike[str], dpi: int) -> Path:
@@ -111,4 +111,34 @@ def compare_reconstructions(store: DataStore, names: list[str], indices: list[in
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
+    return _save(fig, out, dpi=90)
+
+
+def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]) -> Path:
+    """Figure like the paper's figure 8: per model, reconstruction, absolute error and std.
+
+    One row per (model, sample); error and std share a colour scale per row so they can be
+    compared directly.
+    """
+    from matplotlib.figure import Figure
+
+    gts = store.read_phantoms(indices)
+    rows = [(name, i, gt) for name in names for i, gt in zip(indices, gts)]
+    fig = Figure(figsize=(8.4, 2.6 * len(rows)), layout="constrained")
+    axes = fig.subplots(len(rows), 3, squeeze=False)
+    for ax_row, (name, index, gt) in zip(axes, rows):
+        reco = store.read_reconstruction(name, [index])[0]
+        std = store.read_uncertainty(name, [index])[0]
+        err = np.abs(reco - gt)
+        top = float(max(err.max(), std.max())) or 1.0
+        ax_row[0].imshow(reco, cmap="gray", vmin=0, vmax=1)
+        ax_row[0].set_title(f"{name} #{index}", fontsize=9)
+        ax_row[1].imshow(err, cmap="magma", vmin=0, vmax=top)
+        ax_row[1].set_title("|reco - gt|", fontsize=9)
+        im = ax_row[2].imshow(std, cmap="magma", vmin=0, vmax=top)
+        ax_row[2].set_title("pixel-wise std", fontsize=9)
+        fig.colorbar(im, ax=ax_row[2], shrink=0.8)
+        for ax in ax_row:
+            ax.set_xticks([])
+            ax.set_yticks([])
     return _save(fig, out, dpi=90)
