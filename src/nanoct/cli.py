@@ -116,6 +116,66 @@ def reconstruct(
 
 
 @app.command()
+def train(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    model: str = typer.Option("unet", "--model", "-m", help="unet | cinn | cinn-res | ciunet | ciunet-res"),
+    input_name: str = typer.Option(..., "--input", "-i", help="Input reconstruction, e.g. fbp, dremel, resesop_eta0.8."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory (default DIR/../runs/<model>-<input>)."),
+    epochs: Optional[int] = typer.Option(None, "--epochs", "-e", help="Epochs (default: the paper's 500)."),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="Global batch size (paper: 16)."),
+    lr: Optional[float] = typer.Option(None, "--lr", help="Adam learning rate (paper: 1e-3 UNet, 1e-5 invertible nets)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of weights, shuffling and noise."),
+    device: Optional[str] = typer.Option(None, "--device", help="cpu, cuda, cuda:1 ... (default: CUDA when present)."),
+    param: list[str] = typer.Option([], "--param", help="Model architecture argument name=value (repeatable)."),
+    quiet: bool = QUIET,
+) -> None:
+    """Train a post-processing network on reconstructions/<input> -> phantoms.
+
+    Keeps the checkpoint with the lowest validation loss (best.pt) and the last one
+    (last.pt), logs losses to log.csv; running the same command again resumes after the
+    last finished epoch. Under torchrun it trains with DDP.
+    """
+    from .learn.train import train as train_model
+
+    run = out or Path(directory).resolve().parent / "runs" / f"{model}-{input_name}"
+    path = train_model(
+        directory, model, input_name, run, epochs=epochs, batch_size=batch_size, lr=lr, seed=seed,
+        device=device, progress=not quiet, model_kwargs=_parse_params(param) or None,
+    )
+    typer.echo(f"run: {path}")
+
+
+@app.command()
+def predict(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    run: Path = typer.Option(..., "--run", "-r", help="Training run directory."),
+    input_name: Optional[str] = typer.Option(None, "--input", "-i", help="Input reconstruction (default: the training input)."),
+    split: str = typer.Option("test", "--split", help="test | val | train | all"),
+    checkpoint: str = typer.Option("best", "--checkpoint", help="best (lowest validation loss) or last."),
+    samples: Optional[int] = typer.Option(None, "--samples", "-M", help="Latent samples per image for invertible nets (default 100)."),
+    device: Optional[str] = typer.Option(None, "--device", help="cpu, cuda, ... (default: CUDA when present)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result made with other parameters."),
+    quiet: bool = QUIET,
+) -> None:
+    """Post-process reconstructions/<input> with a trained network.
+
+    Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
+    nets), or <input>+<model>@<train input> when applied to another input than it was
+    trained on (the paper's input-mixing tables).
+    """
+    from .learn.predict import predict as predict_model
+
+    if samples is not None and samples <= 0:
+        raise NanoctError(f"--samples {samples} must be a positive number of latent samples")
+    kwargs = None if samples is None else {"n_samples": samples}
+    name = predict_model(
+        directory, run, input_name, split=split, checkpoint=checkpoint, device=device, progress=not quiet,
+        overwrite=overwrite, reconstruct_kwargs=kwargs,
+    )
+    typer.echo(f"wrote reconstructions/{name}")
+
+
+@app.command()
 def info(
     directory: Path = typer.Argument(..., help="Data-set store."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
