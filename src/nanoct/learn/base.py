@@ -26,6 +26,8 @@ class PostProcessor(nn.Module):
     """
 
     name: str = ""
+    #: True for networks whose :meth:`reconstruct` returns a pixel-wise std (sampling models).
+    has_uncertainty: bool = False
 
     def __init__(self, **hparams: Any) -> None:
         super().__init__()

@@ -1,0 +1,173 @@
+"""CiUNet and CiUNetRes: conditional invertible U-Net with a (non-invertible) UNet conditioner.
+
+Architecture (paper, "Architecture specifications"; details of ``jleuschn/cinn_for_imaging``'s
+``iunet.py``), with L = ``n_scales`` resolutions (level l has size H/2^l)::
+
+    x (1, H, W) -> ActNorm
+    pre-block:  down -> (4, H/2) -> conditional coupling [UNet dec_1] (-> ActNorm) -> up -> (1, H)
+    encoder, l = 1 .. L-1:
+        down: channels x4 -> c_l = 2^(l+1) channels at level l  (4, 8, 16, 32 for L = 5)
+        blocks_per_scale x conditional coupling [UNet decoder feature of level l] (-> ActNorm)
+        l < L-1: split, half the channels are forwarded to the decoder (skip connection)
+    decoder, l = L-2 .. 1:
+        up: channels /4;  concat [upsampled, skip of level l]  -> c_l channels
+        blocks_per_scale x conditional coupling [UNet encoder feature of level l] (-> ActNorm)
+    up -> (1, H, W) -> reshaped (flattened) into z
+
+down/up are the learned orthogonal (Haar-initialised) invertible resamplings; couplings are
+additive (NICE) with zero-initialised last subnet layers. The conditioner is the project's UNet
+(:class:`nanoct.learn.unet.UNet`, the paper's post-processing UNet, trained jointly); its
+features are connected in reversed order: UNet decoder features (the bottleneck at the coarsest
+level) condition the encoder couplings, UNet encoder features the decoder couplings. The coarsest
+level has 32 channels at L = 5, as in the paper.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import FrEIA.framework as Ff
+import FrEIA.modules as Fm
+import torch
+from torch import nn
+
+from nanoct.learn.invertible import (
+    ActNorm,
+    ConditionalFlow,
+    ConditionalNICECoupling,
+    OrthogonalDownsampling,
+    OrthogonalUpsampling,
+    preserve_numpy_rng,
+)
+from nanoct.learn.unet import PAPER_CHANNELS, UNet
+
+__all__ = ["CiUNet", "CiUNetRes"]
+
+
+class CiUNet(ConditionalFlow):
+    """Conditional invertible U-Net (CiUNet) for post-processing, name ``"ciunet"``.
+
+    Keyword arguments (paper-faithful defaults):
+
+    n_scales: 5
+        Resolutions of the invertible U-Net (paper: 5); the image is padded to a multiple of
+        2^(n_scales-1) (255 -> 256). The coarsest level has 2^n_scales channels (32 at 5).
+    blocks_per_scale: 2
+        Conditional couplings per encoder/decoder level (reference: one conditioned and one
+        further coupling per level).
+    pre_blocks: 1
+        Couplings in the pre-block (paper: one).
+    cond_channels: (32, 32, 64, 64, 128)
+        Channels of the conditioning UNet per scale (the paper's UNet); one entry per scale.
+    cond_norm: True
+        BatchNorm in the conditioning UNet (as in the paper's UNet).
+    hidden_ratio: 1.0
+        Coupling subnet width as a multiple of its input channels (half the flow channels +
+        the condition channels); subnets are conv3x3 - LeakyReLU - conv3x3 - LeakyReLU -
+        conv3x3 (zero-initialised).
+    kernel_size: 3
+        Kernel size of the coupling subnets.
+    actnorm: True
+        ActNorm after every coupling (the input ActNorm of the pre-block is always there).
+        Additive couplings and orthogonal resampling are volume preserving: ActNorm is the
+        only learned scaling of the flow.
+    target_noise: 0.005
+        Std of the Gaussian noise added to the target in ``loss`` during training.
+    orthogonal_map: "cayley"
+        Parametrisation of the orthogonal resampling kernels.
+    """
+
+    name = "ciunet"
+    residual = False
+
+    def __init__(self, n_scales: int = 5, blocks_per_scale: int = 2, pre_blocks: int = 1,
+                 cond_channels: Sequence[int] = PAPER_CHANNELS, cond_norm: bool = True,
+                 hidden_ratio: float = 1.0, kernel_size: int = 3, actnorm: bool = True,
+                 target_noise: float = 0.005, orthogonal_map: str = "cayley") -> None:
+        n_scales = int(n_scales)
+        if n_scales < 2:
+            raise ValueError(f"n_scales must be >= 2, got {n_scales}")
+        cond_channels = [int(c) for c in cond_channels]
+        if len(cond_channels) != n_scales or min(cond_channels) < 1:
+            raise ValueError(f"cond_channels needs n_scales = {n_scales} positive entries, got {cond_channels}")
+        if int(blocks_per_scale) < 1 or int(pre_blocks) < 0:
+            raise ValueError(f"blocks_per_scale must be >= 1 and pre_blocks >= 0, got {blocks_per_scale}, {pre_blocks}")
+        if int(kernel_size) not in (1, 3, 5):
+            raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
+        super().__init__(n_scales=n_scales, blocks_per_scale=int(blocks_per_scale), pre_blocks=int(pre_blocks),
+                         cond_channels=cond_channels, cond_norm=bool(cond_norm), hidden_ratio=float(hidden_ratio),
+                         kernel_size=int(kernel_size), actnorm=bool(actnorm), target_noise=float(target_noise),
+                         orthogonal_map=str(orthogonal_map))
+        self.multiple = 2 ** (n_scales - 1)
+        self.cond_net = UNet(1, 1, channels=cond_channels, use_sigmoid=False, use_norm=bool(cond_norm),
+                             pad_mode="reflect")
+        # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
+        # parameter goes without a gradient (DistributedDataParallel requires that)
+        self.cond_net.outc = nn.Identity()
+        with preserve_numpy_rng():
+            self.flow = self._build(self.multiple, self.multiple)
+
+    def _build(self, h: int, w: int) -> Ff.GraphINN:
+        hp = self.hparams
+        n, cch = hp["n_scales"], hp["cond_channels"]
+        coupling_args = {"kernel_size": hp["kernel_size"], "hidden_ratio": hp["hidden_ratio"]}
+        res = {"orthogonal_map": hp["orthogonal_map"]}
+        # conditions: UNet decoder features at levels 1..L-1 (L-1: bottleneck), encoder features 1..L-2
+        cond_dec = {l: Ff.ConditionNode(cch[l], h >> l, w >> l, name=f"cond_dec_{l}") for l in range(1, n)}
+        cond_enc = {l: Ff.ConditionNode(cch[l], h >> l, w >> l, name=f"cond_enc_{l}") for l in range(1, n - 1)}
+        nodes: list[Ff.Node] = [Ff.InputNode(1, h, w, name="input")]
+
+        def couplings(count: int, cond: Ff.ConditionNode, tag: str) -> None:
+            for k in range(count):
+                nodes.append(Ff.Node(nodes[-1], ConditionalNICECoupling, coupling_args, conditions=cond,
+                                     name=f"coupling_{tag}_{k}"))
+                if hp["actnorm"]:
+                    nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_{tag}_{k}"))
+
+        nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
+        nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name="pre_down"))
+        couplings(hp["pre_blocks"], cond_dec[1], "pre")
+        nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="pre_up"))
+
+        skips: dict[int, tuple[Ff.Node, int]] = {}
+        for l in range(1, n):
+            nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name=f"down_{l}"))
+            couplings(hp["blocks_per_scale"], cond_dec[l], f"enc{l}")
+            if l < n - 1:
+                split = Ff.Node(nodes[-1], Fm.Split, {"n_sections": 2, "dim": 0}, name=f"split_{l}")
+                nodes.append(split)
+                skips[l] = split.out1  # the next node takes split.out0
+        for l in range(n - 2, 0, -1):
+            nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name=f"up_{l}"))
+            # [upsampled, skip] restores the channel order of the encoder's split, so that with
+            # identity couplings and Haar resampling the whole U-Net is the identity at init
+            nodes.append(Ff.Node([(nodes[-1], 0), skips[l]], Fm.Concat, {"dim": 0}, name=f"concat_{l}"))
+            couplings(hp["blocks_per_scale"], cond_enc[l], f"dec{l}")
+        nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="up_0"))
+        nodes.append(Ff.OutputNode(nodes[-1], name="output"))
+        return Ff.GraphINN(nodes + list(cond_dec.values()) + list(cond_enc.values()))
+
+    def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
+        n = self.hparams["n_scales"]
+        _, enc, dec = self.cond_net.forward_features(x_tilde_padded)
+        return [dec[l] for l in range(1, n)] + [enc[l] for l in range(1, n - 1)]
+
+    def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        out, log_jac = self.flow(vp, c=conds, jac=True)
+        return out.reshape(out.shape[0], -1), log_jac
+
+    def _flow_inverse(self, z: torch.Tensor, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
+        v, _ = self.flow(z.reshape(z.shape[0], 1, *size), c=conds, rev=True, jac=False)
+        return v
+
+
+class CiUNetRes(CiUNet):
+    """Residual CiUNet, name ``"ciunet-res"``: the flow models ``dx = x_tilde - x``; the
+    reconstruction is ``x_tilde - mean(dx samples)`` and the std is that of the dx samples.
+    Same keyword arguments as :class:`CiUNet`."""
+
+    name = "ciunet-res"
+    residual = True
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)

@@ -1,0 +1,619 @@
+"""Invertible building blocks for the conditional invertible networks (CiNN, CiUNet).
+
+Everything here is a FrEIA ``InvertibleModule`` (or a helper to build one), so the networks are
+plain FrEIA graphs (``GraphINN`` of ``Node``/``ConditionNode``):
+
+* :class:`OrthogonalDownsampling` / :class:`OrthogonalUpsampling` -- learned invertible
+  down-/upsampling of Etmann et al. (iUNets, 2020): a stride-2 grouped convolution whose 2x2
+  kernel of every input channel, read as a 4x4 matrix (4 output channels x 4 patch pixels), is
+  orthogonal (``torch.nn.utils.parametrizations.orthogonal``, Cayley map by default) and
+  initialised as the 2D Haar transform. The inverse is the transposed convolution with the same
+  matrices, and log|det J| = 0 exactly.
+* :class:`ConditionalNICECoupling` -- FrEIA's additive (NICE) coupling with the condition
+  concatenated to the subnet input and the last subnet layer initialised to zero, so every
+  coupling is the identity at initialisation.
+* :class:`ActNorm` -- FrEIA's activation normalisation (data-dependent initialisation on the
+  first forward batch) made safe for constant channels and for a first call in reverse.
+* :func:`pad_to_multiple` / :func:`crop` -- the padding convention of the networks.
+* :func:`gaussian_nll_bpd` -- the negative log-likelihood under a standard Gaussian latent in
+  bits per dimension.
+* :class:`RunningMoments` -- chunk-wise mean and (population) standard deviation of samples,
+  merged in float64 (Chan et al.), used for sampling with bounded memory.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
+
+import FrEIA.modules as Fm
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.nn.utils import parametrizations
+
+from nanoct.learn.base import PostProcessor
+
+__all__ = [
+    "CheckpointMismatchError",
+    "ConditionalFlow",
+    "parametrize_cached",
+    "TRAINING_DEFAULTS",
+    "haar_matrix",
+    "OrthogonalDownsampling",
+    "OrthogonalUpsampling",
+    "ConditionalNICECoupling",
+    "ActNorm",
+    "conv_subnet",
+    "fc_subnet",
+    "pad_to_multiple",
+    "crop",
+    "gaussian_nll_bpd",
+    "RunningMoments",
+    "preserve_numpy_rng",
+    "finish_actnorm_init",
+]
+
+#: Training settings of the paper (Adam, lr 1e-5, batch 16, best validation checkpoint) and
+#: the stabilisers of ``jleuschn/cinn_for_imaging`` (target noise N(0, 0.005^2) -- applied by
+#: the models' ``loss`` in training mode --, gradient-norm clipping at 1.0, ReduceLROnPlateau on
+#: the validation loss). The trainer reads these; none of them is applied by the models
+#: except the target noise.
+TRAINING_DEFAULTS: dict[str, Any] = {
+    "optimizer": "adam",
+    "lr": 1e-5,
+    "batch_size": 16,
+    "epochs": 500,
+    "select": "min_val_loss",
+    "grad_clip_norm": 1.0,
+    "lr_scheduler": {"name": "ReduceLROnPlateau", "factor": 0.8, "patience": 2, "threshold": 0.005,
+                     "cooldown": 1, "min_lr": 1e-10},
+}
+
+
+# ----------------------------------------------------------------------------- resampling
+def haar_matrix(dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """The 4x4 orthonormal 2D Haar matrix acting on a flattened 2x2 patch ``[a, b, c, d]``.
+
+    Rows: low-pass (a+b+c+d)/2, horizontal detail, vertical detail, diagonal detail.
+    """
+    return 0.5 * torch.tensor(
+        [[1.0, 1.0, 1.0, 1.0], [1.0, -1.0, 1.0, -1.0], [1.0, 1.0, -1.0, -1.0], [1.0, -1.0, -1.0, 1.0]],
+        dtype=dtype,
+    )
+
+
+class _OrthogonalKernels(nn.Module):
+    """Holds ``weight`` of shape (C, 4, 4), parametrised to be orthogonal matrix by matrix."""
+
+    def __init__(self, channels: int, orthogonal_map: str = "cayley") -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(channels, 4, 4))
+        parametrizations.orthogonal(self, "weight", orthogonal_map=orthogonal_map)
+        with torch.no_grad():
+            self.weight = haar_matrix().expand(channels, 4, 4).clone()
+
+
+class _OrthogonalResampling(Fm.InvertibleModule):
+    """Shared machinery: channel c's 2x2 patch p (flattened) maps to W_c p (4 values).
+
+    Output channel order is by subband: output channel ``k * C + c`` holds coefficient k of
+    input channel c, so after a channel split in halves the low-pass and first detail bands of
+    all channels stay together (at initialisation).
+    """
+
+    def __init__(self, dims_in, dims_c=None, orthogonal_map: str = "cayley", channels: int = 1) -> None:
+        super().__init__(dims_in, dims_c)
+        self.channels = channels
+        self.kernels = _OrthogonalKernels(channels, orthogonal_map)
+
+    def _conv_weight(self) -> torch.Tensor:
+        # (C, 4, 4) -> grouped conv weight (4C, 1, 2, 2): weight[4c + k, 0, i, j] = W_c[k, 2i + j]
+        w = self.kernels.weight
+        return w.reshape(self.channels * 4, 1, 2, 2)
+
+    def _down(self, x: torch.Tensor) -> torch.Tensor:
+        c = self.channels
+        y = F.conv2d(x, self._conv_weight(), stride=2, groups=c)  # channel 4c + k
+        b, _, h, w = y.shape
+        return y.reshape(b, c, 4, h, w).transpose(1, 2).reshape(b, 4 * c, h, w)  # channel k*C + c
+
+    def _up(self, y: torch.Tensor) -> torch.Tensor:
+        c = self.channels
+        b, _, h, w = y.shape
+        y = y.reshape(b, 4, c, h, w).transpose(1, 2).reshape(b, 4 * c, h, w)
+        return F.conv_transpose2d(y, self._conv_weight(), stride=2, groups=c)
+
+    @staticmethod
+    def _zero_jac(t: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(t.shape[0], dtype=t.dtype, device=t.device)
+
+
+class OrthogonalDownsampling(_OrthogonalResampling):
+    """Learned invertible downsampling (C, H, W) -> (4C, H/2, W/2); log|det J| = 0.
+
+    Args:
+        dims_in: FrEIA input shapes, ``[(C, H, W)]`` with even H and W.
+        orthogonal_map: ``"cayley"`` (default, as in iUNets), ``"matrix_exp"`` or
+            ``"householder"`` (see ``torch.nn.utils.parametrizations.orthogonal``).
+    """
+
+    def __init__(self, dims_in, dims_c=None, orthogonal_map: str = "cayley") -> None:
+        c, h, w = dims_in[0]
+        if h % 2 or w % 2:
+            raise ValueError(f"OrthogonalDownsampling needs even height and width, got {h}x{w}")
+        super().__init__(dims_in, dims_c, orthogonal_map=orthogonal_map, channels=c)
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        out = self._up(x[0]) if rev else self._down(x[0])
+        return (out,), self._zero_jac(out)
+
+    def output_dims(self, input_dims):
+        c, h, w = input_dims[0]
+        return [(4 * c, h // 2, w // 2)]
+
+
+class OrthogonalUpsampling(_OrthogonalResampling):
+    """Learned invertible upsampling (4C, H, W) -> (C, 2H, 2W): the inverse of a downsampling
+    with its own orthogonal matrices (Haar at initialisation); log|det J| = 0."""
+
+    def __init__(self, dims_in, dims_c=None, orthogonal_map: str = "cayley") -> None:
+        c4 = dims_in[0][0]
+        if c4 % 4:
+            raise ValueError(f"OrthogonalUpsampling needs a multiple of 4 channels, got {c4}")
+        super().__init__(dims_in, dims_c, orthogonal_map=orthogonal_map, channels=c4 // 4)
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        out = self._down(x[0]) if rev else self._up(x[0])
+        return (out,), self._zero_jac(out)
+
+    def output_dims(self, input_dims):
+        c4, h, w = input_dims[0]
+        return [(c4 // 4, 2 * h, 2 * w)]
+
+
+# ----------------------------------------------------------------------------- couplings
+class _ZeroLast(nn.Sequential):
+    """A subnet whose last layer starts at zero (weights and bias)."""
+
+    def __init__(self, *layers: nn.Module) -> None:
+        super().__init__(*layers)
+        last = self[-1]
+        nn.init.zeros_(last.weight)
+        if last.bias is not None:
+            nn.init.zeros_(last.bias)
+
+
+def conv_subnet(kernel_size: int = 3, hidden_ratio: float = 2.0, min_hidden: int = 8):
+    """Subnet constructor ``(c_in, c_out) -> conv, LeakyReLU, conv, LeakyReLU, conv(zero)``.
+
+    The hidden width is ``max(min_hidden, round(hidden_ratio * c_in))``.
+    """
+    pad = kernel_size // 2
+
+    def make(c_in: int, c_out: int) -> nn.Module:
+        hidden = max(min_hidden, int(round(hidden_ratio * c_in)))
+        return _ZeroLast(
+            nn.Conv2d(c_in, hidden, kernel_size, padding=pad), nn.LeakyReLU(),
+            nn.Conv2d(hidden, hidden, kernel_size, padding=pad), nn.LeakyReLU(),
+            nn.Conv2d(hidden, c_out, kernel_size, padding=pad),
+        )
+
+    return make
+
+
+def fc_subnet(hidden_ratio: float = 2.0, min_hidden: int = 8):
+    """Subnet constructor for flat vectors: linear, LeakyReLU, linear, LeakyReLU, linear(zero)."""
+
+    def make(c_in: int, c_out: int) -> nn.Module:
+        hidden = max(min_hidden, int(round(hidden_ratio * c_in)))
+        return _ZeroLast(nn.Linear(c_in, hidden), nn.LeakyReLU(), nn.Linear(hidden, hidden), nn.LeakyReLU(),
+                         nn.Linear(hidden, c_out))
+
+    return make
+
+
+class ConditionalNICECoupling(Fm.NICECouplingBlock):
+    """Additive (NICE) coupling ``y1 = x1 + F([x2, c]), y2 = x2 + G([y1, c])``; log|det J| = 0.
+
+    The conditions (same spatial size as the input) are concatenated to the subnet inputs. The
+    subnets' last layers start at zero, so the block is the identity at initialisation.
+
+    Args:
+        dims_in, dims_c: FrEIA shapes.
+        kernel_size: 1 or 3 for image inputs; ignored for flat (1D) inputs, which use
+            fully-connected subnets.
+        hidden_ratio, min_hidden: subnet width (see :func:`conv_subnet`).
+    """
+
+    def __init__(self, dims_in, dims_c=None, kernel_size: int = 3, hidden_ratio: float = 2.0,
+                 min_hidden: int = 8) -> None:
+        dims_c = [] if dims_c is None else dims_c
+        if len(dims_in[0]) == 1:
+            ctor = fc_subnet(hidden_ratio, min_hidden)
+        else:
+            ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
+        super().__init__(dims_in, dims_c, subnet_constructor=ctor)
+
+    def forward(self, x, c=[], rev: bool = False, jac: bool = True):
+        (out,), _ = super().forward(x, c, rev=rev, jac=jac)
+        return (out,), torch.zeros(out.shape[0], dtype=out.dtype, device=out.device)
+
+
+class ActNorm(Fm.ActNorm):
+    """FrEIA's ``ActNorm`` (per-channel ``y = x * exp(s) + b``, initialised on the first forward
+    batch to zero mean and unit variance per channel) with three fixes:
+
+    * the log-determinant uses the spatial size of the actual input (FrEIA's uses the size the
+      graph was built for), so one graph serves every image size;
+    * a (near-)constant channel gets scale 1/max(std, 1e-6) instead of infinity;
+    * a first call in reverse (sampling from an untrained network) does not initialise from
+      latent data: the layer simply stays the identity.
+
+    Loading a state dict disables the data-dependent initialisation (FrEIA's behaviour).
+    """
+
+    def _initialize_with_data(self, data: torch.Tensor) -> None:
+        with torch.no_grad():
+            flat = data.transpose(0, 1).reshape(self.dims_in[0], -1)
+            std = flat.std(dim=-1) if flat.shape[1] > 1 else torch.ones_like(flat[:, 0])
+            self.scale.data.view(-1)[:] = -torch.log(std.clamp_min(1e-6))
+            self.bias.data.view(-1)[:] = -(flat * self.scale.data.view(-1, 1).exp()).mean(dim=-1)
+        self.init_on_next_batch = False
+
+    def forward(self, x, rev: bool = False, jac: bool = True):
+        x0 = x[0]
+        if rev:
+            self.init_on_next_batch = False
+        elif self.init_on_next_batch:
+            self._initialize_with_data(x0)
+        log_det = (self.scale.sum() * math.prod(x0.shape[2:])).expand(x0.shape[0])
+        if not rev:
+            return [x0 * self.scale.exp() + self.bias], log_det
+        return [(x0 - self.bias) * torch.exp(-self.scale)], -log_det
+
+
+def finish_actnorm_init(module: nn.Module) -> None:
+    """Switch off pending data-dependent initialisation of every ``ActNorm`` in ``module``."""
+    for m in module.modules():
+        if isinstance(m, Fm.ActNorm):
+            m.init_on_next_batch = False
+
+
+@contextmanager
+def preserve_numpy_rng() -> Iterator[None]:
+    """FrEIA's ``PermuteRandom(seed=...)`` reseeds numpy's global RNG; undo that side effect."""
+    state = np.random.get_state()
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
+# ----------------------------------------------------------------------------- padding
+def pad_to_multiple(x: torch.Tensor, multiple: int, mode: str = "constant",
+                    value: float = 0.0) -> torch.Tensor:
+    """Pad (B, C, H, W) at the bottom and right to the next multiple of ``multiple``.
+
+    ``mode`` is ``"constant"`` (with ``value``), ``"reflect"`` or ``"replicate"``; reflection
+    falls back to replication where the image is too small to reflect.
+    """
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    if ph == 0 and pw == 0:
+        return x
+    if mode == "constant":
+        return F.pad(x, (0, pw, 0, ph), mode="constant", value=value)
+    if mode == "reflect" and (ph >= h or pw >= w):
+        mode = "replicate"
+    return F.pad(x, (0, pw, 0, ph), mode=mode)
+
+
+def crop(x: torch.Tensor, size: Sequence[int]) -> torch.Tensor:
+    """Crop the last two dimensions back to ``size`` = (H, W) (undoes :func:`pad_to_multiple`)."""
+    return x[..., : size[0], : size[1]]
+
+
+# ----------------------------------------------------------------------------- likelihood
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def gaussian_nll_bpd(z: torch.Tensor, log_jac: torch.Tensor) -> torch.Tensor:
+    """Per-sample NLL in bits per dimension under z ~ N(0, I) (no dequantisation offset).
+
+    ``-log q(x|c) = ||z||^2 / 2 + D/2 log(2 pi) - log|det J|``, divided by ``D log 2``, where
+    D = z.shape[1] is the number of flow dimensions.
+    """
+    d = z[0].numel()
+    nll = 0.5 * z.reshape(z.shape[0], -1).pow(2).sum(dim=1) + 0.5 * d * _LOG_2PI - log_jac
+    return nll / (d * math.log(2.0))
+
+
+# ----------------------------------------------------------------------------- sampling moments
+class RunningMoments:
+    """Per-image running mean and population variance over chunks of samples.
+
+    ``update(values, index)`` adds rows ``values[r]`` (any trailing shape) to image
+    ``index[r]``. Chunks are merged with Chan et al.'s pairwise formula in float64, so the
+    result does not depend on the chunking beyond rounding and does not suffer from the
+    cancellation of the naive sum-of-squares formula.
+    """
+
+    def __init__(self, n_images: int, shape: Sequence[int], device: torch.device | str = "cpu") -> None:
+        self.count = torch.zeros(n_images, dtype=torch.float64, device=device)
+        self.mean = torch.zeros((n_images, *shape), dtype=torch.float64, device=device)
+        self.m2 = torch.zeros((n_images, *shape), dtype=torch.float64, device=device)
+
+    def update(self, values: torch.Tensor, index: torch.Tensor) -> None:
+        v = values.to(torch.float64)
+        n_b = torch.zeros_like(self.count).index_add_(0, index, torch.ones_like(index, dtype=torch.float64))
+        bshape = (-1,) + (1,) * (v.dim() - 1)
+        sum_b = torch.zeros_like(self.mean).index_add_(0, index, v)
+        mean_b = sum_b / n_b.clamp_min(1).view(bshape)
+        m2_b = torch.zeros_like(self.m2).index_add_(0, index, (v - mean_b[index]).pow(2))
+        n_a = self.count
+        n = n_a + n_b
+        safe_n = n.clamp_min(1).view(bshape)
+        delta = mean_b - self.mean
+        self.mean = self.mean + delta * (n_b.view(bshape) / safe_n)
+        self.m2 = self.m2 + m2_b + delta.pow(2) * (n_a * n_b).view(bshape) / safe_n
+        self.count = n
+
+    def result(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean, population std = sqrt(M2 / n)) per image, float64."""
+        bshape = (-1,) + (1,) * (self.mean.dim() - 1)
+        var = self.m2 / self.count.clamp_min(1).view(bshape)
+        return self.mean, var.clamp_min(0).sqrt()
+
+
+# ----------------------------------------------------------------------------- model base class
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    return value
+
+
+class CheckpointMismatchError(ValueError, RuntimeError):
+    """A state dict of another architecture or size (a ``ValueError``; also a ``RuntimeError``,
+    what ``torch.nn.Module.load_state_dict`` raises, so existing handlers keep working)."""
+
+
+class ConditionalFlow(PostProcessor):
+    """Shared likelihood, sampling and checkpoint logic of CiNN/CiUNet and their residual variants.
+
+    Subclasses build their FrEIA graph(s) and a conditioning network, set ``self.multiple`` (the
+    padded size must be a multiple of it) and implement :meth:`_conditions`,
+    :meth:`_flow_forward` (padded image -> flat latent of the same size, log|det J|) and
+    :meth:`_flow_inverse`. Graphs are built once for the smallest valid size and run at any
+    multiple of it: all their layers are size-agnostic (convolutional couplings, resampling,
+    channel splits/permutations, the ActNorm above); anything size-dependent (flattening) is
+    done outside the graph.
+
+    Conventions:
+
+    * The invertible path sees ``v = x`` (``residual = False``) or ``v = x_tilde - x``
+      (``residual = True``, the paper's "Res" variants).
+    * Padding: ``v`` is padded at the bottom/right with zeros to a multiple of ``self.multiple``
+      (for phantoms and residuals 0 is the natural background value), the condition
+      ``x_tilde`` by reflection. Padded pixels are ordinary flow dimensions: in training mode
+      they receive the same target noise as the image, so their density is non-degenerate;
+      samples are cropped back, so only the marginal over the real pixels is used.
+    * ``loss`` is the NLL in bits per dimension over all Hp*Wp flow dimensions (padding
+      included; 0.8% of them at 255 -> 256), without the +8 offset of 8-bit dequantisation.
+    """
+
+    has_uncertainty = True
+
+    residual: bool = False
+    training_defaults: dict[str, Any] = TRAINING_DEFAULTS
+    multiple: int = 1
+
+    def __init__(self, **hparams: Any) -> None:
+        super().__init__(**{k: _jsonable(v) for k, v in hparams.items()})
+        target_noise = float(self.hparams.get("target_noise", 0.0))
+        if target_noise < 0:
+            raise ValueError(f"target_noise must be >= 0, got {target_noise}")
+        self.target_noise = target_noise
+
+    # -- to implement -------------------------------------------------------------------------
+    def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
+        """Condition tensors in the order of the graph's condition nodes."""
+        raise NotImplementedError
+
+    def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Padded (B, 1, Hp, Wp) -> (z (B, Hp*Wp), log|det J| (B,))."""
+        raise NotImplementedError
+
+    def _flow_inverse(self, z: torch.Tensor, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
+        """z (B, Hp*Wp) -> padded (B, 1, Hp, Wp), where size = (Hp, Wp)."""
+        raise NotImplementedError
+
+    # -- input checks ---------------------------------------------------------------------------
+    def _check_condition(self, x_tilde: torch.Tensor) -> None:
+        if not torch.is_tensor(x_tilde) or x_tilde.dim() != 4 or x_tilde.shape[1] != 1:
+            shape = tuple(x_tilde.shape) if torch.is_tensor(x_tilde) else type(x_tilde).__name__
+            raise ValueError(f"{self.name}: the condition x_tilde must be a (batch, 1, H, W) tensor, got {shape}")
+        if x_tilde.shape[0] < 1 or x_tilde.shape[-1] < 1 or x_tilde.shape[-2] < 1:
+            raise ValueError(f"{self.name}: empty condition of shape {tuple(x_tilde.shape)}")
+
+    def _check_pair(self, v: torch.Tensor, x_tilde: torch.Tensor, what: str = "x") -> None:
+        self._check_condition(x_tilde)
+        if not torch.is_tensor(v) or tuple(v.shape) != tuple(x_tilde.shape):
+            shape = tuple(v.shape) if torch.is_tensor(v) else type(v).__name__
+            raise ValueError(f"{self.name}: {what} has shape {shape} but the condition x_tilde has shape "
+                             f"{tuple(x_tilde.shape)}; they must be equal")
+
+    def padded_size(self, h: int, w: int) -> tuple[int, int]:
+        m = self.multiple
+        return h + (-h) % m, w + (-w) % m
+
+    def latent_dim(self, h: int, w: int) -> int:
+        """Length of z for an H x W image (= the padded pixel count)."""
+        hp, wp = self.padded_size(h, w)
+        return hp * wp
+
+    def condition(self, x_tilde: torch.Tensor) -> list[torch.Tensor]:
+        """Run the conditioning network on (padded) ``x_tilde``; reusable across many samples."""
+        self._check_condition(x_tilde)
+        return self._conditions(pad_to_multiple(x_tilde, self.multiple, mode="reflect"))
+
+    # -- the flow -------------------------------------------------------------------------------
+    def forward(self, v: torch.Tensor, x_tilde: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Density direction: ``v`` (B, 1, H, W) given ``x_tilde`` -> (z (B, D), log|det dz/dv| (B,)).
+
+        ``v`` is the target ``x`` (``residual = False``) or the residual ``x_tilde - x``.
+        """
+        self._check_pair(v, x_tilde, "v")
+        conds = self.condition(x_tilde)
+        return self._flow_forward(pad_to_multiple(v, self.multiple, value=0.0), conds)
+
+    def _inverse_with(self, z: torch.Tensor, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
+        finish_actnorm_init(self)
+        v = self._flow_inverse(z, conds, self.padded_size(*size))
+        return crop(v, size)
+
+    def inverse(self, z: torch.Tensor, x_tilde: torch.Tensor) -> torch.Tensor:
+        """Generative direction: latent ``z`` (B, D) given ``x_tilde`` -> ``v`` (B, 1, H, W)."""
+        self._check_condition(x_tilde)
+        b, _, h, w = x_tilde.shape
+        d = self.latent_dim(h, w)
+        if not torch.is_tensor(z) or z.dim() != 2 or tuple(z.shape) != (b, d):
+            shape = tuple(z.shape) if torch.is_tensor(z) else type(z).__name__
+            raise ValueError(f"{self.name}: z must have shape ({b}, {d}) for a condition of shape "
+                             f"{tuple(x_tilde.shape)}, got {shape}")
+        return self._inverse_with(z, self.condition(x_tilde), (h, w))
+
+    # -- PostProcessor ----------------------------------------------------------------------------
+    def _target(self, x_tilde: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        return x_tilde - x if self.residual else x
+
+    def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss).
+
+        In training mode N(0, target_noise^2) noise is added to the target first (to all pixels,
+        padded ones included); in eval mode the loss is deterministic.
+        """
+        self._check_pair(x, x_tilde, "x")
+        if self.training and self.target_noise > 0:
+            x = x + self.target_noise * torch.randn_like(x)
+        v = self._target(x_tilde, x)
+        conds = self.condition(x_tilde)
+        vp = pad_to_multiple(v, self.multiple, value=0.0)
+        if self.training and self.target_noise > 0 and vp.shape != v.shape:
+            # the padded pixels get the same noise as the image, so their density is not degenerate
+            noise = self.target_noise * torch.randn_like(vp)
+            noise[..., : v.shape[-2], : v.shape[-1]] = 0.0
+            vp = vp + noise
+        z, log_jac = self._flow_forward(vp, conds)
+        bpd = gaussian_nll_bpd(z, log_jac)
+        loss = bpd.mean()
+        d = z.shape[1]
+        return loss, {
+            "nll_bpd": float(loss.detach()),
+            "z_sq_mean": float(z.detach().pow(2).mean()),
+            "logdet_per_dim": float(log_jac.detach().mean() / d),
+        }
+
+    @torch.no_grad()
+    def data_init(self, x_tilde: torch.Tensor, x: torch.Tensor) -> None:
+        """Initialise the ActNorm layers from one batch (call before wrapping in DDP so that all
+        ranks start from the same parameters; otherwise the first ``loss`` call does it)."""
+        self._check_pair(x, x_tilde, "x")
+        self.forward(self._target(x_tilde, x), x_tilde)
+
+    def _sample_rows(self, x_tilde: torch.Tensor, n_samples: int, chunk: int,
+                     generator: torch.Generator | None) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        """Yield (image index per row, v samples) in passes of at most ``chunk`` rows."""
+        b, _, h, w = x_tilde.shape
+        d = self.latent_dim(h, w)
+        conds = self.condition(x_tilde)
+        total = b * n_samples
+        for r0 in range(0, total, chunk):
+            rows = torch.arange(r0, min(r0 + chunk, total), device=x_tilde.device)
+            img = torch.div(rows, n_samples, rounding_mode="floor")
+            z = torch.randn(len(rows), d, generator=generator, dtype=x_tilde.dtype,
+                            device="cpu" if generator is None else generator.device).to(x_tilde.device)
+            cs = [c.index_select(0, img) for c in conds]
+            yield img, self._inverse_with(z, cs, (h, w))
+
+    @staticmethod
+    def _generator(generator: torch.Generator | None, seed: int | None) -> torch.Generator | None:
+        if generator is None and seed is not None:
+            generator = torch.Generator().manual_seed(int(seed))
+        return generator
+
+    @staticmethod
+    def _check_sampling_args(n_samples: Any, chunk: Any) -> None:
+        for label, val in (("n_samples", n_samples), ("chunk", chunk)):
+            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val <= 0:
+                raise ValueError(f"{label} must be a positive integer, got {val!r}")
+
+    @torch.no_grad()
+    def sample(self, x_tilde: torch.Tensor, n_samples: int = 1, chunk: int = 32,
+               generator: torch.Generator | None = None, seed: int | None = None) -> torch.Tensor:
+        """``n_samples`` reconstructions per input, (B, n_samples, 1, H, W): ``G^-1(z)`` (or
+        ``x_tilde - G^-1(z)`` for the residual variants) with z ~ N(0, I)."""
+        self._check_condition(x_tilde)
+        self._check_sampling_args(n_samples, chunk)
+        generator = self._generator(generator, seed)
+        b, _, h, w = x_tilde.shape
+        out = torch.empty(b * n_samples, 1, h, w, dtype=x_tilde.dtype, device=x_tilde.device)
+        pos = 0
+        with parametrize_cached():
+            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
+                out[pos: pos + len(img)] = x_tilde[img] - v if self.residual else v
+                pos += len(img)
+        return out.view(b, n_samples, 1, h, w)
+
+    @torch.no_grad()
+    def reconstruct(self, x_tilde: torch.Tensor, n_samples: int = 100, chunk: int = 32,
+                    generator: torch.Generator | None = None, seed: int | None = None,
+                    **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and pixel-wise standard deviation over ``n_samples`` latent samples per input.
+
+        ``x_reco = 1/M sum_m G^-1(z_m)`` and ``sigma = (1/M sum_m (G^-1(z_m) - x_reco)^2)^(1/2)``;
+        for the residual variants ``x_reco = x_tilde - 1/M sum_m dx_m`` and ``sigma`` = the std of
+        the residual samples (paper eqs. for CiNN(Res)). At most ``chunk`` latent samples (over
+        all images of the batch) go through the network at once; moments are accumulated in
+        float64, so memory does not grow with ``n_samples``. The latent draws come from
+        ``generator`` if given, else from a generator seeded with ``seed`` if given, else from
+        torch's global RNG.
+        """
+        if kwargs:
+            raise TypeError(f"{self.name}.reconstruct got unexpected arguments {sorted(kwargs)}")
+        self._check_condition(x_tilde)
+        self._check_sampling_args(n_samples, chunk)
+        generator = self._generator(generator, seed)
+        b, _, h, w = x_tilde.shape
+        moments = RunningMoments(b, (1, h, w), device=x_tilde.device)
+        with parametrize_cached():
+            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
+                moments.update(v, img)
+        mean_v, std = moments.result()
+        mean_v, std = mean_v.to(x_tilde.dtype), std.to(x_tilde.dtype)
+        mean = x_tilde - mean_v if self.residual else mean_v
+        return mean, std
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        try:
+            return super().load_state_dict(state_dict, strict=strict, assign=assign)
+        except RuntimeError as e:
+            if isinstance(e, CheckpointMismatchError):
+                raise
+            raise CheckpointMismatchError(
+                f"{self.name} with {self.hparams}: the state dict does not match this architecture/size "
+                f"(build the model with the checkpoint's name and hparams): {e}") from e
+
+
+@contextmanager
+def parametrize_cached() -> Iterator[None]:
+    """Cache the orthogonal matrices during sampling (they are recomputed on every call otherwise)."""
+    from torch.nn.utils import parametrize
+
+    with parametrize.cached():
+        yield

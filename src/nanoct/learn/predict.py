@@ -1,0 +1,160 @@
+"""Apply a trained post-processing network to the reconstructions of a store.
+
+The result goes to ``reconstructions/<input>+<model>`` when the input is the method the
+network was trained on, and to ``reconstructions/<input>+<model>@<train_input>`` when a
+network trained on one method is applied to another (the paper's input-mixing tables).
+Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
+latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
+not depend on batching or on interruptions.
+
+The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
+are stored with the result; running the same command again only fills in missing samples,
+and a different checkpoint under the same name is refused unless ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import NanoctError, StoreError
+from ..store import SPLITS, DataStore
+from .checkpoint import load_checkpoint, model_from_checkpoint
+from .data import check_input
+from .models import model_class
+from .train import resolve_device
+
+__all__ = ["output_name", "predict"]
+
+
+def output_name(input_name: str, model_name: str, train_input: str) -> str:
+    """``<input>+<model>``, or ``<input>+<model>@<train_input>`` when the inputs differ."""
+    name = f"{input_name}+{model_name}"
+    return name if input_name == train_input else f"{name}@{train_input}"
+
+
+def predict(
+    store_path: str | os.PathLike[str],
+    run_dir: str | os.PathLike[str],
+    input_name: str | None = None,
+    *,
+    split: str = "test",
+    checkpoint: str = "best",
+    batch_size: int = 16,
+    device: str | torch.device | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+    name: str | None = None,
+    reconstruct_kwargs: dict[str, Any] | None = None,
+) -> str:
+    """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
+
+    Parameters
+    ----------
+    store_path : path
+        Data-set store.
+    run_dir : path
+        Training run directory (holds ``best.pt`` and ``last.pt``).
+    input_name : str, optional
+        Input reconstruction; default: the one the network was trained on.
+    split : {"test", "val", "train", "all"}
+        Samples to process (the paper evaluates the test split).
+    checkpoint : {"best", "last"}
+        Which checkpoint of the run to use (the paper: lowest validation loss).
+    batch_size : int
+        Images per forward pass.
+    device : str, optional
+        Default: CUDA when available, else CPU.
+    progress : bool
+        Show a progress bar.
+    overwrite : bool
+        Delete an existing result of that name made with other parameters first.
+    name : str, optional
+        Output name (default :func:`output_name`).
+    reconstruct_kwargs : dict, optional
+        Passed to the model's ``reconstruct`` (e.g. the number of samples of a CiNN); stored
+        with the result.
+
+    Returns
+    -------
+    str
+        The output name.
+
+    Raises
+    ------
+    NanoctError
+        Missing run or checkpoint, a corrupt checkpoint or one for another image size, an
+        empty split, or a missing or incomplete input reconstruction.
+    """
+    from tqdm.auto import tqdm
+
+    if checkpoint not in ("best", "last"):
+        raise NanoctError(f"checkpoint {checkpoint!r} must be 'best' or 'last'")
+    if split != "all" and split not in SPLITS:
+        raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
+    if batch_size < 1:
+        raise NanoctError(f"batch size {batch_size} must be positive")
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise NanoctError(f"no training run at {run}; train one first ('nanoct train ... --out {run}')")
+    store = DataStore.open(store_path, mode="r+")
+    ckpt_path = run / f"{checkpoint}.pt"
+    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
+    train_input = str(ckpt["input"])
+    input_name = train_input if input_name is None else input_name
+    indices = store.indices(split)
+    if indices.size == 0:
+        raise NanoctError(f"the {split} split of {store.path} has no samples; nothing to post-process")
+    check_input(store, input_name, indices, split)
+    out = name or output_name(input_name, str(ckpt["model"]), train_input)
+    kwargs = dict(reconstruct_kwargs or {})
+    params = {
+        "input": input_name,
+        "run": str(run.resolve()),
+        "checkpoint": checkpoint,
+        "epoch": int(ckpt["epoch"]),
+        "model": ckpt["model"],
+        "hparams": ckpt["hparams"],
+        "train_input": train_input,
+        "reconstruct": kwargs,
+    }
+    sampling = model_class(str(ckpt["model"])).has_uncertainty
+    if overwrite and out in store.reconstruction_names() and store.reconstruction_params(out) != params:
+        store.delete_reconstruction(out)
+    try:
+        store.prepare_reconstruction(out, params, uncertainty=sampling)
+    except StoreError as exc:
+        raise NanoctError(
+            f"reconstructions/{out} in {store.path} was made with another network or checkpoint "
+            f"({store.reconstruction_params(out)}); use --overwrite to replace it"
+        ) from exc
+    todo = indices[~store.reconstruction_done(out)[indices]]
+    if todo.size == 0:
+        return out
+
+    model = model_from_checkpoint(ckpt, ckpt_path)
+    dev = resolve_device(device)
+    use_cl = dev.type == "cpu"
+    model = model.to(dev, memory_format=torch.channels_last) if use_cl else model.to(dev)
+    model.eval()
+    with tqdm(total=int(todo.size), desc=out, unit="img", disable=not progress) as bar:
+        for start in range(0, todo.size, 1 if sampling else batch_size):
+            idx = todo[start : start + (1 if sampling else batch_size)]
+            x_tilde = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, idx), np.float32))[:, None]
+            x_tilde = x_tilde.to(dev)
+            if use_cl:
+                x_tilde = x_tilde.contiguous(memory_format=torch.channels_last)
+            call = {"seed": int(idx[0]), **kwargs} if sampling else kwargs
+            with torch.no_grad():
+                mean, std = model.reconstruct(x_tilde, **call)
+            mean_np = mean.float().cpu().numpy()[:, 0]
+            std_np = None if std is None else std.float().cpu().numpy()[:, 0]
+            for j, i in enumerate(idx):
+                # the progress flag is written last, after the mean and the std
+                store.write_reconstruction(out, int(i), mean_np[j], std=None if std_np is None else std_np[j])
+            bar.update(len(idx))
+    return out

@@ -1,0 +1,202 @@
+"""The paper's post-processing UNet (after dival's ``get_unet_model``) and its PostProcessor.
+
+Architecture (defaults = the paper's): 5 scales with (32, 32, 64, 64, 128) channels; an input
+block (3x3 conv, BatchNorm, LeakyReLU(0.2)); per lower scale a down block (stride-2 3x3 conv
+and a 3x3 conv, each followed by BatchNorm and LeakyReLU); per up step bilinear upsampling
+(``align_corners=True``) concatenated with a 1x1-conv skip branch of 4 channels, then two 3x3
+convs; a 1x1 output conv and a sigmoid.
+
+Images of any size are accepted: the input is padded (reflect by default) to the next
+multiple of 2^(scales-1) -- 255 -> 256, 127 -> 128, 63 -> 64 -- and the output is cropped
+back, so every scale halves exactly and the skip connections align.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .base import PostProcessor
+
+__all__ = ["UNet", "UNetPost", "padded_size"]
+
+PAPER_CHANNELS = (32, 32, 64, 64, 128)
+
+
+def padded_size(n: int, scales: int) -> int:
+    """Smallest multiple of 2^(scales-1) that is >= n (the size the UNet works at)."""
+    m = 2 ** (scales - 1)
+    return -(-int(n) // m) * m
+
+
+def _conv(in_ch: int, out_ch: int, stride: int, use_norm: bool) -> list[nn.Module]:
+    layers: list[nn.Module] = [nn.Conv2d(in_ch, out_ch, 3, stride=stride, padding=1)]
+    if use_norm:
+        layers.append(nn.BatchNorm2d(out_ch))
+    layers.append(nn.LeakyReLU(0.2, inplace=True))
+    return layers
+
+
+class _UpBlock(nn.Module):
+    def __init__(self, in_ch: int, out_ch: int, skip_ch: int, use_norm: bool) -> None:
+        super().__init__()
+        self.use_skip = skip_ch > 0
+        skip_ch = max(skip_ch, 1)  # dival keeps a zeroed channel when skips are off
+        skip: list[nn.Module] = [nn.Conv2d(out_ch, skip_ch, 1)]
+        if use_norm:
+            skip.append(nn.BatchNorm2d(skip_ch))
+        skip.append(nn.LeakyReLU(0.2, inplace=True))
+        self.skip_conv = nn.Sequential(*skip)
+        conv: list[nn.Module] = [nn.BatchNorm2d(in_ch + skip_ch)] if use_norm else []
+        conv += _conv(in_ch + skip_ch, out_ch, 1, use_norm) + _conv(out_ch, out_ch, 1, use_norm)
+        self.conv = nn.Sequential(*conv)
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=True)
+        s = self.skip_conv(skip)
+        if not self.use_skip:
+            s = s * 0
+        return self.conv(torch.cat([x, s], dim=1))
+
+
+class UNet(nn.Module):
+    """Plain UNet mapping (B, in_ch, H, W) to (B, out_ch, H, W).
+
+    Parameters
+    ----------
+    in_ch, out_ch : int
+        Input and output channels.
+    channels : sequence of int
+        Feature channels per scale, finest first; its length is the number of scales.
+    skip_channels : int or sequence of int
+        Channels of the 1x1 skip branch per scale (0 disables a skip connection).
+    use_sigmoid : bool
+        Apply a sigmoid to the output (images in [0, 1]).
+    use_norm : bool
+        BatchNorm after every convolution.
+    pad_mode : {"reflect", "replicate", "constant"}
+        How the input is padded to a multiple of 2^(scales-1) (cropped back afterwards).
+    """
+
+    def __init__(
+        self,
+        in_ch: int = 1,
+        out_ch: int = 1,
+        channels: Sequence[int] = PAPER_CHANNELS,
+        skip_channels: int | Sequence[int] = 4,
+        use_sigmoid: bool = True,
+        use_norm: bool = True,
+        pad_mode: str = "reflect",
+    ) -> None:
+        super().__init__()
+        channels = [int(c) for c in channels]
+        if not channels or min(channels) < 1:
+            raise ValueError(f"channels {channels} must be a non-empty list of positive integers")
+        skips = [int(skip_channels)] * len(channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+        if len(skips) != len(channels):
+            raise ValueError(f"skip_channels {skips} must have one entry per scale ({len(channels)})")
+        if pad_mode not in ("reflect", "replicate", "constant"):
+            raise ValueError(f"pad_mode {pad_mode!r} must be reflect, replicate or constant")
+        self.scales = len(channels)
+        self.channels = channels
+        self.use_sigmoid = use_sigmoid
+        self.pad_mode = pad_mode
+        self.inc = nn.Sequential(*_conv(in_ch, channels[0], 1, use_norm))
+        self.down = nn.ModuleList(
+            nn.Sequential(*_conv(channels[i - 1], channels[i], 2, use_norm), *_conv(channels[i], channels[i], 1, use_norm))
+            for i in range(1, self.scales)
+        )
+        # up[j] goes from scale (scales-1-j) to scale (scales-2-j)
+        self.up = nn.ModuleList(
+            _UpBlock(channels[i], channels[i - 1], skips[i - 1], use_norm) for i in range(self.scales - 1, 0, -1)
+        )
+        self.outc = nn.Conv2d(channels[0], out_ch, 1)
+
+    # ------------------------------------------------------------------ padding
+    def _pad(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int, int, int]]:
+        h, w = x.shape[-2:]
+        ph, pw = padded_size(h, self.scales) - h, padded_size(w, self.scales) - w
+        pad = (pw // 2, pw - pw // 2, ph // 2, ph - ph // 2)  # left, right, top, bottom
+        if ph or pw:
+            mode = self.pad_mode if min(h, w) > max(pad) else "replicate"  # reflect needs pad < size
+            x = F.pad(x, pad, mode=mode)
+        return x, pad
+
+    @staticmethod
+    def _crop(x: torch.Tensor, pad: tuple[int, int, int, int]) -> torch.Tensor:
+        left, right, top, bottom = pad
+        return x[..., top : x.shape[-2] - bottom, left : x.shape[-1] - right]
+
+    # ------------------------------------------------------------------ forward
+    def forward_features(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor], list[torch.Tensor]]:
+        """Output and the feature maps of every scale.
+
+        Returns
+        -------
+        out : Tensor
+            (B, out_ch, H, W), cropped back to the input size.
+        enc_feats : list of Tensor
+            Encoder activations, ``enc_feats[i]`` at scale i: (B, channels[i], P/2^i, P/2^i)
+            with P the padded size (:func:`padded_size`).
+        dec_feats : list of Tensor
+            Decoder activations indexed the same way: ``dec_feats[i]`` is the decoder output
+            at scale i, ``dec_feats[-1]`` the bottleneck (= ``enc_feats[-1]``).
+        """
+        xp, pad = self._pad(x)
+        enc = [self.inc(xp)]
+        for block in self.down:
+            enc.append(block(enc[-1]))
+        h = enc[-1]
+        dec = [h]
+        for j, block in enumerate(self.up):
+            h = block(h, enc[-2 - j])
+            dec.append(h)
+        out = self.outc(h)
+        if self.use_sigmoid:
+            out = torch.sigmoid(out)
+        return self._crop(out, pad), enc, dec[::-1]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.forward_features(x)[0]
+
+
+class UNetPost(PostProcessor):
+    """UNet post-processing (``name = "unet"``): trained with the mean squared error.
+
+    Keyword arguments are those of :class:`UNet` (minus in/out channels); the resolved values
+    are stored in ``hparams``.
+    """
+
+    name = "unet"
+
+    def __init__(
+        self,
+        channels: Sequence[int] = PAPER_CHANNELS,
+        skip_channels: int | Sequence[int] = 4,
+        use_sigmoid: bool = True,
+        use_norm: bool = True,
+        pad_mode: str = "reflect",
+    ) -> None:
+        skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+        super().__init__(
+            channels=[int(c) for c in channels], skip_channels=skips, use_sigmoid=bool(use_sigmoid),
+            use_norm=bool(use_norm), pad_mode=str(pad_mode),
+        )
+        self.net = UNet(1, 1, **self.hparams)
+
+    def forward(self, x_tilde: torch.Tensor) -> torch.Tensor:
+        return self.net(x_tilde)
+
+    def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        """Mean squared error over pixels and batch."""
+        mse = F.mse_loss(self.net(x_tilde), x)
+        return mse, {"mse": float(mse.detach())}
+
+    @torch.no_grad()
+    def reconstruct(self, x_tilde: torch.Tensor, **kwargs: Any) -> tuple[torch.Tensor, None]:
+        """UNet output (the caller sets eval mode); no uncertainty."""
+        return self.net(x_tilde), None

@@ -1,0 +1,126 @@
+"""Inference: output names (incl. input mixing), stored parameters, resume, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import nanoct.learn.predict as predict_mod
+from nanoct.errors import NanoctError
+from nanoct.generate import generate_dataset
+from nanoct.geometry import get_preset
+from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
+from nanoct.learn.predict import output_name, predict
+from nanoct.learn.train import train
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.store import DataStore
+
+SMALL = {"channels": [4, 4, 8, 8, 16]}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("predict")
+    path = root / "tiny"
+    generate_dataset(path, get_preset("tiny-parallel"), 12, seed=7, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    reconstruct_dataset(path, "fbp", name="other", split="test", workers=0, progress=False)  # a second "method"
+    run = train(path, "unet", "fbp", root / "run", epochs=2, batch_size=2, progress=False, model_kwargs=SMALL)
+    return path, run
+
+
+def test_output_name():
+    assert output_name("fbp", "unet", "fbp") == "fbp+unet"
+    assert output_name("dremel", "unet", "fbp") == "dremel+unet@fbp"
+
+
+def test_predict_writes_test_split(setup):
+    path, run = setup
+    assert predict(path, run, progress=False) == "fbp+unet"
+    store = DataStore.open(path)
+    test = store.indices("test")
+    assert np.array_equal(np.flatnonzero(store.reconstruction_done("fbp+unet")), test)
+    out = store.read_reconstruction("fbp+unet", test)
+    assert out.shape == (3, 63, 63) and out.min() >= 0 and out.max() <= 1
+    ckpt = load_checkpoint(run / "best.pt")
+    params = store.reconstruction_params("fbp+unet")
+    assert params["train_input"] == "fbp" and params["epoch"] == ckpt["epoch"] and params["checkpoint"] == "best"
+    model = model_from_checkpoint(ckpt).eval()
+    with torch.no_grad():
+        ref = model(torch.from_numpy(store.read_reconstruction("fbp", test))[:, None])[:, 0].numpy()
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+def test_predict_is_resumable_and_noop_when_complete(setup, monkeypatch):
+    path, run = setup
+    predict(path, run, progress=False)
+    seen: list[int] = []
+    real = predict_mod.model_from_checkpoint
+
+    def counting(*a, **k):
+        model = real(*a, **k)
+        orig = model.reconstruct
+        model.reconstruct = lambda x, **kw: (seen.append(x.shape[0]), orig(x, **kw))[1]
+        return model
+
+    monkeypatch.setattr(predict_mod, "model_from_checkpoint", counting)
+    predict(path, run, progress=False)
+    assert seen == []  # complete: nothing recomputed
+    store = DataStore.open(path, mode="r+")
+    store._group["progress/fbp+unet"][int(store.indices("test")[1])] = False
+    predict(path, run, progress=False)
+    assert seen == [1]
+    assert store.reconstruction_done("fbp+unet")[store.indices("test")].all()
+
+
+def test_input_mixing(setup):
+    path, run = setup
+    assert predict(path, run, "other", progress=False) == "other+unet@fbp"
+    store = DataStore.open(path)
+    params = store.reconstruction_params("other+unet@fbp")
+    assert params["input"] == "other" and params["train_input"] == "fbp"
+    # "other" is the same FBP under another name, so the mixed result equals the plain one
+    np.testing.assert_allclose(store.read_reconstruction("other+unet@fbp", store.indices("test")),
+                               store.read_reconstruction("fbp+unet", store.indices("test")), atol=1e-6)
+
+
+def test_other_checkpoint_needs_overwrite(setup):
+    path, run = setup
+    predict(path, run, name="cmp", progress=False)
+    with pytest.raises(NanoctError, match="--overwrite"):
+        predict(path, run, name="cmp", checkpoint="last", progress=False)
+    predict(path, run, name="cmp", checkpoint="last", overwrite=True, progress=False)
+    assert DataStore.open(path).reconstruction_params("cmp")["checkpoint"] == "last"
+
+
+def test_bad_input(setup, tmp_path):
+    path, run = setup
+    with pytest.raises(NanoctError, match="no reconstruction 'dremel'"):
+        predict(path, run, "dremel", progress=False)
+    with pytest.raises(NanoctError, match="missing 6 of the 6 train"):
+        predict(path, run, "other", split="train", progress=False)
+    with pytest.raises(NanoctError, match="no training run"):
+        predict(path, tmp_path / "nope", progress=False)
+    with pytest.raises(NanoctError, match="'best' or 'last'"):
+        predict(path, run, checkpoint="final", progress=False)
+    # corrupt checkpoint
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "best.pt").write_bytes((run / "best.pt").read_bytes()[:500])
+    with pytest.raises(NanoctError, match="corrupt"):
+        predict(path, bad, progress=False)
+    # checkpoint of another image size
+    other = tmp_path / "other"
+    other.mkdir()
+    ckpt = torch.load(run / "best.pt", weights_only=True)
+    ckpt["image_size"] = 127
+    torch.save(ckpt, other / "best.pt")
+    with pytest.raises(NanoctError, match="127x127"):
+        predict(path, other, progress=False)
+    # a store without test samples
+    no_test = tmp_path / "notest"
+    generate_dataset(no_test, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(0.5, 0.5, 0.0))
+    reconstruct_dataset(no_test, "fbp", workers=0, progress=False)
+    with pytest.raises(NanoctError, match="test split .* has no samples"):
+        predict(no_test, run, progress=False)

@@ -1,0 +1,194 @@
+"""Training infrastructure: loss goes down, checkpoints and log, resume after a kill, DDP on CPU."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from nanoct.errors import NanoctError
+from nanoct.generate import generate_dataset
+from nanoct.geometry import get_preset
+from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+from nanoct.learn.data import ReconDataset
+from nanoct.learn.models import build_model
+from nanoct.learn.train import train
+from nanoct.recon.batch import reconstruct_dataset
+
+SMALL = {"channels": [4, 4, 8, 8, 16]}
+FAST = dict(batch_size=2, progress=False, model_kwargs=SMALL)
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    """12 tiny-parallel samples (6 train, 3 val, 3 test) with FBP of all and a partial input."""
+    path = tmp_path_factory.mktemp("learn") / "tiny"
+    generate_dataset(path, get_preset("tiny-parallel"), 12, seed=5, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    reconstruct_dataset(path, "fbp", name="partial", split="test", workers=0, progress=False)
+    return path
+
+
+def _log(run: Path) -> list[dict[str, str]]:
+    with open(run / "log.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def test_dataset(store):
+    ds = ReconDataset(store, "fbp", "train")
+    assert len(ds) == 6 and ds.in_memory and ds.image_size == 63
+    x_tilde, x = ds[0]
+    assert x_tilde.shape == x.shape == (1, 63, 63) and x_tilde.dtype == x.dtype == torch.float32
+    lazy = ReconDataset(store, "fbp", "train", in_memory=False)
+    assert not lazy.in_memory
+    for a, b in zip(lazy[5], ds[5]):
+        assert torch.equal(a, b)
+
+
+def test_dataset_errors(store, tmp_path):
+    with pytest.raises(NanoctError, match="no reconstruction 'dremel'.*nanoct reconstruct"):
+        ReconDataset(store, "dremel", "train")
+    with pytest.raises(NanoctError, match="missing 6 of the 6 train"):
+        ReconDataset(store, "partial", "train")
+    assert len(ReconDataset(store, "partial", "test")) == 3
+    with pytest.raises(NanoctError, match="unknown"):
+        ReconDataset(store, "fbp", "training")
+    no_val = tmp_path / "noval"
+    generate_dataset(no_val, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(1.0, 0.0, 0.0))
+    reconstruct_dataset(no_val, "fbp", workers=0, progress=False)
+    with pytest.raises(NanoctError, match="val split .* is empty"):
+        ReconDataset(no_val, "fbp", "val")
+
+
+def test_training_lowers_loss_and_writes_run(store, tmp_path):
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=8, lr=3e-3, **FAST)
+    assert {p.name for p in run.iterdir()} >= {"last.pt", "best.pt", "log.csv", "config.json"}
+    rows = _log(run)
+    assert [int(r["epoch"]) for r in rows] == list(range(1, 9))
+    assert {"train_loss", "val_loss", "train_mse", "val_mse", "lr", "seconds"} <= set(rows[0])
+    train_losses = [float(r["train_loss"]) for r in rows]
+    assert train_losses[-1] < 0.8 * train_losses[0]
+    val = [float(r["val_loss"]) for r in rows]
+    best = load_checkpoint(run / "best.pt", model_name="unet", image_size=63)
+    assert best["epoch"] == 1 + val.index(min(val)) and best["best_val_loss"] == pytest.approx(min(val))
+    last = load_checkpoint(run / "last.pt")
+    assert last["epoch"] == 8 and last["step"] == 8 * 3 and last["input"] == "fbp"
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["model"] == "unet" and cfg["hparams"]["channels"] == SMALL["channels"] and cfg["batch_size"] == 2
+    assert isinstance(model_from_checkpoint(best), torch.nn.Module)
+
+
+def test_resume_after_kill_matches_uninterrupted(store, tmp_path):
+    ref = train(store, "unet", "fbp", tmp_path / "ref", epochs=3, scheduler="plateau", **FAST)
+
+    calls: list[int] = []
+
+    def killer(epoch, row):
+        calls.append(epoch)
+        if epoch == 2:
+            raise KeyboardInterrupt("simulated kill after epoch 2")
+
+    with pytest.raises(KeyboardInterrupt):
+        train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler="plateau", on_epoch_end=killer, **FAST)
+    assert load_checkpoint(tmp_path / "run" / "last.pt")["epoch"] == 2
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler="plateau", on_epoch_end=killer, **FAST)
+    assert calls == [1, 2, 3]  # epochs 1 and 2 were not repeated
+    assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3]
+    a, b = load_checkpoint(ref / "last.pt"), load_checkpoint(run / "last.pt")
+    assert a["step"] == b["step"] == 9
+    for k, v in a["model_state"].items():
+        assert torch.equal(v, b["model_state"][k]), k
+    assert [r["val_loss"] for r in _log(ref)] == [r["val_loss"] for r in _log(run)]
+    # finished: nothing to do; more epochs extend the run
+    mtime = (run / "last.pt").stat().st_mtime_ns
+    train(store, "unet", "fbp", run, epochs=3, scheduler="plateau", **FAST)
+    assert (run / "last.pt").stat().st_mtime_ns == mtime
+    train(store, "unet", "fbp", run, epochs=4, scheduler="plateau", **FAST)
+    assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3, 4]
+
+
+def test_resume_after_sigkill(store, tmp_path):
+    """A real kill (SIGKILL) of the training process; the rerun continues at the next epoch."""
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "nanoct.learn.train", str(store), "--model", "unet", "--input", "fbp", "--out", str(run),
+           "--batch-size", "2", "--model-kwargs", json.dumps(SMALL), "--no-progress"]
+    proc = subprocess.Popen([*cmd, "--epochs", "10000"], stderr=subprocess.PIPE)
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not (run / "log.csv").exists():
+            assert proc.poll() is None, proc.stderr.read().decode()
+            time.sleep(0.05)
+        time.sleep(0.3)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    done = load_checkpoint(run / "last.pt")["epoch"]
+    assert 1 <= done < 10000
+    subprocess.run([*cmd, "--epochs", str(done + 2)], check=True)
+    assert [int(r["epoch"]) for r in _log(run)] == list(range(1, done + 3))
+    assert not [p for p in run.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+def test_mismatched_request_refused(store, tmp_path):
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
+    with pytest.raises(NanoctError, match="differs in: lr"):
+        train(store, "unet", "fbp", run, epochs=2, lr=1e-4, **FAST)
+    with pytest.raises(NanoctError, match="architecture|hparams"):
+        train(store, "unet", "fbp", run, epochs=2, batch_size=2, progress=False, model_kwargs={"channels": [4, 4, 8, 8, 8]})
+    reconstruct_dataset(store, "fbp", name="fbp_copy", workers=0, progress=False)
+    with pytest.raises(NanoctError, match="differs in: input"):
+        train(store, "unet", "fbp_copy", run, epochs=2, **FAST)
+
+
+def test_corrupt_and_mismatched_checkpoints(store, tmp_path):
+    model = build_model("unet", **SMALL)
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, model=model, input_name="fbp", image_size=63, epoch=1)
+    assert load_checkpoint(path, model_name="unet", image_size=63, hparams=model.hparams)["epoch"] == 1
+    with pytest.raises(NanoctError, match="holds a 'unet' model, not 'cinn'"):
+        load_checkpoint(path, model_name="cinn")
+    with pytest.raises(NanoctError, match="63x63"):
+        load_checkpoint(path, image_size=127)
+    with pytest.raises(NanoctError, match="architecture"):
+        load_checkpoint(path, hparams={**model.hparams, "channels": [8, 8, 8, 8, 8]})
+    with pytest.raises(NanoctError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(NanoctError, match="corrupt"):
+        load_checkpoint(bad)
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["hparams"] = {**ckpt["hparams"], "channels": [8, 8, 8, 8, 8]}
+    with pytest.raises(NanoctError, match="do not fit"):
+        model_from_checkpoint(ckpt)
+    # a run whose last.pt is damaged is refused with a clear message
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "last.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(NanoctError, match="corrupt"):
+        train(store, "unet", "fbp", run, epochs=1, **FAST)
+    with pytest.raises(NanoctError, match="no reconstruction 'kaczmarz'"):
+        train(store, "unet", "kaczmarz", tmp_path / "run2", epochs=1, **FAST)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs a POSIX system")
+def test_ddp_two_processes_gloo(store, tmp_path):
+    run = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "CUDA_VISIBLE_DEVICES": ""}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "nanoct.learn.train",
+           str(store), "--model", "unet", "--input", "fbp", "--out", str(run), "--epochs", "5", "--batch-size", "2",
+           "--max-steps", "3", "--model-kwargs", json.dumps(SMALL), "--no-progress"]
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr[-3000:]
+    last = load_checkpoint(run / "last.pt")
+    assert last["step"] == 3 and last["epoch"] == 1 and last["config"]["world_size"] == 2
+    assert sorted(p.name for p in run.iterdir()) == ["best.pt", "config.json", "last.pt", "log.csv"]
+    assert len(_log(run)) == 1

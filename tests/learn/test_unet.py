@@ -1,0 +1,99 @@
+"""UNet: shapes with padding and crop-back, feature maps per scale, sigmoid range, PostProcessor API."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from nanoct.errors import NanoctError
+from nanoct.learn.base import PostProcessor
+from nanoct.learn.models import build_model, model_names
+from nanoct.learn.unet import PAPER_CHANNELS, UNet, UNetPost, padded_size
+
+SMALL = (4, 4, 8, 8, 16)
+
+
+@pytest.mark.parametrize("n", [63, 127, 255])
+def test_shapes_crop_back_and_features(n):
+    torch.manual_seed(0)
+    net = UNet(channels=SMALL)
+    x = torch.randn(2, 1, n, n)
+    out, enc, dec = net.forward_features(x)
+    assert out.shape == x.shape
+    p = padded_size(n, 5)
+    assert p == {63: 64, 127: 128, 255: 256}[n]
+    assert [tuple(t.shape) for t in enc] == [(2, c, p >> i, p >> i) for i, c in enumerate(SMALL)]
+    assert [tuple(t.shape) for t in dec] == [(2, c, p >> i, p >> i) for i, c in enumerate(SMALL)]
+    assert dec[-1] is enc[-1]  # bottleneck
+    assert torch.equal(net(x), out)  # forward == forward_features[0]
+
+
+def test_non_square_and_exact_multiple():
+    net = UNet(channels=SMALL).eval()
+    assert net(torch.randn(1, 1, 40, 50)).shape == (1, 1, 40, 50)
+    assert net(torch.randn(1, 1, 64, 64)).shape == (1, 1, 64, 64)
+    assert net(torch.randn(1, 1, 5, 5)).shape == (1, 1, 5, 5)  # pad > size: replicate fallback
+
+
+def test_paper_defaults_and_sigmoid_range():
+    net = UNet()
+    assert net.scales == 5 and net.channels == list(PAPER_CHANNELS)
+    assert min(PAPER_CHANNELS) == 32 and max(PAPER_CHANNELS) == 128
+    with torch.no_grad():
+        out = net.eval()(100 * torch.randn(1, 1, 63, 63))
+    assert out.min() >= 0 and out.max() <= 1
+    raw = UNet(channels=SMALL, use_sigmoid=False).eval()
+    with torch.no_grad():
+        assert raw(50 * torch.randn(1, 1, 31, 31)).min() < 0
+
+
+def test_downsampling_is_strided_conv_and_upsampling_bilinear():
+    net = UNet(channels=SMALL)
+    convs = [m for m in net.down.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert convs[0].stride == (2, 2) and not any(isinstance(m, torch.nn.MaxPool2d) for m in net.modules())
+    skip_convs = [b.skip_conv[0] for b in net.up]
+    assert all(c.out_channels == 4 and c.kernel_size == (1, 1) for c in skip_convs)
+
+
+def test_skip_connections_carry_gradient():
+    net = UNet(channels=SMALL)
+    x = torch.randn(2, 1, 32, 32)
+    net(x).sum().backward()
+    assert all(b.skip_conv[0].weight.grad.abs().sum() > 0 for b in net.up)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError):
+        UNet(channels=(4, 8), skip_channels=(4, 4, 4))
+    with pytest.raises(ValueError):
+        UNet(pad_mode="circularish")
+    with pytest.raises(NanoctError):
+        build_model("unet", channels=[])
+    with pytest.raises(NanoctError):
+        build_model("unet", depth=3)
+    with pytest.raises(NanoctError, match="unknown"):
+        build_model("resnet-9000")
+
+
+def test_postprocessor_interface():
+    assert "unet" in model_names()
+    model = build_model("unet", channels=list(SMALL))
+    assert isinstance(model, PostProcessor) and isinstance(model, UNetPost) and model.name == "unet"
+    assert model.hparams == {"channels": list(SMALL), "skip_channels": 4, "use_sigmoid": True, "use_norm": True, "pad_mode": "reflect"}
+    assert build_model("unet", **model.hparams).hparams == model.hparams
+    x_tilde, x = torch.rand(3, 1, 31, 31), torch.rand(3, 1, 31, 31)
+    loss, logs = model.loss(x_tilde, x)
+    assert loss.ndim == 0 and loss.requires_grad and logs == {"mse": pytest.approx(float(loss.detach()))}
+    assert torch.allclose(loss, torch.mean((model(x_tilde) - x) ** 2))
+    mean, std = model.eval().reconstruct(x_tilde)
+    assert std is None and mean.shape == x.shape and not mean.requires_grad
+
+
+def test_channels_last_matches_contiguous():
+    torch.manual_seed(1)
+    net = UNet(channels=SMALL).eval()
+    x = torch.randn(2, 1, 63, 63)
+    with torch.no_grad():
+        a = net(x)
+        b = net.to(memory_format=torch.channels_last)(x.contiguous(memory_format=torch.channels_last))
+    assert torch.allclose(a, b, atol=1e-5)
