@@ -245,14 +245,24 @@ def reproduce(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output directory (default runs/<preset>)."),
     n: Optional[int] = typer.Option(None, "--n", help="Override the number of samples of the preset."),
     no_motion: bool = typer.Option(False, "--no-motion", help="The unperturbed sanity case."),
+    models: str = typer.Option(
+        "unet,cinn,cinn-res,ciunet,ciunet-res", "--models", help="Comma-separated post-processing networks, or 'none'."
+    ),
     workers: int = WORKERS,
     scheduler: Optional[str] = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
-    """Run the study end to end: generate, reconstruct, evaluate, report (cached, resumable)."""
+    """Run the study end to end: generate, reconstruct, train, predict, evaluate, report.
+
+    Every stage is cached in the output directory: a second run only redoes what is
+    missing, and a killed run resumes.
+    """
     from .reproduce import reproduce_study
 
-    report = reproduce_study(preset, out=out, n=n, perturbed=not no_motion, workers=workers, scheduler=scheduler, progress=not quiet)
+    chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
+    report = reproduce_study(
+        preset, out=out, n=n, perturbed=not no_motion, models=chosen, workers=workers, scheduler=scheduler, progress=not quiet
+    )
     typer.echo(report.read_text())
     typer.echo(f"report: {report}", err=True)
 

@@ -56,6 +56,7 @@ def run_tasks(
     scheduler: str | None = None,
     desc: str = "samples",
     progress: bool = True,
+    unit: str = "sample",
 ) -> int:
     """Run ``task(i)`` for every index, on Dask or (``workers == 0``) in this process.
 
@@ -73,6 +74,8 @@ def run_tasks(
         Progress-bar label.
     progress : bool
         Show a progress bar.
+    unit : str
+        What one task is, for the progress bar.
 
     Returns
     -------
@@ -90,7 +93,7 @@ def run_tasks(
         raise ValueError(f"workers={workers} must be >= 0")
     if not indices:
         return 0
-    bar = tqdm(total=len(indices), desc=desc, unit="sample", disable=not progress)
+    bar = tqdm(total=len(indices), desc=desc, unit=unit, disable=not progress)
     try:
         if workers == 0 and not scheduler:
             for i in indices:
