@@ -122,6 +122,7 @@ def reproduce_study(
     n: int | None = None,
     perturbed: bool = True,
     models: tuple[str, ...] | None = None,
+    study: Study | None = None,
     workers: int = 2,
     scheduler: str | None = None,
     progress: bool = True,
@@ -142,6 +143,8 @@ def reproduce_study(
         False gives the unperturbed sanity case.
     models : tuple of str, optional
         Post-processing networks to train (default all of :data:`MODELS`; ``()`` for none).
+    study : Study, optional
+        Scale settings instead of the preset's entry in :data:`STUDIES`.
     workers, scheduler, progress
         See :func:`nanoct.fanout.run_tasks`.
     """
@@ -152,7 +155,7 @@ def reproduce_study(
     if unknown:
         raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(MODELS)}")
     geometry = get_preset(preset)
-    study = STUDIES[preset.split("-")[0]]
+    study = study or STUDIES[preset.split("-")[0]]
     out = Path(out or Path("runs") / (preset if perturbed else f"{preset}-nomotion"))
     data, runs, report_dir = out / "data", out / "runs", out / "report"
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}
