@@ -200,6 +200,14 @@ class DataStore:
     def _array(self, name: str) -> zarr.Array:
         return self._group[name]  # type: ignore[return-value]
 
+    def _flags(self, key: str, idx: np.ndarray) -> np.ndarray:
+        """Completion flags of the given samples only (reads just their chunks)."""
+        if key not in self._group:
+            return np.zeros(len(idx), dtype=bool)
+        if len(idx) == 0:
+            return np.zeros(0, dtype=bool)
+        return np.asarray(self._group[key].get_coordinate_selection(idx), dtype=bool)
+
     @property
     def split(self) -> np.ndarray:
         """Split label per sample (0 train, 1 val, 2 test)."""
@@ -253,7 +261,7 @@ class DataStore:
     def read_phantoms(self, indices: Iterable[int]) -> np.ndarray:
         """Ground-truth phantoms of the given samples, shape (len(indices), N, N)."""
         idx = np.asarray(list(indices), dtype=int)
-        if not self.done[idx].all():
+        if not self._flags("done", idx).all():
             raise StoreError(f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again")
         return self._array("phantoms").get_orthogonal_selection((idx, slice(None), slice(None)))
 
@@ -335,7 +343,7 @@ class DataStore:
         if f"reconstructions/{name}" not in self._group:
             raise StoreError(f"{self.path} has no reconstruction '{name}'; present: {self.reconstruction_names() or 'none'}")
         idx = np.arange(self.n) if indices is None else np.asarray(list(indices), dtype=int)
-        missing = idx[~self.reconstruction_done(name)[idx]]
+        missing = idx[~self._flags(f"progress/{name}", idx)]
         if missing.size:
             raise StoreError(f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. {missing[:5].tolist()}); run 'nanoct reconstruct' again")
         arr = self._group[f"reconstructions/{name}"]
@@ -350,7 +358,7 @@ class DataStore:
         if not self.has_uncertainty(name):
             raise StoreError(f"reconstruction '{name}' in {self.path} has no uncertainty map")
         idx = np.asarray(list(indices), dtype=int)
-        missing = idx[~self.reconstruction_done(name)[idx]]
+        missing = idx[~self._flags(f"progress/{name}", idx)]
         if missing.size:
             raise StoreError(f"uncertainty of '{name}' is missing {missing.size} requested sample(s); run 'nanoct predict' again")
         return self._group[f"uncertainty/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))

@@ -116,10 +116,8 @@ class ReconDataset(Dataset):
             return self._x_tilde[item], self._x[item]
         store = self._open()
         i = int(self.indices[item])
-        # completeness was checked at construction; read the chunks directly (the store's
-        # checked readers scan all n per-sample flags on every call)
-        x_tilde = store._array(f"reconstructions/{self.input_name}")[i]
-        x = store._array("phantoms")[i]
+        x_tilde = store.read_reconstruction(self.input_name, [i])[0]
+        x = store.read_phantoms([i])[0]
         return torch.from_numpy(np.asarray(x_tilde, np.float32))[None], torch.from_numpy(np.asarray(x, np.float32))[None]
 
     def __getstate__(self) -> dict[str, Any]:
