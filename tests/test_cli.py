@@ -43,6 +43,20 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     code, out, _ = run(monkeypatch, capsys, "evaluate", d, "--json")
     assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["fbp"]) == {"psnr_mean", "psnr_std", "ssim_mean", "ssim_std", "n"}
     assert (d / "report" / "evaluation.md").is_file()
+    run_dir = tmp_path / "run"
+    code, out, err = run(monkeypatch, capsys, "train", d, "--model", "unet", "--input", "fbp", "--epochs", 1, "--out", run_dir,
+                         "--param", "channels=[4,4,4,4,4]", "-q")
+    assert code == 0 and (run_dir / "best.pt").is_file() and (run_dir / "log.csv").is_file(), err
+    code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "-q")
+    assert code == 0 and "reconstructions/fbp+unet" in out
+    code, _, err = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--samples", 0)
+    assert code == 2 and "--samples 0" in err
+    code, _, err = run(monkeypatch, capsys, "predict", d, "--run", tmp_path / "nope")
+    assert code == 2 and "no training run" in err
+    code, _, err = run(monkeypatch, capsys, "train", d, "--model", "vit", "--input", "fbp")
+    assert code == 2 and "model 'vit' is unknown" in err
+    code, _, err = run(monkeypatch, capsys, "train", d, "--model", "unet", "--input", "dremel", "--out", tmp_path / "r2")
+    assert code == 2 and "dremel" in err
     png = tmp_path / "fig.png"
     code, _, _ = run(monkeypatch, capsys, "show", d, "--index", 1, "--out", png)
     assert code == 0 and png.read_bytes()[:4] == b"\x89PNG"
