@@ -7,14 +7,10 @@ import pytest
 
 from nanoct.geometry import get_preset
 from nanoct.motion import MotionParams, sample_motion
-from nanoct.operators import RayTransform, system_matrix
+from nanoct.operators import RayTransform
 from nanoct.phantoms import downsample, random_phantom
 from nanoct.recon.dremel import dremel, shift_cross_corr
 from nanoct.recon.kaczmarz import kaczmarz
-
-
-def psnr(x, gt):
-    return 10 * np.log10((gt.max() - gt.min()) ** 2 / np.mean((x - gt) ** 2))
 
 
 def signal(n, shift):
@@ -95,7 +91,7 @@ def test_recovers_translations_parallel():
     assert min(corr_fixed) >= 0.9
 
 
-def test_correction_improves_image():
+def test_correction_improves_image(psnr):
     g, gt, y, true = translated("tiny-parallel", 11)
     res = dremel(g, y)
     # the same view steps without correction (shifts stay 0)
@@ -104,7 +100,7 @@ def test_correction_improves_image():
     assert psnr(res.image, gt) > psnr(plain.image, gt) + 1.0
 
 
-def test_fan_beam():
+def test_fan_beam(psnr):
     g, gt, y, true = translated("tiny-fan", 13)
     res = dremel(g, y)
     plain = dremel(g, y, correction_start=32)
@@ -113,10 +109,8 @@ def test_fan_beam():
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
-def test_consistent_data(name):
-    g = get_preset(name)
-    x = random_phantom(np.random.default_rng(8), g.n).astype(np.float32)
-    y = (system_matrix(g) @ x.ravel()).reshape(g.sino_shape)
+def test_consistent_data(name, consistent, psnr):
+    g, x, y = consistent(name, seed=8)
     res = dremel(g, y, residual="exact")
     r = np.asarray(res.residuals)
     assert r[-1] < 0.1 * r[0]

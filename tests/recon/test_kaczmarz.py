@@ -8,7 +8,6 @@ import scipy.sparse as sp
 
 from nanoct.geometry import Geometry, get_preset
 from nanoct.operators import RayTransform, system_matrix
-from nanoct.phantoms import random_phantom
 from nanoct.recon.kaczmarz import kaczmarz, kaczmarz_reference, view_order
 
 SMALL = Geometry("parallel", 6, 5, 7)  # 35 rays x 36 pixels
@@ -27,17 +26,6 @@ def random_csr(geometry: Geometry, seed: int = 0) -> sp.csr_matrix:
     mat.sort_indices()
     assert mat[10].nnz == 3 and mat[3].nnz == 0
     return mat
-
-
-def consistent(name: str, seed: int = 5):
-    g = get_preset(name)
-    x = random_phantom(np.random.default_rng(seed), g.n).astype(np.float32)
-    y = (system_matrix(g) @ x.ravel()).reshape(g.sino_shape)
-    return g, x, y
-
-
-def psnr(x, gt):
-    return 10 * np.log10((gt.max() - gt.min()) ** 2 / np.mean((x - gt) ** 2))
 
 
 @pytest.mark.parametrize("order", ["sequential", "random", "golden"])
@@ -70,7 +58,7 @@ def test_nonneg_projection():
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
-def test_converges_on_consistent_data(name):
+def test_converges_on_consistent_data(name, consistent, psnr):
     g, x, y = consistent(name)
     res = kaczmarz(g, y, n_sweeps=15, relaxation=1.0)
     r = np.asarray(res.residuals)
@@ -80,7 +68,7 @@ def test_converges_on_consistent_data(name):
     assert psnr(res.image, x) > 30
 
 
-def test_accepts_unperturbed_operator_and_rejects_moved_one():
+def test_accepts_unperturbed_operator_and_rejects_moved_one(consistent):
     g, x, y = consistent("tiny-parallel")
     a = kaczmarz(RayTransform(g), y, n_sweeps=1).image
     b = kaczmarz(g, y, n_sweeps=1).image
@@ -89,7 +77,7 @@ def test_accepts_unperturbed_operator_and_rejects_moved_one():
         kaczmarz(RayTransform(g, np.ones((g.n_angles, 3))), y)
 
 
-def test_callback_stops():
+def test_callback_stops(consistent):
     g, x, y = consistent("tiny-parallel")
     res = kaczmarz(g, y, n_sweeps=10, callback=lambda i, im: i == 2)
     assert res.stop_reason == "callback" and res.n_sweeps == 3
@@ -115,13 +103,13 @@ def test_view_orders():
         (dict(x0=np.zeros((3, 3))), "x0"),
     ],
 )
-def test_bad_parameters(kwargs, match):
+def test_bad_parameters(kwargs, match, consistent):
     g, x, y = consistent("tiny-parallel")
     with pytest.raises(ValueError, match=match):
         kaczmarz(g, y, **kwargs)
 
 
-def test_bad_sinogram():
+def test_bad_sinogram(consistent):
     g, x, y = consistent("tiny-parallel")
     bad = y.copy()
     bad[3, 4] = np.nan

@@ -28,17 +28,6 @@ def small_problem(seed=0):
     return mat, y
 
 
-def consistent(name, seed=5):
-    g = get_preset(name)
-    x = random_phantom(np.random.default_rng(seed), g.n).astype(np.float32)
-    y = (system_matrix(g) @ x.ravel()).reshape(g.sino_shape)
-    return g, x, y
-
-
-def psnr(x, gt):
-    return 10 * np.log10((gt.max() - gt.min()) ** 2 / np.mean((x - gt) ** 2))
-
-
 @pytest.mark.parametrize("order", ["sequential", "random"])
 @pytest.mark.parametrize("eta_value", [0.0, 0.02, 0.1])
 def test_kernel_matches_literal_algorithm(order, eta_value):
@@ -65,7 +54,7 @@ def test_two_directions_are_used():
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
-def test_eta_zero_converges_like_kaczmarz(name):
+def test_eta_zero_converges_like_kaczmarz(name, consistent, psnr):
     g, x, y = consistent(name)
     res = resesop(g, y, np.zeros(g.n_angles), max_sweeps=15, order="random", residual="exact")
     r = np.asarray(res.residuals)
@@ -77,7 +66,7 @@ def test_eta_zero_converges_like_kaczmarz(name):
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
-def test_discrepancy_stop_with_positive_eta(name):
+def test_discrepancy_stop_with_positive_eta(name, consistent, psnr):
     g, x, y = consistent(name)
     eta = np.full(g.n_angles, 0.01 * y.max(), np.float32)
     res = resesop(g, y, eta, tau=1.5, max_sweeps=20)
@@ -90,7 +79,7 @@ def test_discrepancy_stop_with_positive_eta(name):
     assert sticky.stop_reason == "discrepancy" and sticky.n_sweeps <= res.n_sweeps
 
 
-def test_per_ray_eta_equals_per_view_eta():
+def test_per_ray_eta_equals_per_view_eta(consistent):
     g, x, y = consistent("tiny-parallel")
     eta = np.linspace(0.1, 0.3, g.n_angles).astype(np.float32)
     a = resesop(g, y, eta, max_sweeps=3).image
@@ -98,7 +87,7 @@ def test_per_ray_eta_equals_per_view_eta():
     np.testing.assert_array_equal(a, b)
 
 
-def test_perturbed_data_beats_unregularised():
+def test_perturbed_data_beats_unregularised(psnr):
     """Translation-only motion: RESESOP with the true eta beats SESOP-Kaczmarz (eta = 0)."""
     g = get_preset("tiny-parallel")
     rng = np.random.default_rng(77)
@@ -127,13 +116,13 @@ def test_perturbed_data_beats_unregularised():
         (np.ones(140), dict(stop_rule="never"), "stop_rule"),
     ],
 )
-def test_bad_input(eta, kwargs, match):
+def test_bad_input(eta, kwargs, match, consistent):
     g, x, y = consistent("tiny-parallel")
     with pytest.raises(ValueError, match=match):
         resesop(g, y, eta, **kwargs)
 
 
-def test_bad_sinogram():
+def test_bad_sinogram(consistent):
     g, x, y = consistent("tiny-parallel")
     y = y.copy()
     y[0, 0] = np.nan

@@ -1,0 +1,215 @@
+"""Common tests of the four conditional flows (cinn, cinn-res, ciunet, ciunet-res) on tiny configurations.
+
+One parametrised set in the style of FrEIA's and zuko's tests: invertibility, exact log-det, training,
+sampling, the paper's reconstruction formulas, bad input and checkpoints. What only one family has
+(CiNN's Haar pyramid and paper defaults, CiUNet's reversed UNet wiring) stays in test_cinn.py / test_ciunet.py.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+import torch
+from torch.autograd.functional import jacobian
+
+from nanoct.learn.cinn import CiNN, CiNNRes
+from nanoct.learn.ciunet import CiUNet, CiUNetRes
+from nanoct.learn.invertible import CheckpointMismatchError
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+CINN_TINY = dict(n_scales=3, blocks_per_scale=2, fc_dim=8, fc_blocks=2, cond_channels=4, cond_width=4, fc_cond_dim=8,
+                 hidden_ratio=1.0)
+CIUNET_TINY = dict(n_scales=3, blocks_per_scale=1, pre_blocks=1, cond_channels=(4, 4, 8), hidden_ratio=1.0)
+
+
+@dataclass(frozen=True)
+class Arch:
+    """One architecture with its tiny configuration and what differs between the families."""
+
+    name: str  # the model's .name, also the test id
+    cls: type
+    residual: bool  # the flow models dx = x_tilde - x instead of x
+    tiny: dict
+    cond_channels: list  # hparams["cond_channels"] of the tiny model
+    hparam_keys: set  # further hparams, beyond the tiny configuration's own
+    bad_configs: list  # tiny configuration overrides the constructor rejects with ValueError
+    mismatch_blocks: dict  # checkpoint loading: CheckpointMismatchError
+    mismatch_cond: dict  # ... ValueError
+    mismatch_scales: dict  # ... RuntimeError (what torch's own handlers expect)
+    other_arch: Any = field(default=None)  # () -> a model of another architecture (ValueError "does not match")
+
+    def make(self, **overrides) -> torch.nn.Module:
+        return self.cls(**{**self.tiny, **overrides})
+
+
+def _cinn(name, cls, residual):
+    return Arch(name, cls, residual, CINN_TINY, cond_channels=[4, 4], hparam_keys={"seed"},
+                bad_configs=[{"cond_channels": [4, 4, 4]},
+                             {"fc_dim": 64}],  # more than the coarsest signal of an 8x8 image
+                mismatch_blocks={"blocks_per_scale": 3}, mismatch_cond={"cond_channels": 6},
+                mismatch_scales={"n_scales": 2, "cond_channels": 4})
+
+
+def _ciunet(name, cls, residual):
+    return Arch(name, cls, residual, CIUNET_TINY, cond_channels=[4, 4, 8], hparam_keys={"cond_norm", "kernel_size"},
+                bad_configs=[{"cond_channels": [4, 4]},  # one entry per scale
+                             {"n_scales": 1}],
+                mismatch_blocks={"blocks_per_scale": 2}, mismatch_cond={"cond_channels": (4, 8, 8)},
+                mismatch_scales={"n_scales": 4, "cond_channels": (4, 4, 8, 8)},
+                other_arch=lambda: CiNN(n_scales=3, fc_dim=8, cond_channels=4))
+
+
+ARCHS = [_cinn("cinn", CiNN, False), _cinn("cinn-res", CiNNRes, True),
+         _ciunet("ciunet", CiUNet, False), _ciunet("ciunet-res", CiUNetRes, True)]
+
+
+@pytest.fixture(params=ARCHS, ids=[a.name for a in ARCHS])
+def arch(request) -> Arch:
+    return request.param
+
+
+def test_names_and_hparams(arch):
+    m = arch.make()
+    assert m.name == arch.name
+    assert m.residual is arch.residual
+    assert m.hparams["n_scales"] == 3 and m.hparams["cond_channels"] == arch.cond_channels
+    assert set(m.hparams) >= set(arch.tiny) | {"actnorm", "target_noise", "orthogonal_map"} | arch.hparam_keys
+    assert m.hparams["target_noise"] == 0.005
+    arch.cls(**m.hparams)  # hparams rebuild the model
+
+
+@pytest.mark.parametrize("size", [(8, 8), (13, 10)])
+def test_inverse_of_forward_is_identity(arch, size, images, perturb):
+    torch.manual_seed(0)
+    m = arch.make()
+    x_tilde, x = images(3, *size, seed=1)
+    m(x, x_tilde)  # ActNorm data initialisation
+    perturb(m)
+    v = m._target(x_tilde, x)
+    z, log_jac = m(v, x_tilde)
+    assert z.shape == (3, m.latent_dim(*size)) and log_jac.shape == (3,)
+    torch.testing.assert_close(m.inverse(z, x_tilde), v, atol=1e-4, rtol=0)
+
+
+def test_logdet_matches_brute_force_jacobian(arch, images, perturb):
+    torch.manual_seed(0)
+    m = arch.make().double().eval()
+    x_tilde, x = (t.double() for t in images(1, 8, 8, seed=2))
+    m(x, x_tilde)  # ActNorm data initialisation
+    perturb(m, std=0.1)
+    _, log_jac = m(x, x_tilde)
+    jmat = jacobian(lambda v: m(v.view(1, 1, 8, 8), x_tilde)[0].reshape(-1), x.reshape(-1))
+    assert jmat.shape == (64, 64)
+    sign, logabs = torch.linalg.slogdet(jmat)
+    assert sign != 0
+    assert abs(logabs.item() - log_jac.item()) < 1e-6 * max(1.0, abs(logabs.item()))
+
+
+def test_nll_decreases_in_short_training(arch, images):
+    torch.manual_seed(0)
+    m = arch.make()
+    x_tilde, x = images(8, 8, 8, seed=4)
+    opt = torch.optim.Adam(m.parameters(), lr=2e-3)
+    losses = []
+    for _ in range(30):
+        loss, metrics = m.loss(x_tilde, x)
+        assert set(metrics) >= {"nll_bpd"}
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(m.parameters(), 1.0)
+        opt.step()
+        losses.append(loss.item())
+    assert sum(losses[-3:]) / 3 < sum(losses[:3]) / 3 - 0.1, losses
+
+
+def test_different_conditions_give_different_samples(arch, images, perturb):
+    torch.manual_seed(0)
+    m = arch.make().eval()
+    x_tilde, x = images(2, 8, 8, seed=5)
+    m(x, x_tilde)
+    perturb(m, std=0.2)
+    z = torch.randn(1, 64).expand(2, 64)
+    v = m.inverse(z, x_tilde)  # the flow's own output (x, or dx for the residual variant)
+    assert (v[0] - v[1]).abs().max() > 1e-3
+    v_same = m.inverse(z, x_tilde[:1].expand(2, -1, -1, -1))
+    torch.testing.assert_close(v_same[0], v_same[1])
+
+
+def test_reconstruct_follows_the_paper_formulas(arch, images, perturb):
+    torch.manual_seed(0)
+    m = arch.make().eval()
+    x_tilde, x = images(1, 13, 10, seed=6)
+    m(x, x_tilde)
+    perturb(m)
+    n = 12
+    mean, std = m.reconstruct(x_tilde, n_samples=n, chunk=n, generator=torch.Generator().manual_seed(7))
+    assert mean.shape == std.shape == x_tilde.shape and torch.all(std >= 0) and std.max() > 0
+    z = torch.randn(n, m.latent_dim(13, 10), generator=torch.Generator().manual_seed(7))
+    v = m.inverse(z, x_tilde.expand(n, -1, -1, -1))  # samples of x (or of dx)
+    expected_mean = x_tilde[0] - v.mean(0) if m.residual else v.mean(0)
+    torch.testing.assert_close(mean[0], expected_mean, atol=1e-5, rtol=0)
+    torch.testing.assert_close(std[0], v.std(0, unbiased=False), atol=1e-5, rtol=0)
+    # chunking only changes how the samples are batched
+    s = m.sample(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3)
+    assert s.shape == (2, 5, 1, 13, 10)
+    mean2, std2 = m.reconstruct(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3,
+                                generator=torch.Generator().manual_seed(8))
+    s2 = m.sample(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3, generator=torch.Generator().manual_seed(8))
+    torch.testing.assert_close(mean2, s2.mean(1), atol=1e-5, rtol=0)
+    torch.testing.assert_close(std2, s2.std(1, unbiased=False), atol=1e-5, rtol=0)
+
+
+def test_bad_input_raises(arch, images):
+    m = arch.make().eval()
+    x_tilde, x = images(2, 8, 8, seed=9)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="n_samples"):
+            m.reconstruct(x_tilde, n_samples=bad)
+    with pytest.raises(ValueError, match="chunk"):
+        m.reconstruct(x_tilde, n_samples=2, chunk=0)
+    with pytest.raises(ValueError, match="condition"):
+        m.reconstruct(x_tilde[:, 0])
+    with pytest.raises(ValueError, match="condition"):
+        m.reconstruct(x_tilde.expand(2, 2, 8, 8))
+    with pytest.raises(ValueError, match="shape"):
+        m.loss(x_tilde[:, :, :7], x)
+    with pytest.raises(ValueError, match="shape"):
+        m.inverse(torch.randn(2, 63), x_tilde)
+    with pytest.raises(ValueError, match="shape"):
+        m(x, x_tilde[:1])
+    for overrides in arch.bad_configs:
+        with pytest.raises(ValueError):
+            arch.make(**overrides)
+
+
+def test_state_dict_round_trip_and_mismatch(arch, images, perturb):
+    torch.manual_seed(0)
+    m = arch.make().eval()
+    x_tilde, x = images(2, 13, 10, seed=10)
+    m(x, x_tilde)
+    perturb(m)
+    buf = io.BytesIO()
+    torch.save({"hparams": m.hparams, "state": m.state_dict()}, buf)
+    buf.seek(0)
+    ckpt = torch.load(buf, weights_only=True)
+    m2 = arch.cls(**ckpt["hparams"]).eval()
+    m2.load_state_dict(ckpt["state"])
+    z, lj = m(x, x_tilde)
+    z2, lj2 = m2(x, x_tilde)
+    assert torch.equal(z, z2) and torch.equal(lj, lj2)
+    r = m.reconstruct(x_tilde, n_samples=4, generator=torch.Generator().manual_seed(1))
+    r2 = m2.reconstruct(x_tilde, n_samples=4, seed=1)
+    assert torch.equal(r[0], r2[0]) and torch.equal(r[1], r2[1])
+    with pytest.raises(CheckpointMismatchError, match="does not match"):
+        arch.make(**arch.mismatch_blocks).load_state_dict(ckpt["state"])
+    with pytest.raises(ValueError):
+        arch.make(**arch.mismatch_cond).load_state_dict(ckpt["state"])
+    with pytest.raises(RuntimeError):  # what torch's own handlers expect
+        arch.make(**arch.mismatch_scales).load_state_dict(ckpt["state"])
+    if arch.other_arch is not None:
+        with pytest.raises(ValueError, match="does not match"):  # another architecture
+            arch.other_arch().load_state_dict(ckpt["state"])
