@@ -79,7 +79,7 @@ def test_postprocessor_interface():
     assert "unet" in model_names()
     model = build_model("unet", channels=list(SMALL))
     assert isinstance(model, PostProcessor) and isinstance(model, UNetPost) and model.name == "unet"
-    assert model.hparams == {"channels": list(SMALL), "skip_channels": 4, "use_sigmoid": True, "use_norm": True, "pad_mode": "reflect"}
+    assert model.hparams == {"channels": list(SMALL), "skip_channels": 4, "use_sigmoid": True, "use_norm": True, "pad_mode": "reflect", "out_bias": 0.0}
     assert build_model("unet", **model.hparams).hparams == model.hparams
     x_tilde, x = torch.rand(3, 1, 31, 31), torch.rand(3, 1, 31, 31)
     loss, logs = model.loss(x_tilde, x)
@@ -97,3 +97,13 @@ def test_channels_last_matches_contiguous():
         a = net(x)
         b = net.to(memory_format=torch.channels_last)(x.contiguous(memory_format=torch.channels_last))
     assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_output_bias_starts_near_the_zero_background():
+    torch.manual_seed(0)
+    net = UNetPost(channels=[4, 4, 4, 4, 4], out_bias=-6.0).eval()
+    out = net(torch.rand(2, 1, 31, 31))
+    assert net.hparams["out_bias"] == -6.0
+    assert float(out.mean()) < 0.02  # sigmoid(-6) = 0.0025 plus the random first layers
+    default = UNetPost(channels=[4, 4, 4, 4, 4]).eval()
+    assert float(default(torch.rand(2, 1, 31, 31)).mean()) > 0.2  # PyTorch's default start: ~0.5

@@ -76,6 +76,9 @@ class UNet(nn.Module):
         Channels of the 1x1 skip branch per scale (0 disables a skip connection).
     use_sigmoid : bool
         Apply a sigmoid to the output (images in [0, 1]).
+    out_bias : float
+        Initial bias of the output convolution (0: PyTorch's default initialisation). With the
+        sigmoid, a negative value starts the output near the phantoms' zero background.
     use_norm : bool
         BatchNorm after every convolution.
     pad_mode : {"reflect", "replicate", "constant"}
@@ -91,6 +94,7 @@ class UNet(nn.Module):
         use_sigmoid: bool = True,
         use_norm: bool = True,
         pad_mode: str = "reflect",
+        out_bias: float = 0.0,
     ) -> None:
         super().__init__()
         channels = [int(c) for c in channels]
@@ -115,6 +119,8 @@ class UNet(nn.Module):
             _UpBlock(channels[i], channels[i - 1], skips[i - 1], use_norm) for i in range(self.scales - 1, 0, -1)
         )
         self.outc = nn.Conv2d(channels[0], out_ch, 1)
+        if out_bias:
+            nn.init.constant_(self.outc.bias, float(out_bias))
 
     # ------------------------------------------------------------------ padding
     def _pad(self, x: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int, int, int]]:
@@ -180,11 +186,12 @@ class UNetPost(PostProcessor):
         use_sigmoid: bool = True,
         use_norm: bool = True,
         pad_mode: str = "reflect",
+        out_bias: float = 0.0,
     ) -> None:
         skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
         super().__init__(
             channels=[int(c) for c in channels], skip_channels=skips, use_sigmoid=bool(use_sigmoid),
-            use_norm=bool(use_norm), pad_mode=str(pad_mode),
+            use_norm=bool(use_norm), pad_mode=str(pad_mode), out_bias=float(out_bias),
         )
         self.net = UNet(1, 1, **self.hparams)
 
