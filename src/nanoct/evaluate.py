@@ -55,7 +55,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
     gts = store.read_phantoms(idx)
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
-        if not store.reconstruction_done(name)[idx].all():
+        if not store.reconstruction_done(name, idx).all():
             continue
         recos = store.read_reconstruction(name, idx)
         results[name] = summarize(recos, gts)

@@ -3,26 +3,21 @@
 from __future__ import annotations
 
 import os
-from functools import lru_cache, partial
+from functools import partial
 from pathlib import Path
 
 from .errors import NanoctError
 from .fanout import run_tasks
 from .geometry import Geometry
 from .simulate import SimulationConfig, simulate_sample
-from .store import DataStore
+from .store import DataStore, open_cached
 
 __all__ = ["generate_dataset"]
 
 
-@lru_cache(maxsize=8)
-def _open(path: str) -> tuple[DataStore, SimulationConfig]:
-    store = DataStore.open(path, mode="r+")
-    return store, SimulationConfig.from_dict(store.meta["simulation"])
-
-
 def _simulate_into(path: str, index: int) -> int:
-    store, config = _open(path)
+    store = open_cached(path)
+    config = SimulationConfig.from_dict(store.meta["simulation"])
     store.write_sample(index, simulate_sample(store.geometry, config, store.seed, index))
     return index
 

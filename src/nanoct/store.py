@@ -28,6 +28,7 @@ import shutil
 import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +39,7 @@ from . import __version__
 from .errors import StoreError
 from .geometry import Geometry
 
-__all__ = ["SPLITS", "DataStore", "Sample", "split_assignment"]
+__all__ = ["SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 1
@@ -314,8 +315,10 @@ class DataStore:
             if key in self._group:
                 del self._group[key]
 
-    def reconstruction_done(self, name: str) -> np.ndarray:
-        """Boolean mask of samples whose reconstruction ``name`` is written."""
+    def reconstruction_done(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
+        """Which samples (all, or only ``indices``, reading just their flags) have ``name`` written."""
+        if indices is not None:
+            return self._flags(f"progress/{name}", np.asarray(list(indices), dtype=int))
         key = f"progress/{name}"
         if key not in self._group:
             return np.zeros(self.n, dtype=bool)
@@ -346,8 +349,9 @@ class DataStore:
         missing = idx[~self._flags(f"progress/{name}", idx)]
         if missing.size:
             raise StoreError(f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. {missing[:5].tolist()}); run 'nanoct reconstruct' again")
-        arr = self._group[f"reconstructions/{name}"]
-        return np.stack([arr[i] for i in idx]) if idx.size else np.zeros((0, *self.geometry.image_shape), np.float32)
+        if idx.size == 0:
+            return np.zeros((0, *self.geometry.image_shape), np.float32)
+        return self._group[f"reconstructions/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
 
     def has_uncertainty(self, name: str) -> bool:
         """Whether reconstruction ``name`` comes with a pixel-wise std (``uncertainty/<name>``)."""
@@ -390,3 +394,9 @@ class DataStore:
             "version": self.meta.get("version"),
             "reconstructions": recons,
         }
+
+
+@lru_cache(maxsize=8)
+def open_cached(path: str) -> DataStore:
+    """One writable handle per store and process, for tasks that each write one sample."""
+    return DataStore.open(path, mode="r+")

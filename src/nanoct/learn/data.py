@@ -41,7 +41,7 @@ def check_input(store: DataStore, input_name: str, indices: np.ndarray, what: st
             f"{store.path} has no reconstruction '{input_name}' (present: {present}); "
             f"make it first, e.g. 'nanoct reconstruct {store.path} --method {input_name.split('+')[0]}'"
         )
-    done = store.reconstruction_done(input_name)[indices]
+    done = store.reconstruction_done(input_name, indices)
     if not done.all():
         missing = indices[~done]
         raise NanoctError(

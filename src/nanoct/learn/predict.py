@@ -132,7 +132,7 @@ def predict(
             f"reconstructions/{out} in {store.path} was made with another network or checkpoint "
             f"({store.reconstruction_params(out)}); use --overwrite to replace it"
         ) from exc
-    todo = indices[~store.reconstruction_done(out)[indices]]
+    todo = indices[~store.reconstruction_done(out, indices)]
     if todo.size == 0:
         return out
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from functools import lru_cache, partial
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import NanoctError
 from ..fanout import run_tasks
 from ..geometry import Geometry
-from ..store import DataStore, Sample
+from ..store import DataStore, Sample, open_cached
 from .result import ReconResult
 
 __all__ = ["METHODS", "output_name", "reconstruct_dataset", "reconstruct_sample"]
@@ -51,16 +51,8 @@ def reconstruct_sample(method: str, geometry: Geometry, sample: Sample, params: 
     raise NanoctError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
 
 
-@lru_cache(maxsize=8)
-def _open(path: str) -> DataStore:
-    return DataStore.open(path, mode="r+")
-
-
-def _reconstruct_into(path: str, method: str, name: str, params_json: str, index: int) -> int:
-    import json
-
-    store = _open(path)
-    params = json.loads(params_json)
+def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], index: int) -> int:
+    store = open_cached(path)
     result = reconstruct_sample(method, store.geometry, store.read_sample(index), params)
     if not np.isfinite(result.image).all():
         raise NanoctError(f"{method} produced non-finite values on sample {index}; check the parameters {params}")
@@ -105,22 +97,21 @@ def reconstruct_dataset(
     str
         The output name.
     """
-    import json
-
     if method not in METHODS:
         raise NanoctError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
     params = dict(params or {})
     name = name or output_name(method, params.get("eta_scale", 1.0))
     store = DataStore.open(path, mode="r+")
     wanted = store.indices(split)
-    if not store.done[wanted].all():
-        missing = int((~store.done[wanted]).sum())
+    not_done = ~store.done[wanted]
+    if not_done.any():
+        missing = int(not_done.sum())
         raise NanoctError(f"{missing} sample(s) of split '{split}' are not generated yet; finish 'nanoct generate' first")
     if overwrite:
         store.delete_reconstruction(name)
     stored = {"method": method, **params}
     store.prepare_reconstruction(name, stored, shifts=(method == "dremel"))
-    pending = [int(i) for i in wanted[~store.reconstruction_done(name)[wanted]]]
-    task = partial(_reconstruct_into, str(store.path), method, name, json.dumps(params))
+    pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
+    task = partial(_reconstruct_into, str(store.path), method, name, params)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
     return name
