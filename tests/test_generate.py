@@ -1,6 +1,5 @@
 """Data-set generation: determinism across worker counts, kill-and-resume, no-op reruns."""
 
-import os
 import signal
 import subprocess
 import sys

@@ -10,7 +10,6 @@ from nanoct.motion import MotionParams, sample_motion
 from nanoct.operators import RayTransform
 from nanoct.phantoms import downsample, random_phantom
 from nanoct.recon.dremel import dremel, shift_cross_corr
-from nanoct.recon.kaczmarz import kaczmarz
 
 
 def signal(n, shift):

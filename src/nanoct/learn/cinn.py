@@ -25,7 +25,7 @@ from sampling would not be calibrated.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import FrEIA.framework as Ff
 import FrEIA.modules as Fm
@@ -248,6 +248,3 @@ class CiNNRes(CiNN):
 
     name = "cinn-res"
     residual = True
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**kwargs)

@@ -24,7 +24,7 @@ level has 32 channels at L = 5, as in the paper.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import FrEIA.framework as Ff
 import FrEIA.modules as Fm
@@ -168,6 +168,3 @@ class CiUNetRes(CiUNet):
 
     name = "ciunet-res"
     residual = True
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**kwargs)
