@@ -45,8 +45,11 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     assert (d / "report" / "evaluation.md").is_file()
     run_dir = tmp_path / "run"
     code, out, err = run(monkeypatch, capsys, "train", d, "--model", "unet", "--input", "fbp", "--epochs", 1, "--out", run_dir,
-                         "--param", "channels=[4,4,4,4,4]", "-q")
+                         "--param", "channels=[4,4,4,4,4]", "--lr-schedule", "plateau", "-q")
     assert code == 0 and (run_dir / "best.pt").is_file() and (run_dir / "log.csv").is_file(), err
+    assert json.loads((run_dir / "config.json").read_text())["scheduler"] == "plateau"
+    code, _, err = run(monkeypatch, capsys, "train", d, "--input", "fbp", "--out", tmp_path / "r3", "--lr-schedule", "step")
+    assert code == 2 and "'step' is unknown" in err and not (tmp_path / "r3").exists()
     code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "-q")
     assert code == 0 and "reconstructions/fbp+unet" in out
     code, _, err = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--samples", 0)

@@ -126,6 +126,9 @@ def train(
     lr: Optional[float] = typer.Option(None, "--lr", help="Adam learning rate (paper: 1e-3 UNet, 1e-5 invertible nets)."),
     seed: int = typer.Option(0, "--seed", help="Seed of weights, shuffling and noise."),
     device: Optional[str] = typer.Option(None, "--device", help="cpu, cuda, cuda:1 ... (default: CUDA when present)."),
+    lr_schedule: Optional[str] = typer.Option(
+        None, "--lr-schedule", help="none | plateau | cosine (default: the model's; UNet cosine to lr/10, iNNs plateau)."
+    ),
     param: list[str] = typer.Option([], "--param", help="Model architecture argument name=value (repeatable)."),
     quiet: bool = QUIET,
 ) -> None:
@@ -140,7 +143,7 @@ def train(
     run = out or Path(directory).resolve().parent / "runs" / f"{model}-{input_name}"
     path = train_model(
         directory, model, input_name, run, epochs=epochs, batch_size=batch_size, lr=lr, seed=seed,
-        device=device, progress=not quiet, model_kwargs=_parse_params(param) or None,
+        device=device, progress=not quiet, model_kwargs=_parse_params(param) or None, scheduler=lr_schedule,
     )
     typer.echo(f"run: {path}")
 

@@ -20,7 +20,7 @@ from nanoct.geometry import get_preset
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from nanoct.learn.data import ReconDataset
 from nanoct.learn.models import build_model
-from nanoct.learn.train import train
+from nanoct.learn.train import cosine_lr, train
 from nanoct.recon.batch import reconstruct_dataset
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
@@ -86,8 +86,9 @@ def test_training_lowers_loss_and_writes_run(store, tmp_path):
     assert isinstance(model_from_checkpoint(best), torch.nn.Module)
 
 
-def test_resume_after_kill_matches_uninterrupted(store, tmp_path):
-    ref = train(store, "unet", "fbp", tmp_path / "ref", epochs=3, scheduler="plateau", **FAST)
+@pytest.mark.parametrize("sched", ["plateau", "cosine"])
+def test_resume_after_kill_matches_uninterrupted(store, tmp_path, sched):
+    ref = train(store, "unet", "fbp", tmp_path / "ref", epochs=3, scheduler=sched, **FAST)
 
     calls: list[int] = []
 
@@ -97,9 +98,9 @@ def test_resume_after_kill_matches_uninterrupted(store, tmp_path):
             raise KeyboardInterrupt("simulated kill after epoch 2")
 
     with pytest.raises(KeyboardInterrupt):
-        train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler="plateau", on_epoch_end=killer, **FAST)
+        train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler=sched, on_epoch_end=killer, **FAST)
     assert load_checkpoint(tmp_path / "run" / "last.pt")["epoch"] == 2
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler="plateau", on_epoch_end=killer, **FAST)
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler=sched, on_epoch_end=killer, **FAST)
     assert calls == [1, 2, 3]  # epochs 1 and 2 were not repeated
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3]
     a, b = load_checkpoint(ref / "last.pt"), load_checkpoint(run / "last.pt")
@@ -109,10 +110,30 @@ def test_resume_after_kill_matches_uninterrupted(store, tmp_path):
     assert [r["val_loss"] for r in _log(ref)] == [r["val_loss"] for r in _log(run)]
     # finished: nothing to do; more epochs extend the run
     mtime = (run / "last.pt").stat().st_mtime_ns
-    train(store, "unet", "fbp", run, epochs=3, scheduler="plateau", **FAST)
+    train(store, "unet", "fbp", run, epochs=3, scheduler=sched, **FAST)
     assert (run / "last.pt").stat().st_mtime_ns == mtime
-    train(store, "unet", "fbp", run, epochs=4, scheduler="plateau", **FAST)
+    train(store, "unet", "fbp", run, epochs=4, scheduler=sched, **FAST)
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3, 4]
+
+
+def test_cosine_lr_matches_torch_scheduler():
+    """The closed form equals CosineAnnealingLR(T_max=epochs, eta_min=lr/10) stepped per epoch."""
+    lr, epochs = 1e-3, 7
+    opt = torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=lr)
+    ref = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs, eta_min=lr / 10)
+    for epoch in range(1, epochs + 1):
+        assert cosine_lr(lr, epoch, epochs) == pytest.approx(opt.param_groups[0]["lr"], rel=1e-12)
+        opt.step()
+        ref.step()
+    assert cosine_lr(lr, 1, epochs) == lr and cosine_lr(lr, epochs + 1, epochs) == pytest.approx(lr / 10)
+
+
+def test_unet_default_schedule_is_cosine(store, tmp_path):
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=4, **FAST)
+    assert json.loads((run / "config.json").read_text())["scheduler"] == "cosine"
+    lrs = [float(r["lr"]) for r in _log(run)]
+    assert lrs == pytest.approx([cosine_lr(1e-3, e, 4) for e in (1, 2, 3, 4)])
+    assert lrs[0] == pytest.approx(1e-3) and all(a > b for a, b in zip(lrs, lrs[1:]))
 
 
 def test_resume_after_sigkill(store, tmp_path):

@@ -47,10 +47,11 @@ from .checkpoint import atomic_write_bytes, load_checkpoint, save_checkpoint, se
 from .data import ReconDataset
 from .models import build_model, model_spec
 
-__all__ = ["main", "resolve_device", "seed_everything", "train"]
+__all__ = ["cosine_lr", "main", "resolve_device", "seed_everything", "train"]
 
-SCHEDULERS = ("none", "plateau")
+SCHEDULERS = ("none", "plateau", "cosine")
 PLATEAU = {"factor": 0.5, "patience": 10, "min_lr": 1e-7}
+COSINE_MIN_FRACTION = 0.1  # cosine annealing ends at lr / 10 (dival's UNet: 1e-3 -> 1e-4)
 # keys of config.json that must agree for a run to be resumed
 MATCH_KEYS = ("model", "hparams", "input", "data", "image_size", "batch_size", "lr", "seed", "clip_grad", "scheduler")
 
@@ -89,6 +90,27 @@ class _LossModule(nn.Module):
 
     def forward(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         return self.module.loss(x_tilde, x)
+
+
+def cosine_lr(lr: float, epoch: int, epochs: int) -> float:
+    """Learning rate of the 1-based ``epoch`` of ``epochs`` under cosine annealing to ``lr / 10``.
+
+    Parameters
+    ----------
+    lr : float
+        Initial learning rate (that of epoch 1).
+    epoch, epochs : int
+        The epoch (1-based) and the number of epochs of the schedule.
+
+    Returns
+    -------
+    float
+        ``lr_min + (lr - lr_min) (1 + cos(pi (epoch - 1) / epochs)) / 2``, ``lr_min = lr / 10``;
+        the values of :class:`torch.optim.lr_scheduler.CosineAnnealingLR` with ``T_max=epochs``
+        stepped once per epoch.
+    """
+    lr_min = lr * COSINE_MIN_FRACTION
+    return lr_min + (lr - lr_min) * (1.0 + math.cos(math.pi * (epoch - 1) / epochs)) / 2.0
 
 
 def _atomic_json(path: Path, obj: Any) -> None:
@@ -167,9 +189,12 @@ def train(
         Architecture keyword arguments (e.g. ``{"channels": [8, 8, 16, 16, 32]}``).
     clip_grad : float, optional
         Gradient-norm clipping (default: the model's; 0 disables).
-    scheduler : {"none", "plateau"}, optional
+    scheduler : {"none", "plateau", "cosine"}, optional
         Learning-rate schedule (default: the model's). "plateau": ReduceLROnPlateau on the
-        validation loss, factor 0.5, patience 10 epochs.
+        validation loss, factor 0.5, patience 10 epochs. "cosine": cosine annealing per epoch
+        from ``lr`` in the first epoch to ``lr / 10`` after the last (dival's UNet schedule,
+        ``CosineAnnealingLR(T_max=epochs)``); a computed function of (epoch, epochs), so a
+        resumed run follows the same curve and an extended run follows the new one.
     num_workers : int
         DataLoader worker processes.
     in_memory : bool, optional
@@ -346,6 +371,9 @@ def _train(
                      initial=start_epoch - 1, total=epochs)
     for epoch in epoch_bar:
         t0 = time.perf_counter()
+        if sched == "cosine":
+            for group in optimizer.param_groups:
+                group["lr"] = cosine_lr(lr, epoch, epochs)
         seed_everything(seed, epoch, rank)
         train_sampler.set_epoch(epoch)
         loader_gen.manual_seed(seed * 1_000_003 + epoch)
