@@ -3,6 +3,8 @@
 import json
 import time
 
+import pytest
+
 from nanoct.reproduce import Study, reproduce_study
 
 TOY = Study(
@@ -37,3 +39,19 @@ def test_reproduce_toy_study(tmp_path):
     reproduce_study("tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False)
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")} == stamps
     assert time.perf_counter() - t < 30
+
+
+def test_jobs_restore_torch_threads():
+    """A job run with one thread (fanned-out mode) leaves the process's thread count as it was."""
+    import torch
+
+    from nanoct.reproduce import _with_threads
+
+    before = torch.get_num_threads()
+    seen: list[int] = []
+    _with_threads(1, lambda: seen.append(torch.get_num_threads()))
+    _with_threads(2, lambda: seen.append(torch.get_num_threads()))
+    assert seen == [1, 2] and torch.get_num_threads() == before
+    with pytest.raises(ZeroDivisionError):
+        _with_threads(1, lambda: 1 / 0)
+    assert torch.get_num_threads() == before

@@ -5,7 +5,7 @@ training run and each prediction resume where they stopped and are skipped when 
 tables and figures are cheap and redone. Training runs and predictions are independent jobs
 fanned out over the same Dask workers as the per-sample work (one torch thread each), except
 the UNet runs on a local machine: they run one after another in this process with all its
-torch threads (the UNet's convolutions scale with threads, the invertible networks' hardly).
+torch threads (the UNet's convolutions scale with threads, the invertible networks' less).
 """
 
 from __future__ import annotations
@@ -100,20 +100,19 @@ def _recons(perturbed: bool = True) -> dict[str, tuple[str, dict[str, Any]]]:
     }
 
 
-def _with_threads(threads: int | None, job: Callable[[], object]) -> None:
-    """Run ``job()`` with ``threads`` torch threads (None: as they are), restoring them after."""
+def _with_threads(threads: int, job: Callable[[], object]) -> None:
+    """Run ``job()`` with ``threads`` torch threads, restoring the previous count after."""
     import torch
 
     old = torch.get_num_threads()
-    if threads:
-        torch.set_num_threads(threads)
+    torch.set_num_threads(threads)
     try:
         job()
     finally:
         torch.set_num_threads(old)
 
 
-def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], threads: int | None, index: int) -> int:
+def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], threads: int, index: int) -> int:
     from .learn.train import train
 
     model, input_name = jobs[index]
@@ -124,7 +123,7 @@ def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], 
     return index
 
 
-def _predict_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, str]], threads: int | None, index: int) -> int:
+def _predict_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, str]], threads: int, index: int) -> int:
     from .learn.models import model_class
     from .learn.predict import predict
 
@@ -194,14 +193,15 @@ def reproduce_study(
     # Jobs fanned out over local workers get one torch thread each; the UNet runs go one after
     # another in this process with all threads instead (tiny preset, 2 cores: 0.29 s per step
     # with 1 thread, 0.16 s with 2, and two 1-thread runs side by side slow each other by 25 %).
-    serial = scheduler is None and workers == 0
-    one = None if serial else 1
+    # (Dask leaves OMP_NUM_THREADS=1 in this process's environment, so the count is explicit.)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    one = cores if scheduler is None and workers == 0 else 1
     train_jobs = [(m, i) for m in models for i in inputs]
     for in_process in (True, False):
         jobs = [(m, i) for m, i in train_jobs if (m == "unet" and scheduler is None) == in_process]
         if jobs:
             run_tasks(
-                partial(_train_job, str(data), str(runs), study, jobs, None if in_process else one), range(len(jobs)),
+                partial(_train_job, str(data), str(runs), study, jobs, cores if in_process else one), range(len(jobs)),
                 desc="train", unit="run", **(fan | {"workers": 0} if in_process else fan),
             )
     predict_jobs = [(m, t, i) for m in models for t in inputs for i in inputs if i == t or m in study.mixing]
