@@ -55,3 +55,14 @@ def test_jobs_restore_torch_threads():
     with pytest.raises(ZeroDivisionError):
         _with_threads(1, lambda: 1 / 0)
     assert torch.get_num_threads() == before
+
+
+def test_dask_client_leaves_environment_as_it_was():
+    """Dask's worker settings (OMP_NUM_THREADS=1, ...) do not stay in the calling process."""
+    import os
+
+    from nanoct.fanout import run_tasks
+
+    before = dict(os.environ)
+    assert run_tasks(abs, [0, 1], workers=1, progress=False) == 2
+    assert dict(os.environ) == before

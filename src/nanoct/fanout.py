@@ -8,6 +8,7 @@ command again, which submits only the samples that are not flagged done.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 from typing import Iterator
@@ -21,6 +22,10 @@ __all__ = ["dask_client", "run_tasks"]
 def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[object]:
     """A Dask client: connected to ``scheduler`` if given, else on a local process cluster.
 
+    Dask writes its worker settings (``OMP_NUM_THREADS=1``, ``MALLOC_TRIM_THRESHOLD_``, ...)
+    into this process's environment; they are undone on exit, so work that runs here later
+    (in-process training, say) is not pinned to one thread.
+
     Parameters
     ----------
     workers : int
@@ -28,6 +33,17 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[obje
     scheduler : str, optional
         Address of a running scheduler, e.g. ``tcp://10.0.0.1:8786``.
     """
+    env = dict(os.environ)
+    try:
+        with _client(workers, scheduler) as client:
+            yield client
+    finally:
+        os.environ.clear()
+        os.environ.update(env)
+
+
+@contextmanager
+def _client(workers: int, scheduler: str | None) -> Iterator[object]:
     from dask.distributed import Client, LocalCluster
 
     if scheduler:

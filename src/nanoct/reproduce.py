@@ -194,7 +194,7 @@ def reproduce_study(
     # Jobs fanned out over local workers get one torch thread each; the UNet runs go one after
     # another in this process with all threads instead (tiny preset, 2 cores: 0.29 s per step
     # with 1 thread, 0.16 s with 2, and two 1-thread runs side by side slow each other by 25 %).
-    # (Dask leaves OMP_NUM_THREADS=1 in this process's environment, so the count is explicit.)
+    # Counts are set explicitly per job (torch may have been imported under OMP_NUM_THREADS=1).
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     job_threads = cores if scheduler is None and workers == 0 else 1
     train_jobs = [(m, i) for m in models for i in inputs]
