@@ -158,6 +158,26 @@ def test_resume_after_sigkill(store, tmp_path):
     assert not [p for p in run.iterdir() if p.name.startswith(".")]  # no temporary files left
 
 
+def test_kill_during_checkpoint_write_leaves_no_temporary(store, tmp_path, monkeypatch):
+    """A kill between writing the temporary checkpoint and renaming it: the old one stays, the rerun cleans up."""
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
+    import nanoct.learn.checkpoint as ckpt_mod
+
+    def killed_replace(src, dst):
+        raise KeyboardInterrupt("simulated kill before the rename")
+
+    monkeypatch.setattr(ckpt_mod.os, "replace", killed_replace)
+    monkeypatch.setattr(Path, "unlink", lambda self, missing_ok=False: None)  # the kill also skips the cleanup
+    with pytest.raises(KeyboardInterrupt):
+        train(store, "unet", "fbp", run, epochs=2, **FAST)
+    monkeypatch.undo()
+    stale = [p for p in run.iterdir() if p.name.startswith(".")]
+    assert stale and load_checkpoint(run / "last.pt")["epoch"] == 1  # the old checkpoint is intact
+    train(store, "unet", "fbp", run, epochs=2, **FAST)
+    assert load_checkpoint(run / "last.pt")["epoch"] == 2
+    assert not [p for p in run.iterdir() if p.name.startswith(".")]
+
+
 def test_mismatched_request_refused(store, tmp_path):
     run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
     with pytest.raises(NanoctError, match="differs in: lr"):

@@ -35,6 +35,7 @@ __all__ = [
     "get_rng_state",
     "load_checkpoint",
     "model_from_checkpoint",
+    "remove_stale_temporaries",
     "save_checkpoint",
     "set_rng_state",
     "unwrap",
@@ -51,10 +52,39 @@ def unwrap(model: nn.Module) -> nn.Module:
     return model
 
 
+_TMP_TAG = ".tmp-"
+
+
+def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files that a killed :func:`atomic_write_bytes` left in ``directory``.
+
+    A kill between writing the temporary sibling and renaming it leaves ``.<name>.tmp-<hex>``
+    behind (the target itself is intact). Call this only from the process that owns the
+    directory, before it writes again.
+
+    Parameters
+    ----------
+    directory : path-like
+        A run directory; nothing happens when it does not exist.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    stale = [p for p in directory.iterdir() if p.name.startswith(".") and _TMP_TAG in p.name and p.is_file()]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
+
+
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary sibling file and ``os.replace``."""
     path = Path(path)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}"
     try:
         with open(tmp, "wb") as f:
             f.write(data)

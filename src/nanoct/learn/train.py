@@ -43,7 +43,7 @@ from .. import __version__
 from ..errors import NanoctError
 from ..store import DataStore
 from .base import PostProcessor
-from .checkpoint import atomic_write_bytes, load_checkpoint, save_checkpoint, set_rng_state
+from .checkpoint import atomic_write_bytes, load_checkpoint, remove_stale_temporaries, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_spec
 
@@ -331,6 +331,7 @@ def _train(
         history = list(ckpt.get("history", []))
     if main_rank:
         out.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(out)  # left by a kill during a checkpoint write
         _atomic_json(cfg_path, config)
         _write_log(log_path, history)  # drops rows of an epoch whose checkpoint was never written
     if start_epoch > epochs or (max_steps is not None and step >= max_steps):
