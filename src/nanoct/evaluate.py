@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import NanoctError
+from .fileio import atomic_write_text
 from .metrics import summarize, uncertainty_summary
 from .store import DataStore
 
@@ -138,8 +139,6 @@ def write_report_tables(store: DataStore, results: dict[str, dict[str, Any]], ou
     text = format_table(results, title) + ("\n" + format_mixing(mixing) if mixing else "")
     md, js = out / "evaluation.md", out / "evaluation.json"
     payload = {"split": split, "geometry": g.to_dict(), "simulation": store.meta.get("simulation"), "results": results, "mixing": mixing}
-    for path, content in ((md, text), (js, json.dumps(payload, indent=2))):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(content)
-        os.replace(tmp, path)
+    atomic_write_text(md, text)
+    atomic_write_text(js, json.dumps(payload, indent=2))
     return md, js

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
 import numpy as np
 
+from .fileio import atomic_write_bytes
 from .motion import plot_motion
 from .recon.fbp import fbp
 from .store import DataStore
@@ -15,13 +17,12 @@ __all__ = ["compare_reconstructions", "show_sample", "uncertainty_maps"]
 
 
 def _save(fig, out: str | os.PathLike[str], dpi: int) -> Path:
-    """Write a figure as PNG atomically (temporary name, then rename)."""
+    """Write a figure as PNG atomically."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=dpi)
-    os.replace(tmp, out)
-    return out
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return atomic_write_bytes(out, buf.getvalue())
 
 
 def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Path:

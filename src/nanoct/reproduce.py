@@ -20,6 +20,7 @@ from typing import Any
 from .errors import NanoctError
 from .evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, write_report_tables
 from .fanout import run_tasks
+from .fileio import atomic_write_text
 from .figures import compare_reconstructions, show_sample, uncertainty_maps
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
@@ -237,8 +238,4 @@ def reproduce_study(
         format_mixing(mixing) if mixing else "",
     ]
     text += [f"## {title}\n\n![{title}]({png})\n" for png, title in figures]
-    report = report_dir / "report.md"
-    tmp = report.with_name(".report.md.tmp")
-    tmp.write_text("\n".join(text))
-    os.replace(tmp, report)
-    return report
+    return atomic_write_text(report_dir / "report.md", "\n".join(text))

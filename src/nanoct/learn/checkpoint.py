@@ -7,8 +7,8 @@ A checkpoint is a ``torch.save`` dict (loaded with ``weights_only=True``)::
     best_epoch, model_state, optimizer_state, scheduler_state, rng (torch/numpy/python/cuda),
     history (one dict per finished epoch: the rows of log.csv), config (the training request)
 
-It is written to a temporary file in the same directory, flushed to disk and renamed over
-the old one (``os.replace``), so a kill at any moment leaves either the old or the new file.
+It is written with :func:`nanoct.fileio.atomic_write_bytes`, so a kill at any moment leaves
+either the old or the new file.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -26,16 +25,15 @@ from torch import nn
 
 from .. import __version__
 from ..errors import NanoctError
+from ..fileio import atomic_write_bytes
 from .base import PostProcessor
 from .models import build_model
 
 __all__ = [
     "CHECKPOINT_FORMAT",
-    "atomic_write_bytes",
     "get_rng_state",
     "load_checkpoint",
     "model_from_checkpoint",
-    "remove_stale_temporaries",
     "save_checkpoint",
     "set_rng_state",
     "unwrap",
@@ -50,50 +48,6 @@ def unwrap(model: nn.Module) -> nn.Module:
     while hasattr(model, "module") and isinstance(model.module, nn.Module):
         model = model.module
     return model
-
-
-_TMP_TAG = ".tmp-"
-
-
-def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
-    """Delete the temporary files that a killed :func:`atomic_write_bytes` left in ``directory``.
-
-    A kill between writing the temporary sibling and renaming it leaves ``.<name>.tmp-<hex>``
-    behind (the target itself is intact). Call this only from the process that owns the
-    directory, before it writes again.
-
-    Parameters
-    ----------
-    directory : path-like
-        A run directory; nothing happens when it does not exist.
-
-    Returns
-    -------
-    list of Path
-        The files removed.
-    """
-    directory = Path(directory)
-    if not directory.is_dir():
-        return []
-    stale = [p for p in directory.iterdir() if p.name.startswith(".") and _TMP_TAG in p.name and p.is_file()]
-    for p in stale:
-        p.unlink(missing_ok=True)
-    return stale
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary sibling file and ``os.replace``."""
-    path = Path(path)
-    tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}"
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def get_rng_state() -> dict[str, Any]:

@@ -43,7 +43,8 @@ from .. import __version__
 from ..errors import NanoctError
 from ..store import DataStore
 from .base import PostProcessor
-from .checkpoint import atomic_write_bytes, load_checkpoint, remove_stale_temporaries, save_checkpoint, set_rng_state
+from ..fileio import atomic_write_bytes, remove_stale_temporaries
+from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_spec
 

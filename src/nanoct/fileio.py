@@ -1,0 +1,76 @@
+"""Atomic file writes: a kill at any moment leaves either the old file or the new one.
+
+Every small result file nanoct writes (checkpoints, training logs, run configurations,
+evaluation tables, reports, figures) goes through :func:`atomic_write_bytes`: the data is
+written to a temporary sibling ``.<name>.tmp-<hex>``, flushed to disk and renamed over the
+target with ``os.replace``. A kill between the write and the rename leaves only the temporary
+behind; :func:`remove_stale_temporaries` clears those when a job resumes in the directory.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from pathlib import Path
+
+__all__ = ["atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
+
+_TMP_TAG = ".tmp-"
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` to ``path`` via a temporary sibling file and ``os.replace``.
+
+    Parameters
+    ----------
+    path : path-like
+        Target file; its directory must exist.
+    data : bytes
+        The whole new content.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}"
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; see :func:`atomic_write_bytes`."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporaries that a killed :func:`atomic_write_bytes` left in ``directory``.
+
+    Call this only from the process that owns the directory, before it writes again: a
+    temporary of a write in progress elsewhere would be removed too.
+
+    Parameters
+    ----------
+    directory : path-like
+        A run or report directory; nothing happens when it does not exist.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    stale = [p for p in directory.iterdir() if p.name.startswith(".") and _TMP_TAG in p.name and p.is_file()]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
