@@ -35,10 +35,12 @@ def test_reproduce_toy_study(tmp_path):
         assert (out / "report" / png).read_bytes()[:4] == b"\x89PNG"
     # everything is cached: a second run redoes no training and no prediction
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
+    (out / "report" / ".report.md.tmp-0a1b2c3d").write_text("half a report from a killed run")
     t = time.perf_counter()
     reproduce_study("tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False)
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")} == stamps
     assert time.perf_counter() - t < 30
+    assert not [p.name for p in (out / "report").iterdir() if p.name.startswith(".")]
 
 
 def test_jobs_restore_torch_threads():

@@ -20,7 +20,7 @@ from typing import Any
 from .errors import NanoctError
 from .evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, write_report_tables
 from .fanout import run_tasks
-from .fileio import atomic_write_text
+from .fileio import atomic_write_text, remove_stale_temporaries
 from .figures import compare_reconstructions, show_sample, uncertainty_maps
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
@@ -213,6 +213,8 @@ def reproduce_study(
     names = inputs + [f"{i}+{m}" for m in models for i in inputs]
     names += [f"{i}+{m}@{t}" for m, t, i in predict_jobs if i != t]
     results = evaluate_store(store, "test", names=names)
+    report_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(report_dir)  # left by a kill during an earlier report
     write_report_tables(store, results, report_dir, "test")
     test = [int(i) for i in store.indices("test")[:3]]
     figures = [("reconstructions.png", "First reconstructions")]
