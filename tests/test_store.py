@@ -127,3 +127,53 @@ def test_no_leftovers_when_creation_fails(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 3, 0, {})
     assert list(tmp_path.iterdir()) == []
+
+
+class _Killed(BaseException):
+    """Like SIGKILL for Zarr's atomic write: not an Exception, so its clean-up does not run."""
+
+
+def _killed_write(monkeypatch, write):
+    """Run ``write`` with the rename of Zarr's temporary chunk file failing as a kill would."""
+    import pathlib
+
+    def killed_replace(self, target):
+        raise _Killed
+
+    with monkeypatch.context() as m:
+        m.setattr(pathlib.Path, "replace", killed_replace)
+        with pytest.raises(_Killed):
+            write()
+
+
+def test_partial_chunk_writes_are_removed_on_resume(tmp_path, monkeypatch):
+    from nanoct.generate import generate_dataset
+
+    g = get_preset("tiny-parallel")
+    store = generate_dataset(tmp_path / "d", g, 4, seed=0, workers=0, progress=False)
+    store.prepare_reconstruction("unit", {"a": 1})
+    img = np.ones(g.image_shape, np.float32)
+    _killed_write(monkeypatch, lambda: store.write_reconstruction("unit", 2, img))
+    _killed_write(monkeypatch, lambda: store._array("phantoms").__setitem__(1, img))
+    left = sorted(p.relative_to(store.path).parts[0] for p in store.path.rglob("*.partial"))
+    assert left == ["phantoms", "reconstructions"]  # the real Zarr file names
+    assert not store.reconstruction_done("unit")[2]
+
+    store.prepare_reconstruction("unit", {"a": 1})  # resuming the reconstruction clears only its own arrays
+    assert [p.relative_to(store.path).parts[0] for p in store.path.rglob("*.partial")] == ["phantoms"]
+    generate_dataset(tmp_path / "d", g, 4, seed=0, workers=0, progress=False)  # resuming generation clears the rest
+    assert not list(store.path.rglob("*.partial"))
+    store.write_reconstruction("unit", 2, img)
+    np.testing.assert_array_equal(store.read_reconstruction("unit", [2])[0], img)
+
+
+def test_remove_partial_writes_matches_only_zarr_temporaries(tmp_path):
+    store = DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 2, 0, {}, (0.5, 0.5, 0.0))
+    chunk_dir = store.path / "phantoms" / "c" / "0" / "0"
+    chunk_dir.mkdir(parents=True)
+    stale = chunk_dir / f"0.{'ab' * 16}.partial"
+    keep = [chunk_dir / "0", chunk_dir / "notes.partial", chunk_dir / "0.abc.partial"]
+    for p in [stale, *keep]:
+        p.write_bytes(b"x")
+    assert store.remove_partial_writes(["phantoms", "missing"]) == [stale]
+    assert all(p.exists() for p in keep) and not stale.exists()

@@ -17,13 +17,16 @@ Layout (n samples, image N x N, sinogram K x L)::
 
 Every chunk is written atomically by Zarr's local store, and a sample's ``done`` flag (or
 ``progress`` flag) is written last, so a run killed at any moment leaves no sample that
-claims to be complete but is not; re-running the same command fills in the rest.
+claims to be complete but is not; re-running the same command fills in the rest. A kill
+in the middle of a chunk write leaves Zarr's temporary ``<chunk>.<hex>.partial`` next to it;
+the rerun removes those of the arrays it writes (:meth:`DataStore.remove_partial_writes`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import uuid
 from collections.abc import Iterable
@@ -39,10 +42,13 @@ from . import __version__
 from .errors import StoreError
 from .geometry import Geometry
 
-__all__ = ["SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
+__all__ = ["SAMPLE_ARRAYS", "SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 1
+SAMPLE_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "done")
+# Zarr's LocalStore writes a chunk to path.with_suffix(".<uuid4 hex>.partial"), then renames it
+_PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
 
 
 @dataclass
@@ -227,6 +233,32 @@ class DataStore:
             raise ValueError(f"split {split!r} is unknown; use one of train, val, test, all")
         return np.flatnonzero(self.split == SPLITS[split])
 
+    def remove_partial_writes(self, keys: Iterable[str]) -> list[Path]:
+        """Delete the temporary chunk files that a killed write left under the arrays ``keys``.
+
+        Call it only from the process that is about to (re)write these arrays, before it fans
+        out: a write in progress elsewhere in the same arrays would lose its temporary.
+
+        Parameters
+        ----------
+        keys : iterable of str
+            Array paths in the group, e.g. ``"phantoms"`` or ``"reconstructions/fbp"``.
+
+        Returns
+        -------
+        list of Path
+            The files removed.
+        """
+        removed = []
+        for key in keys:
+            root = self.path / key
+            if root.is_dir():
+                for p in root.rglob("*.partial"):
+                    if _PARTIAL.search(p.name) and p.is_file():
+                        p.unlink(missing_ok=True)
+                        removed.append(p)
+        return removed
+
     def write_sample(self, index: int, sample: Sample) -> None:
         """Write sample ``index``; its ``done`` flag is set last."""
         self._array("phantoms")[index] = sample.phantom
@@ -294,6 +326,7 @@ class DataStore:
                     f"{key} in {self.path} was made with other parameters ({old}); "
                     f"delete it (nanoct reconstruct ... --overwrite) or choose other parameters"
                 )
+            self.remove_partial_writes(self._reconstruction_keys(name))  # resuming: clear a killed run's temporaries
             return
         size = self.geometry.n
         self._group.create_array(f"progress/{name}", shape=(self.n,), chunks=(1,), dtype="bool", fill_value=False, overwrite=True)
@@ -311,9 +344,13 @@ class DataStore:
 
     def delete_reconstruction(self, name: str) -> None:
         """Remove ``reconstructions/<name>`` with its shifts, uncertainty and progress flags."""
-        for key in (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"uncertainty/{name}", f"progress/{name}"):
+        for key in self._reconstruction_keys(name):
             if key in self._group:
                 del self._group[key]
+
+    @staticmethod
+    def _reconstruction_keys(name: str) -> tuple[str, ...]:
+        return (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"uncertainty/{name}", f"progress/{name}")
 
     def reconstruction_done(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
         """Which samples (all, or only ``indices``, reading just their flags) have ``name`` written."""
