@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 
 import numpy as np
 import pytest
@@ -200,6 +201,27 @@ def test_system_matrix_damaged_cache_is_rebuilt(tmp_path, damage: str) -> None:
     # the file was repaired
     fixed = sp.load_npz(path)
     assert fixed.shape == good.shape and fixed.dtype == np.float32
+    operators._load_or_build.cache_clear()
+
+
+def test_stale_build_temporaries_are_removed(tmp_path) -> None:
+    """A killed build leaves its temporary; the next build removes it once it is old, not while it may be in use."""
+    g = get_preset("tiny-fan")
+    operators._load_or_build.cache_clear()
+    system_matrix(g, directory=tmp_path)
+    (path,) = tmp_path.glob("*.npz")
+    old, recent = (tmp_path / f"{path.stem}.{pid}.7.tmp.npz" for pid in (111, 222))
+    other = tmp_path / "another-matrix.111.7.tmp.npz"
+    for p in (old, recent, other):
+        p.write_bytes(b"half a matrix")
+    hours_ago = time.time() - 2 * operators.STALE_BUILD_SECONDS
+    os.utime(old, (hours_ago, hours_ago))
+    os.utime(other, (hours_ago, hours_ago))
+    path.unlink()
+    operators._load_or_build.cache_clear()
+    system_matrix(g, directory=tmp_path)
+    assert path.exists() and not old.exists()
+    assert recent.exists() and other.exists()  # possibly another writer's; another matrix's
     operators._load_or_build.cache_clear()
 
 

@@ -15,6 +15,7 @@ import hashlib
 import logging
 import os
 import threading
+import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -195,6 +196,25 @@ def _build_matrix(geometry: Geometry, projector: str, oversample: int) -> sp.csr
     return mat
 
 
+STALE_BUILD_SECONDS = 3600.0
+
+
+def _remove_stale_builds(path: Path) -> None:
+    """Delete temporaries of ``path`` older than an hour: left by a killed build (up to ~750 MB).
+
+    Writers on other processes or hosts may share the cache, so a temporary is only taken for
+    abandoned when it has not been touched for far longer than a build takes (seconds).
+    """
+    now = time.time()
+    for tmp in path.parent.glob(f"{path.stem}.*.tmp.npz"):
+        try:
+            if now - tmp.stat().st_mtime > STALE_BUILD_SECONDS:
+                tmp.unlink()
+                log.info("removed %s, left by an interrupted build", tmp)
+        except FileNotFoundError:  # removed by another process meanwhile
+            pass
+
+
 @lru_cache(maxsize=4)
 def _load_or_build(geometry: Geometry, projector: str, oversample: int, directory: str) -> sp.csr_matrix:
     path = Path(directory) / f"{_matrix_key(geometry, projector, oversample)}.npz"
@@ -209,6 +229,7 @@ def _load_or_build(geometry: Geometry, projector: str, oversample: int, director
             log.warning("cached matrix %s is unreadable (%s); rebuilding", path, exc)
     mat = _build_matrix(geometry, projector, oversample)
     path.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_builds(path)
     tmp = path.with_name(f"{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp.npz")
     sp.save_npz(tmp, mat, compressed=False)
     os.replace(tmp, path)
