@@ -10,7 +10,7 @@ from .errors import NanoctError
 from .fanout import run_tasks
 from .geometry import Geometry
 from .simulate import SimulationConfig, simulate_sample
-from .store import SAMPLE_ARRAYS, DataStore, open_cached
+from .store import DataStore, open_cached
 
 __all__ = ["generate_dataset"]
 
@@ -66,7 +66,6 @@ def generate_dataset(
         raise NanoctError(f"--seed {seed} must be >= 0")
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
-    store.remove_partial_writes(SAMPLE_ARRAYS)  # temporaries of a killed earlier run
     pending = [int(i) for i in (~store.done).nonzero()[0]]
     run_tasks(partial(_simulate_into, str(store.path)), pending, workers=workers, scheduler=scheduler, desc="generate", progress=progress)
     return DataStore.open(store.path, mode="r+")

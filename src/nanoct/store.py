@@ -42,11 +42,11 @@ from . import __version__
 from .errors import StoreError
 from .geometry import Geometry
 
-__all__ = ["SAMPLE_ARRAYS", "SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
+__all__ = ["SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 1
-SAMPLE_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "done")
+_SAMPLE_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "done")
 # Zarr's LocalStore writes a chunk to path.with_suffix(".<uuid4 hex>.partial"), then renames it
 _PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
 
@@ -143,7 +143,8 @@ class DataStore:
         """Create a data set at ``path``, or re-open it if it holds the same description.
 
         The group is built in a temporary sibling directory and renamed into place, so an
-        interrupted creation leaves nothing behind.
+        interrupted creation leaves nothing behind. Re-opening is resuming: the temporary
+        chunk files of a killed earlier run are removed (:meth:`remove_partial_writes`).
 
         Raises
         ------
@@ -176,6 +177,7 @@ class DataStore:
                         f"{path} holds a different data set (differs in: {', '.join(diff)}); "
                         "use another --out, or repeat the original command to resume it"
                     )
+                existing.remove_partial_writes(_SAMPLE_ARRAYS)
                 return existing
         n_angles, n_det = geometry.sino_shape
         size = geometry.n
@@ -191,7 +193,8 @@ class DataStore:
                 "eta": ((n, n_angles), "float32"),
                 "done": ((n,), "bool"),
             }
-            for name, (shape, dtype) in specs.items():
+            for name in _SAMPLE_ARRAYS:
+                shape, dtype = specs[name]
                 group.create_array(name, shape=shape, chunks=(1, *shape[1:]), dtype=dtype, fill_value=0)
             split = group.create_array("split", shape=(n,), chunks=(n,), dtype="int8", fill_value=0)
             split[:] = split_assignment(n, seed, split_fractions)

@@ -41,9 +41,9 @@ from torch.utils.data import DataLoader, DistributedSampler, Subset
 
 from .. import __version__
 from ..errors import NanoctError
+from ..fileio import atomic_write_bytes, remove_stale_temporaries
 from ..store import DataStore
 from .base import PostProcessor
-from ..fileio import atomic_write_bytes, remove_stale_temporaries
 from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_spec
