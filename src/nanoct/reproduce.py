@@ -213,7 +213,6 @@ def reproduce_study(
     names = inputs + [f"{i}+{m}" for m in models for i in inputs]
     names += [f"{i}+{m}@{t}" for m, t, i in predict_jobs if i != t]
     results = evaluate_store(store, "test", names=names)
-    report_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(report_dir)  # left by a kill during an earlier report
     write_report_tables(store, results, report_dir, "test")
     test = [int(i) for i in store.indices("test")[:3]]

@@ -82,13 +82,19 @@ def test_names_and_hparams(arch):
     arch.cls(**m.hparams)  # hparams rebuild the model
 
 
+def _initialised(arch, images, perturb, n: int, h: int, w: int, seed: int, eval_mode: bool = True):
+    """A model (seed 0) after ActNorm's data initialisation on ``n`` images, perturbed away from the identity."""
+    torch.manual_seed(0)
+    m = arch.make().eval() if eval_mode else arch.make()
+    x_tilde, x = images(n, h, w, seed=seed)
+    m(x, x_tilde)
+    perturb(m)
+    return m, x_tilde, x
+
+
 @pytest.mark.parametrize("size", [(8, 8), (13, 10)])
 def test_inverse_of_forward_is_identity(arch, size, images, perturb):
-    torch.manual_seed(0)
-    m = arch.make()
-    x_tilde, x = images(3, *size, seed=1)
-    m(x, x_tilde)  # ActNorm data initialisation
-    perturb(m)
+    m, x_tilde, x = _initialised(arch, images, perturb, 3, *size, seed=1, eval_mode=False)
     v = m._target(x_tilde, x)
     z, log_jac = m(v, x_tilde)
     assert z.shape == (3, m.latent_dim(*size)) and log_jac.shape == (3,)
@@ -140,11 +146,7 @@ def test_different_conditions_give_different_samples(arch, images, perturb):
 
 
 def test_reconstruct_follows_the_paper_formulas(arch, images, perturb):
-    torch.manual_seed(0)
-    m = arch.make().eval()
-    x_tilde, x = images(1, 13, 10, seed=6)
-    m(x, x_tilde)
-    perturb(m)
+    m, x_tilde, x = _initialised(arch, images, perturb, 1, 13, 10, seed=6)
     n = 12
     mean, std = m.reconstruct(x_tilde, n_samples=n, chunk=n, generator=torch.Generator().manual_seed(7))
     assert mean.shape == std.shape == x_tilde.shape and torch.all(std >= 0) and std.max() > 0
@@ -187,11 +189,7 @@ def test_bad_input_raises(arch, images):
 
 
 def test_state_dict_round_trip_and_mismatch(arch, images, perturb):
-    torch.manual_seed(0)
-    m = arch.make().eval()
-    x_tilde, x = images(2, 13, 10, seed=10)
-    m(x, x_tilde)
-    perturb(m)
+    m, x_tilde, x = _initialised(arch, images, perturb, 2, 13, 10, seed=10)
     buf = io.BytesIO()
     torch.save({"hparams": m.hparams, "state": m.state_dict()}, buf)
     buf.seek(0)

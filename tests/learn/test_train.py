@@ -161,12 +161,12 @@ def test_resume_after_sigkill(store, tmp_path):
 def test_kill_during_checkpoint_write_leaves_no_temporary(store, tmp_path, monkeypatch):
     """A kill between writing the temporary checkpoint and renaming it: the old one stays, the rerun cleans up."""
     run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
-    import nanoct.learn.checkpoint as ckpt_mod
+    import nanoct.fileio
 
     def killed_replace(src, dst):
         raise KeyboardInterrupt("simulated kill before the rename")
 
-    monkeypatch.setattr(ckpt_mod.os, "replace", killed_replace)
+    monkeypatch.setattr(nanoct.fileio.os, "replace", killed_replace)
     monkeypatch.setattr(Path, "unlink", lambda self, missing_ok=False: None)  # the kill also skips the cleanup
     with pytest.raises(KeyboardInterrupt):
         train(store, "unet", "fbp", run, epochs=2, **FAST)
