@@ -72,11 +72,21 @@ def main() -> None:
     p.add_argument("--warmup", type=int, default=2)
     p.add_argument("--device", default=None, help="cpu or cuda (default: both where available)")
     a = p.parse_args()
-    devices = [torch.device(a.device)] if a.device else [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
-    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, threads {torch.get_num_threads()}, "
-          f"cuda {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none'}")
-    print(f"UNetPost paper architecture: {sum(q.numel() for q in UNetPost().parameters()):,} parameters, batch {a.batch}, "
-          f"median of {a.repeat} training steps / {2 * a.repeat} inference batches after {a.warmup} warm-up; inference measured first on a fresh model")
+    devices = (
+        [torch.device(a.device)]
+        if a.device
+        else [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    )
+    print(
+        f"torch {torch.__version__}, {platform.processor() or platform.machine()}, threads {torch.get_num_threads()}, "
+        f"cuda {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none'}"
+    )
+    print(
+        f"UNetPost paper architecture: {sum(q.numel() for q in UNetPost().parameters()):,} "
+        f"parameters, batch {a.batch}, "
+        f"median of {a.repeat} training steps / {2 * a.repeat} inference batches after {a.warmup} "
+        "warm-up; inference measured first on a fresh model"
+    )
     print("| device | N | format | train step (s) | train images/s | inference ms/image |")
     print("|---|---|---|---|---|---|")
     for dev in devices:
@@ -86,9 +96,17 @@ def main() -> None:
                 r = bench(n, a.batch, dev, cl, a.repeat, a.warmup)
                 res[cl] = r
                 name = "channels_last" if cl else "contiguous"
-                print(f"| {dev.type} | {n} | {name} | {r['step_s']:.3f} | {r['train_img_s']:.1f} | {r['infer_ms_img']:.2f} |", flush=True)
-            print(f"| {dev.type} | {n} | ratio cl/contig | | {res[True]['train_img_s'] / res[False]['train_img_s']:.2f}x | "
-                  f"{res[False]['infer_ms_img'] / res[True]['infer_ms_img']:.2f}x |", flush=True)
+                print(
+                    f"| {dev.type} | {n} | {name} | {r['step_s']:.3f} | {r['train_img_s']:.1f} | "
+                    f"{r['infer_ms_img']:.2f} |",
+                    flush=True,
+                )
+            print(
+                f"| {dev.type} | {n} | ratio cl/contig | | "
+                f"{res[True]['train_img_s'] / res[False]['train_img_s']:.2f}x | "
+                f"{res[False]['infer_ms_img'] / res[True]['infer_ms_img']:.2f}x |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

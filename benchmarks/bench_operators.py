@@ -20,10 +20,10 @@ from scipy.ndimage import map_coordinates
 from nanoct.fanout import dask_client
 from nanoct.generate import generate_dataset
 from nanoct.geometry import get_preset
+from nanoct.motion import sample_motion
 from nanoct.operators import RayTransform, astra_vectors, system_matrix
 from nanoct.phantoms import downsample, random_phantom
 from nanoct.recon.fbp import fbp, ramp_filter
-from nanoct.motion import sample_motion
 from nanoct.simulate import SimulationConfig, sample_rngs
 
 
@@ -38,7 +38,9 @@ def best_of(fn, repeat: int = 5) -> float:
 
 
 def report(label: str, ours: float, base: float, base_label: str) -> None:
-    print(f"  {label:<38s} {ours * 1e3:9.1f} ms   {base_label:<34s} {base * 1e3:9.1f} ms   speed-up x{base / ours:6.2f}")
+    print(
+        f"  {label:<38s} {ours * 1e3:9.1f} ms   {base_label:<34s} {base * 1e3:9.1f} ms   speed-up x{base / ours:6.2f}"
+    )
 
 
 def warp_then_project(geometry, fine: np.ndarray, motion: np.ndarray, oversample: int) -> np.ndarray:
@@ -94,18 +96,42 @@ def bench_preset(name: str, samples: int, workers: int) -> None:
     op = RayTransform(g)
     t = time.perf_counter()
     mat = system_matrix(g)
-    print(f"  system matrix: {mat.nnz / 1e6:.1f} M nnz, {(mat.data.nbytes + mat.indices.nbytes + mat.indptr.nbytes) / 2**20:.0f} MiB, load/build {time.perf_counter() - t:.1f} s")
+    print(
+        f"  system matrix: {mat.nnz / 1e6:.1f} M nnz, "
+        f"{(mat.data.nbytes + mat.indices.nbytes + mat.indptr.nbytes) / 2**20:.0f} MiB, "
+        f"load/build {time.perf_counter() - t:.1f} s"
+    )
     y = op.forward(x)
     xv = x.ravel()
-    report("forward, cached CSR (A @ x)", best_of(lambda: mat @ xv), best_of(lambda: op.forward(x)), "forward, ASTRA on the fly")
-    report("adjoint, cached CSR (A.T @ y)", best_of(lambda: mat.T @ y.ravel()), best_of(lambda: op.adjoint(y)), "adjoint, ASTRA on the fly")
+    report(
+        "forward, cached CSR (A @ x)",
+        best_of(lambda: mat @ xv),
+        best_of(lambda: op.forward(x)),
+        "forward, ASTRA on the fly",
+    )
+    report(
+        "adjoint, cached CSR (A.T @ y)",
+        best_of(lambda: mat.T @ y.ravel()),
+        best_of(lambda: op.adjoint(y)),
+        "adjoint, ASTRA on the fly",
+    )
     moved = RayTransform(g, motion, oversample=2)
-    report("forward with motion, exact rays (2x grid)", best_of(lambda: moved.forward(fine), 3), best_of(lambda: warp_then_project(g, fine, motion, 2), 1), "warp per view, then project")
+    report(
+        "forward with motion, exact rays (2x grid)",
+        best_of(lambda: moved.forward(fine), 3),
+        best_of(lambda: warp_then_project(g, fine, motion, 2), 1),
+        "warp per view, then project",
+    )
     if g.kind == "fan":
-        print(f"  FBP (nanoct, fan weights + numba back projection) {best_of(lambda: fbp(g, y)) * 1e3:9.1f} ms   (ASTRA has no CPU fan FBP)")
+        print(
+            "  FBP (nanoct, fan weights + numba back projection) "
+            f"{best_of(lambda: fbp(g, y)) * 1e3:9.1f} ms   (ASTRA has no CPU fan FBP)"
+        )
     if g.kind == "parallel":
         filt = lambda: (mat.T @ (ramp_filter(y, 1.0).ravel().astype(np.float32))) * (np.pi / g.n_angles)  # noqa: E731
-        report("FBP, filter + cached CSR back projection", best_of(filt), best_of(lambda: astra_fbp(g, y)), "ASTRA CPU FBP")
+        report(
+            "FBP, filter + cached CSR back projection", best_of(filt), best_of(lambda: astra_fbp(g, y)), "ASTRA CPU FBP"
+        )
         report("FBP (nanoct)", best_of(lambda: fbp(g, y)), best_of(lambda: astra_fbp(g, y)), "ASTRA CPU FBP")
     # generation throughput, both sinograms included, against warp-then-project per sample
     tmp = Path(tempfile.mkdtemp())
@@ -120,8 +146,10 @@ def bench_preset(name: str, samples: int, workers: int) -> None:
         warp_then_project(g, fine, motion, 2)
         RayTransform(g, oversample=2).forward(fine)
         base = time.perf_counter() - t
-        print(f"  generation: {1 / ours:.2f} samples/s on {workers} workers ({samples} samples, warm cluster); "
-              f"warp-then-project baseline {1 / base:.2f} samples/s on 1 core -> x{base / ours:.1f}")
+        print(
+            f"  generation: {1 / ours:.2f} samples/s on {workers} workers ({samples} samples, warm cluster); "
+            f"warp-then-project baseline {1 / base:.2f} samples/s on 1 core -> x{base / ours:.1f}"
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -90,8 +90,12 @@ def astra_art_sweep(geometry, y, n_rays):
     t = time.perf_counter()
     astra.algorithm.run(aid, n_rays)  # one ART iteration = one ray
     dt = time.perf_counter() - t
-    for f, i in ((astra.algorithm.delete, aid), (astra.data2d.delete, sid), (astra.data2d.delete, rid),
-                 (astra.projector.delete, pid)):
+    for f, i in (
+        (astra.algorithm.delete, aid),
+        (astra.data2d.delete, sid),
+        (astra.data2d.delete, rid),
+        (astra.projector.delete, pid),
+    ):
         f(i)
     return dt
 
@@ -118,11 +122,11 @@ def dremel_numpy_views(geometry, mat, y, n_views, omega=0.05):
     grid = np.arange(l_all, dtype=float)
     t = time.perf_counter()
     for k in range(n_views):
-        ak = mat[k * l_all:(k + 1) * l_all]
+        ak = mat[k * l_all : (k + 1) * l_all]
         p = ak @ x
         d = shifts[k] * geometry.magnification
         z = np.interp(grid + d, grid, p, left=0, right=0)
-        rs = np.interp(grid + d, grid, rows_sum[k * l_all:(k + 1) * l_all], left=0, right=0)
+        rs = np.interp(grid + d, grid, rows_sum[k * l_all : (k + 1) * l_all], left=0, right=0)
         e = np.where(rs > 1e-6, (z - y[k]) / np.maximum(rs, 1e-6), 0)
         # adjoint of linear interpolation
         i0 = np.floor(grid + d).astype(int)
@@ -156,8 +160,10 @@ def main() -> None:
         yf = y.ravel()
         k_all, l_all = g.sino_shape
         n_rays = k_all * l_all
-        print(f"\n=== {name}: N={g.n}, K={k_all}, L={l_all}, rays={n_rays}, nnz={mat.nnz / 1e6:.1f} M, "
-              f"matrix load/build {t_mat:.2f} s")
+        print(
+            f"\n=== {name}: N={g.n}, K={k_all}, L={l_all}, rays={n_rays}, nnz={mat.nnz / 1e6:.1f} M, "
+            f"matrix load/build {t_mat:.2f} s"
+        )
 
         # ---- one Kaczmarz sweep (unsigned column indices, as kaczmarz() passes them)
         ind = unsigned_indices(mat)
@@ -174,8 +180,13 @@ def main() -> None:
         t_spmv = timeit(lambda: mat @ x, args.repeat)
         gb = (mat.data.nbytes + ind.nbytes) / 1e9
         print(f"Kaczmarz sweep (numba):            {t_sweep * 1e3:8.1f} ms")
-        print(f"read data + indices once (max):    {t_bw * 1e3:8.1f} ms  ({gb / t_bw:.1f} GB/s) -> sweep / read = {t_sweep / t_bw:.2f}")
-        print(f"stream CSR once (numba A x - y):   {t_stream * 1e3:8.1f} ms  -> sweep / stream = {t_sweep / t_stream:.2f}")
+        print(
+            f"read data + indices once (max):    {t_bw * 1e3:8.1f} ms  ({gb / t_bw:.1f} GB/s) -> "
+            f"sweep / read = {t_sweep / t_bw:.2f}"
+        )
+        print(
+            f"stream CSR once (numba A x - y):   {t_stream * 1e3:8.1f} ms  -> sweep / stream = {t_sweep / t_stream:.2f}"
+        )
         print(f"scipy A @ x:                        {t_spmv * 1e3:8.1f} ms  -> sweep / spmv = {t_sweep / t_spmv:.2f}")
         if not args.skip_astra:
             t_art = astra_art_sweep(g, y, n_rays)
@@ -186,22 +197,29 @@ def main() -> None:
         t = time.perf_counter()
         kaczmarz_reference(mat, yf.astype(np.float64), xr, np.arange(n_v), l_all, 1.0)
         t_np = (time.perf_counter() - t) * k_all / n_v
-        print(f"numpy row loop (extrapolated from {n_v * l_all} rows): {t_np:8.2f} s  -> speed-up {t_np / t_sweep:.0f}x")
+        print(
+            f"numpy row loop (extrapolated from {n_v * l_all} rows): {t_np:8.2f} s  -> speed-up {t_np / t_sweep:.0f}x"
+        )
 
         # ---- RESESOP 20 sweeps
         for residual in ("running", "exact"):
             resesop(g, y, eta, max_sweeps=1, matrix=mat)  # compile
             res, t_res, peak = with_memory(lambda: resesop(g, y, eta, max_sweeps=20, matrix=mat, residual=residual))
-            print(f"RESESOP ({res.n_sweeps} sweeps, residual={residual}, stop={res.stop_reason}): {t_res:6.2f} s, "
-                  f"tracemalloc peak {peak:6.1f} MiB, updates/sweep {res.params['n_updates'][0]} -> {res.params['n_updates'][-1]}")
+            print(
+                f"RESESOP ({res.n_sweeps} sweeps, residual={residual}, stop={res.stop_reason}): {t_res:6.2f} s, "
+                f"tracemalloc peak {peak:6.1f} MiB, updates/sweep {res.params['n_updates'][0]} -> "
+                f"{res.params['n_updates'][-1]}"
+            )
         xr = np.zeros(mat.shape[1])
         width = np.repeat(eta.astype(np.float64), l_all)
         t = time.perf_counter()
         resesop_reference(mat, yf.astype(np.float64), xr, width, 1.01, np.arange(n_v), l_all, {})
         t_np1 = (time.perf_counter() - t) / (n_v * l_all)
-        print(f"numpy RESESOP (literal, dense search directions): {t_np1 * 1e3:.3f} ms/ray -> one sweep "
-              f"~{t_np1 * n_rays:.1f} s, 20 sweeps ~{20 * t_np1 * n_rays:.0f} s (extrapolated from {n_v * l_all} rays, "
-              f"first sweep: all rays updated) -> {20 * t_np1 * n_rays / t_res:.0f}x")
+        print(
+            f"numpy RESESOP (literal, dense search directions): {t_np1 * 1e3:.3f} ms/ray -> one sweep "
+            f"~{t_np1 * n_rays:.1f} s, 20 sweeps ~{20 * t_np1 * n_rays:.0f} s (extrapolated from {n_v * l_all} rays, "
+            f"first sweep: all rays updated) -> {20 * t_np1 * n_rays / t_res:.0f}x"
+        )
 
         # ---- Dremel 32 iterations
         dremel(g, y, n_iter=1, matrix=mat)  # compile
@@ -210,8 +228,10 @@ def main() -> None:
             print(f"Dremel (32 iterations, residual={residual}): {t_dr:6.2f} s, tracemalloc peak {peak:6.1f} MiB")
         n_dv = max(4, args.numpy_rows // 20)
         t_np_d = dremel_numpy_views(g, mat, y, n_dv) / n_dv * k_all * 32
-        print(f"numpy/scipy Dremel (extrapolated from {n_dv} view steps): 32 iterations ~{t_np_d:.1f} s "
-              f"-> {t_np_d / t_dr:.1f}x")
+        print(
+            f"numpy/scipy Dremel (extrapolated from {n_dv} view steps): 32 iterations ~{t_np_d:.1f} s "
+            f"-> {t_np_d / t_dr:.1f}x"
+        )
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"\nprocess max RSS (whole run, includes matrices and ASTRA): {rss:.0f} MiB")
 

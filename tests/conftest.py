@@ -22,7 +22,9 @@ def _operator_cache(tmp_path_factory):
 def tiny_store(tmp_path_factory):
     """A complete tiny-parallel data set of 12 samples (made in-process)."""
     path = tmp_path_factory.mktemp("data") / "tiny"
-    return generate_dataset(path, get_preset("tiny-parallel"), 12, seed=3, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+    return generate_dataset(
+        path, get_preset("tiny-parallel"), 12, seed=3, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25)
+    )
 
 
 @pytest.fixture

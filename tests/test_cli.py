@@ -29,7 +29,22 @@ def test_help(monkeypatch, capsys, command):
 
 def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     d = tmp_path / "d"
-    code, out, _ = run(monkeypatch, capsys, "generate", "--preset", "tiny-fan", "--n", 4, "--out", d, "--workers", 0, "-q", "--split-fractions", "0.5,0.25,0.25")
+    code, out, _ = run(
+        monkeypatch,
+        capsys,
+        "generate",
+        "--preset",
+        "tiny-fan",
+        "--n",
+        4,
+        "--out",
+        d,
+        "--workers",
+        0,
+        "-q",
+        "--split-fractions",
+        "0.5,0.25,0.25",
+    )
     assert code == 0 and "4/4 samples" in out
     code, out, _ = run(monkeypatch, capsys, "info", d, "--json")
     info = json.loads(out)
@@ -41,14 +56,39 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     code, out, _ = run(monkeypatch, capsys, "reconstruct", d, "--method", "fbp", "--workers", 0, "-q")
     assert code == 0 and "reconstructions/fbp" in out
     code, out, _ = run(monkeypatch, capsys, "evaluate", d, "--json")
-    assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["fbp"]) == {"psnr_mean", "psnr_std", "ssim_mean", "ssim_std", "n"}
+    assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["fbp"]) == {
+        "psnr_mean",
+        "psnr_std",
+        "ssim_mean",
+        "ssim_std",
+        "n",
+    }
     assert (d / "report" / "evaluation.md").is_file()
     run_dir = tmp_path / "run"
-    code, out, err = run(monkeypatch, capsys, "train", d, "--model", "unet", "--input", "fbp", "--epochs", 1, "--out", run_dir,
-                         "--param", "channels=[4,4,4,4,4]", "--lr-schedule", "plateau", "-q")
+    code, out, err = run(
+        monkeypatch,
+        capsys,
+        "train",
+        d,
+        "--model",
+        "unet",
+        "--input",
+        "fbp",
+        "--epochs",
+        1,
+        "--out",
+        run_dir,
+        "--param",
+        "channels=[4,4,4,4,4]",
+        "--lr-schedule",
+        "plateau",
+        "-q",
+    )
     assert code == 0 and (run_dir / "best.pt").is_file() and (run_dir / "log.csv").is_file(), err
     assert json.loads((run_dir / "config.json").read_text())["scheduler"] == "plateau"
-    code, _, err = run(monkeypatch, capsys, "train", d, "--input", "fbp", "--out", tmp_path / "r3", "--lr-schedule", "step")
+    code, _, err = run(
+        monkeypatch, capsys, "train", d, "--input", "fbp", "--out", tmp_path / "r3", "--lr-schedule", "step"
+    )
     assert code == 2 and "'step' is unknown" in err and not (tmp_path / "r3").exists()
     code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "-q")
     assert code == 0 and "reconstructions/fbp+unet" in out
@@ -58,7 +98,9 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     assert code == 2 and "no training run" in err
     code, _, err = run(monkeypatch, capsys, "train", d, "--model", "vit", "--input", "fbp")
     assert code == 2 and "model 'vit' is unknown" in err
-    code, _, err = run(monkeypatch, capsys, "train", d, "--model", "unet", "--input", "dremel", "--out", tmp_path / "r2")
+    code, _, err = run(
+        monkeypatch, capsys, "train", d, "--model", "unet", "--input", "dremel", "--out", tmp_path / "r2"
+    )
     assert code == 2 and "dremel" in err
     png = tmp_path / "fig.png"
     code, _, _ = run(monkeypatch, capsys, "show", d, "--index", 1, "--out", png)
@@ -72,7 +114,10 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     [
         (["generate", "--preset", "huge-parallel", "--n", 3, "--out", "X"], "unknown preset 'huge-parallel'"),
         (["generate", "--preset", "tiny-parallel", "--n", 0, "--out", "X"], "--n 0"),
-        (["generate", "--preset", "tiny-parallel", "--n", 3, "--out", "X", "--split-fractions", "1,2"], "three comma-separated"),
+        (
+            ["generate", "--preset", "tiny-parallel", "--n", 3, "--out", "X", "--split-fractions", "1,2"],
+            "three comma-separated",
+        ),
         (["info", "X"], "no nanoct data set"),
         (["reconstruct", "X", "--method", "fbp"], "no nanoct data set"),
         (["reconstruct", "X", "--method", "fbp", "--eta-scale", "0.8"], "--eta-scale applies to --method resesop"),

@@ -5,7 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from nanoct.evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, parse_name, write_report_tables
+from nanoct.evaluate import (
+    evaluate_store,
+    format_mixing,
+    format_table,
+    mixing_matrices,
+    parse_name,
+    write_report_tables,
+)
 from nanoct.metrics import psnr
 from nanoct.store import DataStore
 
@@ -21,8 +28,12 @@ def _scores(p):
 
 
 def test_mixing_and_tables():
-    results = {name: _scores(20 + i) for i, name in enumerate(
-        ["fbp", "resesop", "fbp+unet", "resesop+unet", "fbp+unet@resesop", "resesop+unet@fbp", "resesop+cinn"])}
+    results = {
+        name: _scores(20 + i)
+        for i, name in enumerate(
+            ["fbp", "resesop", "fbp+unet", "resesop+unet", "fbp+unet@resesop", "resesop+unet@fbp", "resesop+cinn"]
+        )
+    }
     mix = mixing_matrices(results)
     assert set(mix) == {"unet"}  # cinn was applied to one input only
     assert mix["unet"]["fbp"]["resesop"]["psnr_mean"] == 25  # trained on fbp, applied to resesop
@@ -42,7 +53,9 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     rng = np.random.default_rng(0)
     for i, g in zip(test, gts):
         std = np.full(g.shape, 0.05, np.float32)
-        store.write_reconstruction("eval_truth+fake", int(i), g + rng.normal(0, 0.05, g.shape).astype(np.float32), std=std)
+        store.write_reconstruction(
+            "eval_truth+fake", int(i), g + rng.normal(0, 0.05, g.shape).astype(np.float32), std=std
+        )
     results = evaluate_store(store, "test", names=["eval_truth+fake"])
     r = results["eval_truth+fake"]
     expected = np.mean([psnr(store.read_reconstruction("eval_truth+fake", [i])[0], g) for i, g in zip(test, gts)])
@@ -50,7 +63,15 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     assert r["calibration"]["observed"]["1"] == pytest.approx(0.683, abs=0.05)
     md, js = write_report_tables(store, results, tmp_path)
     payload = json.loads(js.read_text())
-    assert set(payload["results"]["eval_truth+fake"]) >= {"psnr_mean", "psnr_std", "ssim_mean", "ssim_std", "n", "std_error_corr", "calibration"}
+    assert set(payload["results"]["eval_truth+fake"]) >= {
+        "psnr_mean",
+        "psnr_std",
+        "ssim_mean",
+        "ssim_std",
+        "n",
+        "std_error_corr",
+        "calibration",
+    }
     assert "within 1/2/3 std" in md.read_text()
     store.delete_reconstruction("eval_truth+fake")
     assert not store.has_uncertainty("eval_truth+fake")

@@ -38,7 +38,21 @@ def test_same_bytes_for_any_worker_count(tmp_path):
 
 def test_kill_and_resume_gives_the_same_bytes(tmp_path):
     n = 400
-    cmd = [sys.executable, "-m", "nanoct", "generate", "--preset", "tiny-parallel", "--n", str(n), "--seed", "2", "--workers", "0", "-q"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "nanoct",
+        "generate",
+        "--preset",
+        "tiny-parallel",
+        "--n",
+        str(n),
+        "--seed",
+        "2",
+        "--workers",
+        "0",
+        "-q",
+    ]
     killed = tmp_path / "killed"
     proc = subprocess.Popen([*cmd, "--out", str(killed)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120

@@ -135,10 +135,7 @@ def test_inscribed_disc_leaves_edge_pixels_empty(name: str) -> None:
 
 @pytest.mark.parametrize(
     "name",
-    [
-        name
-        for name in sorted(PRESETS)
-    ],
+    [name for name in sorted(PRESETS)],
 )
 def test_full_square_leaves_edge_pixels_empty(name: str) -> None:
     """An image of ones (the whole square) leaves the first and last pixel empty in every view."""
@@ -150,9 +147,7 @@ def test_full_square_leaves_edge_pixels_empty(name: str) -> None:
 
 def _fine_detector(g: Geometry, factor: int, extra: int) -> Geometry:
     """The same geometry with a `factor` times finer detector, wider by `extra` pixel widths."""
-    return dataclasses.replace(
-        g, n_det=(g.n_det + 2 * extra) * factor, det_spacing=g.det_spacing / factor
-    )
+    return dataclasses.replace(g, n_det=(g.n_det + 2 * extra) * factor, det_spacing=g.det_spacing / factor)
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))

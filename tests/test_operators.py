@@ -52,9 +52,7 @@ def blobs(n: int) -> np.ndarray:
 
 
 def random_motion(rng: np.random.Generator, k: int, shift: float = 2.0, rot: float = 1.0) -> np.ndarray:
-    return np.column_stack(
-        [rng.uniform(-shift, shift, (k, 2)), rng.uniform(-rot, rot, k)]
-    ).astype(np.float32)
+    return np.column_stack([rng.uniform(-shift, shift, (k, 2)), rng.uniform(-rot, rot, k)]).astype(np.float32)
 
 
 def warp(x: np.ndarray, t: np.ndarray, theta_deg: float, order: int) -> np.ndarray:
@@ -122,9 +120,7 @@ def test_adjointness_other_parallel_projectors(projector: str) -> None:
 def test_zero_motion_equals_no_motion() -> None:
     g = get_preset("tiny-fan")
     x = blobs(g.n)
-    np.testing.assert_array_equal(
-        RayTransform(g, np.zeros((g.n_angles, 3)))(x), RayTransform(g)(x)
-    )
+    np.testing.assert_array_equal(RayTransform(g, np.zeros((g.n_angles, 3)))(x), RayTransform(g)(x))
 
 
 # ---------------------------------------------------------------------------------- system matrix
@@ -309,9 +305,7 @@ def test_motion_matches_warp_then_project(name: str, projector: str | None, tol:
     signs = rng.choice([-1.0, 1.0], size=(K, 3))
     along, across = signs[:, :2].T * rng.uniform(2.0, 3.0, (2, K))
     c, s = np.cos(g.angles), np.sin(g.angles)
-    motion = np.column_stack(
-        [along * c - across * s, along * s + across * c, signs[:, 2] * rng.uniform(4.0, 6.0, K)]
-    )
+    motion = np.column_stack([along * c - across * s, along * s + across * c, signs[:, 2] * rng.uniform(4.0, 6.0, K)])
     exact = RayTransform(g, motion, projector=projector)(x)
     still = RayTransform(g, projector=projector)
     for k in views:
@@ -513,5 +507,7 @@ def test_oversampled_system_matrix_matches_forward(name: str, tmp_path) -> None:
     mat = system_matrix(g, oversample=2, directory=tmp_path)
     assert mat.shape == (g.n_angles * g.n_det, (2 * g.n) ** 2) and mat.dtype == np.float32
     x = np.random.default_rng(0).random((2 * g.n, 2 * g.n)).astype(np.float32)
-    np.testing.assert_allclose((mat @ x.ravel()).reshape(g.sino_shape), RayTransform(g, oversample=2).forward(x), rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        (mat @ x.ravel()).reshape(g.sino_shape), RayTransform(g, oversample=2).forward(x), rtol=1e-5, atol=1e-4
+    )
     assert system_matrix(g, directory=tmp_path).shape[1] == g.n**2  # a separate cache entry

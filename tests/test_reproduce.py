@@ -13,7 +13,16 @@ TOY = Study(
     epochs={"unet": 1, "cinn-res": 1},
     model_kwargs={
         "unet": {"channels": (4, 4, 4, 4, 4)},
-        "cinn-res": dict(n_scales=3, blocks_per_scale=1, fc_dim=8, fc_blocks=1, cond_channels=4, cond_width=4, fc_cond_dim=8, hidden_ratio=1.0),
+        "cinn-res": dict(
+            n_scales=3,
+            blocks_per_scale=1,
+            fc_dim=8,
+            fc_blocks=1,
+            cond_channels=4,
+            cond_width=4,
+            fc_cond_dim=8,
+            hidden_ratio=1.0,
+        ),
     },
     n_samples=3,
     mixing=("unet",),
@@ -22,7 +31,9 @@ TOY = Study(
 
 def test_reproduce_toy_study(tmp_path):
     out = tmp_path / "study"
-    report = reproduce_study("tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False)
+    report = reproduce_study(
+        "tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False
+    )
     text = report.read_text()
     results = json.loads((out / "report" / "evaluation.json").read_text())["results"]
     inputs = ["fbp", "dremel", "resesop", "resesop_eta0.8", "resesop_eta1.2"]
@@ -31,7 +42,13 @@ def test_reproduce_toy_study(tmp_path):
         assert results[f"{i}+cinn-res"]["n"] == 3 and "calibration" in results[f"{i}+cinn-res"]
     assert "fbp+unet@resesop" in results and "fbp+cinn-res@resesop" not in results  # mixing for unet only
     assert "rows = trained on" in text and "uncertainty.png" in text
-    for png in ("reconstructions.png", "reconstructions_unet.png", "reconstructions_cinn-res.png", "uncertainty.png", "sample.png"):
+    for png in (
+        "reconstructions.png",
+        "reconstructions_unet.png",
+        "reconstructions_cinn-res.png",
+        "uncertainty.png",
+        "sample.png",
+    ):
         assert (out / "report" / png).read_bytes()[:4] == b"\x89PNG"
     # everything is cached: a second run redoes no training and no prediction
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}

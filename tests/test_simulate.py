@@ -17,7 +17,9 @@ def test_sample_shapes_and_consistency(preset):
     assert s.phantom.shape == g.image_shape and s.phantom.dtype == np.float32
     assert s.sinogram.shape == s.sinogram_eta.shape == g.sino_shape
     assert s.motion.shape == (g.n_angles, 3) and s.eta.shape == (g.n_angles,)
-    np.testing.assert_array_equal(s.eta, np.abs(s.sinogram.astype(np.float64) - s.sinogram_eta).max(axis=1).astype(np.float32))
+    np.testing.assert_array_equal(
+        s.eta, np.abs(s.sinogram.astype(np.float64) - s.sinogram_eta).max(axis=1).astype(np.float32)
+    )
     assert (s.eta > 0).all()  # every view moved
     # y_eta is the unperturbed projection of the same (fine) phantom; y uses the stored motion
     fine = random_phantom(sample_rngs(5, 2)[0], g.n, oversample=2)

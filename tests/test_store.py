@@ -83,7 +83,9 @@ def test_create_refuses_a_different_dataset(tiny_store):
     with pytest.raises(StoreError, match="differs in: seed"):
         DataStore.create(tiny_store.path, g, 12, 4, meta["simulation"], tuple(meta["split_fractions"]))
     with pytest.raises(StoreError, match="geometry"):
-        DataStore.create(tiny_store.path, get_preset("tiny-fan"), 12, 3, meta["simulation"], tuple(meta["split_fractions"]))
+        DataStore.create(
+            tiny_store.path, get_preset("tiny-fan"), 12, 3, meta["simulation"], tuple(meta["split_fractions"])
+        )
     same = DataStore.create(tiny_store.path, g, 12, 3, meta["simulation"], tuple(meta["split_fractions"]))
     assert same.done.all()
 

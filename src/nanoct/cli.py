@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import typer
 
@@ -53,12 +53,16 @@ def generate(
     out: Path = typer.Option(..., "--out", "-o", help="Output store directory (Zarr v3)."),
     seed: int = typer.Option(0, "--seed", help="Data-set seed; sample i depends only on (seed, i)."),
     no_motion: bool = typer.Option(False, "--no-motion", help="Unperturbed data (the paper's sanity case)."),
-    max_shift: Optional[float] = typer.Option(None, "--max-shift", help="Bound of the sinusoidal object shift in px (default 2.0)."),
+    max_shift: float | None = typer.Option(
+        None, "--max-shift", help="Bound of the sinusoidal object shift in px (default 2.0)."
+    ),
     oversample: int = typer.Option(2, "--oversample", help="Simulation grid refinement (1 = inverse crime)."),
-    noise_std: float = typer.Option(0.0, "--noise-std", help="Std of additive Gaussian noise on y (default 0, as the paper)."),
+    noise_std: float = typer.Option(
+        0.0, "--noise-std", help="Std of additive Gaussian noise on y (default 0, as the paper)."
+    ),
     split_fractions: str = typer.Option("0.95,0.04,0.01", "--split-fractions", help="Train,val,test proportions."),
     workers: int = WORKERS,
-    scheduler: Optional[str] = SCHEDULER,
+    scheduler: str | None = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
     """Simulate a data set: phantoms, motion, perturbed and model sinograms, eta, splits.
@@ -80,8 +84,15 @@ def generate(
         noise_std=noise_std,
     )
     store = generate_dataset(
-        out, geometry, n, seed=seed, config=config, split_fractions=_parse_fractions(split_fractions),
-        workers=workers, scheduler=scheduler, progress=not quiet,
+        out,
+        geometry,
+        n,
+        seed=seed,
+        config=config,
+        split_fractions=_parse_fractions(split_fractions),
+        workers=workers,
+        scheduler=scheduler,
+        progress=not quiet,
     )
     info = store.info()
     typer.echo(f"{store.path}: {info['done']}/{info['n']} samples, splits {info['splits']}")
@@ -94,10 +105,10 @@ def reconstruct(
     split: str = typer.Option("all", "--split", help="test | val | train | all"),
     eta_scale: float = typer.Option(1.0, "--eta-scale", help="RESESOP: scale of eta (paper: 0.8, 1.0, 1.2)."),
     param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
-    name: Optional[str] = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
+    name: str | None = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
     workers: int = WORKERS,
-    scheduler: Optional[str] = SCHEDULER,
+    scheduler: str | None = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
     """Reconstruct every sample of a split into reconstructions/<name> (resumable)."""
@@ -109,8 +120,15 @@ def reconstruct(
     elif eta_scale != 1.0:
         raise NanoctError("--eta-scale applies to --method resesop only")
     written = reconstruct_dataset(
-        directory, method, split=split, params=params, name=name, overwrite=overwrite,
-        workers=workers, scheduler=scheduler, progress=not quiet,
+        directory,
+        method,
+        split=split,
+        params=params,
+        name=name,
+        overwrite=overwrite,
+        workers=workers,
+        scheduler=scheduler,
+        progress=not quiet,
     )
     typer.echo(f"wrote reconstructions/{written}")
 
@@ -119,15 +137,19 @@ def reconstruct(
 def train(
     directory: Path = typer.Argument(..., help="Data-set store."),
     model: str = typer.Option("unet", "--model", "-m", help="unet | cinn | cinn-res | ciunet | ciunet-res"),
-    input_name: str = typer.Option(..., "--input", "-i", help="Input reconstruction, e.g. fbp, dremel, resesop_eta0.8."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory (default DIR/../runs/<model>-<input>)."),
-    epochs: Optional[int] = typer.Option(None, "--epochs", "-e", help="Epochs (default: the paper's 500)."),
-    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="Global batch size (paper: 16)."),
-    lr: Optional[float] = typer.Option(None, "--lr", help="Adam learning rate (paper: 1e-3 UNet, 1e-5 invertible nets)."),
+    input_name: str = typer.Option(
+        ..., "--input", "-i", help="Input reconstruction, e.g. fbp, dremel, resesop_eta0.8."
+    ),
+    out: Path | None = typer.Option(None, "--out", "-o", help="Run directory (default DIR/../runs/<model>-<input>)."),
+    epochs: int | None = typer.Option(None, "--epochs", "-e", help="Epochs (default: the paper's 500)."),
+    batch_size: int | None = typer.Option(None, "--batch-size", help="Global batch size (paper: 16)."),
+    lr: float | None = typer.Option(None, "--lr", help="Adam learning rate (paper: 1e-3 UNet, 1e-5 invertible nets)."),
     seed: int = typer.Option(0, "--seed", help="Seed of weights, shuffling and noise."),
-    device: Optional[str] = typer.Option(None, "--device", help="cpu, cuda, cuda:1 ... (default: CUDA when present)."),
-    lr_schedule: Optional[str] = typer.Option(
-        None, "--lr-schedule", help="none | plateau | cosine (default: the model's; UNet cosine to lr/10, iNNs plateau)."
+    device: str | None = typer.Option(None, "--device", help="cpu, cuda, cuda:1 ... (default: CUDA when present)."),
+    lr_schedule: str | None = typer.Option(
+        None,
+        "--lr-schedule",
+        help="none | plateau | cosine (default: the model's; UNet cosine to lr/10, iNNs plateau).",
     ),
     param: list[str] = typer.Option([], "--param", help="Model architecture argument name=value (repeatable)."),
     quiet: bool = QUIET,
@@ -142,8 +164,18 @@ def train(
 
     run = out or Path(directory).resolve().parent / "runs" / f"{model}-{input_name}"
     path = train_model(
-        directory, model, input_name, run, epochs=epochs, batch_size=batch_size, lr=lr, seed=seed,
-        device=device, progress=not quiet, model_kwargs=_parse_params(param) or None, scheduler=lr_schedule,
+        directory,
+        model,
+        input_name,
+        run,
+        epochs=epochs,
+        batch_size=batch_size,
+        lr=lr,
+        seed=seed,
+        device=device,
+        progress=not quiet,
+        model_kwargs=_parse_params(param) or None,
+        scheduler=lr_schedule,
     )
     typer.echo(f"run: {path}")
 
@@ -152,11 +184,15 @@ def train(
 def predict(
     directory: Path = typer.Argument(..., help="Data-set store."),
     run: Path = typer.Option(..., "--run", "-r", help="Training run directory."),
-    input_name: Optional[str] = typer.Option(None, "--input", "-i", help="Input reconstruction (default: the training input)."),
+    input_name: str | None = typer.Option(
+        None, "--input", "-i", help="Input reconstruction (default: the training input)."
+    ),
     split: str = typer.Option("test", "--split", help="test | val | train | all"),
     checkpoint: str = typer.Option("best", "--checkpoint", help="best (lowest validation loss) or last."),
-    samples: Optional[int] = typer.Option(None, "--samples", "-M", help="Latent samples per image for invertible nets (default 100)."),
-    device: Optional[str] = typer.Option(None, "--device", help="cpu, cuda, ... (default: CUDA when present)."),
+    samples: int | None = typer.Option(
+        None, "--samples", "-M", help="Latent samples per image for invertible nets (default 100)."
+    ),
+    device: str | None = typer.Option(None, "--device", help="cpu, cuda, ... (default: CUDA when present)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result made with other parameters."),
     quiet: bool = QUIET,
 ) -> None:
@@ -172,8 +208,15 @@ def predict(
         raise NanoctError(f"--samples {samples} must be a positive number of latent samples")
     kwargs = None if samples is None else {"n_samples": samples}
     name = predict_model(
-        directory, run, input_name, split=split, checkpoint=checkpoint, device=device, progress=not quiet,
-        overwrite=overwrite, reconstruct_kwargs=kwargs,
+        directory,
+        run,
+        input_name,
+        split=split,
+        checkpoint=checkpoint,
+        device=device,
+        progress=not quiet,
+        overwrite=overwrite,
+        reconstruct_kwargs=kwargs,
     )
     typer.echo(f"wrote reconstructions/{name}")
 
@@ -196,8 +239,10 @@ def info(
     typer.echo(f"samples    {data['done']}/{data['n']} generated ({'complete' if data['complete'] else 'INCOMPLETE'})")
     typer.echo("splits     " + ", ".join(f"{k} {v}" for k, v in data["splits"].items()))
     sim = data["simulation"]
-    typer.echo(f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
-               f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}")
+    typer.echo(
+        f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
+        f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}"
+    )
     recons = data["reconstructions"]
     typer.echo("reconstructions " + (", ".join(f"{k} ({v['done']}/{data['n']})" for k, v in recons.items()) or "none"))
 
@@ -222,7 +267,7 @@ def show(
 def evaluate(
     directory: Path = typer.Argument(..., help="Data-set store."),
     split: str = typer.Option("test", "--split", help="Split to evaluate on."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
+    out: Path | None = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the Markdown table."),
 ) -> None:
     """PSNR/SSIM (mean ± std over a split) of every reconstruction in the store.
@@ -236,7 +281,9 @@ def evaluate(
     store = DataStore.open(directory)
     results = evaluate_store(store, split)
     if not results:
-        raise NanoctError(f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first")
+        raise NanoctError(
+            f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first"
+        )
     md, js = write_report_tables(store, results, out or Path(directory) / "report", split)
     typer.echo(json.dumps(results, indent=2) if as_json else md.read_text())
     typer.echo(f"wrote {md} and {js}", err=True)
@@ -245,14 +292,14 @@ def evaluate(
 @app.command()
 def reproduce(
     preset: str = typer.Option("tiny-parallel", "--preset", "-p", help="Study preset (geometry preset name)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output directory (default runs/<preset>)."),
-    n: Optional[int] = typer.Option(None, "--n", help="Override the number of samples of the preset."),
+    out: Path | None = typer.Option(None, "--out", "-o", help="Output directory (default runs/<preset>)."),
+    n: int | None = typer.Option(None, "--n", help="Override the number of samples of the preset."),
     no_motion: bool = typer.Option(False, "--no-motion", help="The unperturbed sanity case."),
     models: str = typer.Option(
         "unet,cinn,cinn-res,ciunet,ciunet-res", "--models", help="Comma-separated post-processing networks, or 'none'."
     ),
     workers: int = WORKERS,
-    scheduler: Optional[str] = SCHEDULER,
+    scheduler: str | None = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
     """Run the study end to end: generate, reconstruct, train, predict, evaluate, report.
@@ -264,7 +311,14 @@ def reproduce(
 
     chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
     report = reproduce_study(
-        preset, out=out, n=n, perturbed=not no_motion, models=chosen, workers=workers, scheduler=scheduler, progress=not quiet
+        preset,
+        out=out,
+        n=n,
+        perturbed=not no_motion,
+        models=chosen,
+        workers=workers,
+        scheduler=scheduler,
+        progress=not quiet,
     )
     typer.echo(report.read_text())
     typer.echo(f"report: {report}", err=True)

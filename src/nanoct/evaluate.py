@@ -52,7 +52,10 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
     """
     idx = store.indices(split)
     if idx.size == 0:
-        raise NanoctError(f"the data set at {store.path} has no '{split}' samples; generate more samples or change the split fractions")
+        raise NanoctError(
+            f"the data set at {store.path} has no '{split}' samples; generate more samples or change "
+            "the split fractions"
+        )
     gts = store.read_phantoms(idx)
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
@@ -86,7 +89,9 @@ def format_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
     """Markdown table like the paper's: first reconstructions, then one block per model."""
     lines = [f"### {title}", ""] if title else []
     uq = any("std_error_corr" in r for r in results.values())
-    head = "| reconstruction | PSNR [dB] | SSIM | n |" + (" std/error corr | within 1/2/3 std (68/95/99.7 %) |" if uq else "")
+    head = "| reconstruction | PSNR [dB] | SSIM | n |" + (
+        " std/error corr | within 1/2/3 std (68/95/99.7 %) |" if uq else ""
+    )
     lines += [head, "|---" * (head.count("|") - 1) + "|"]
     groups: dict[str | None, list[str]] = {}
     for name in results:
@@ -102,7 +107,8 @@ def format_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
             if uq:
                 if "std_error_corr" in r:
                     obs = r["calibration"]["observed"]
-                    row += f" {r['std_error_corr']:.3f} | {obs['1'] * 100:.0f} / {obs['2'] * 100:.0f} / {obs['3'] * 100:.0f} % |"
+                    within = " / ".join(f"{obs[k] * 100:.0f}" for k in ("1", "2", "3"))
+                    row += f" {r['std_error_corr']:.3f} | {within} % |"
                 else:
                     row += " | |"
             lines.append(row)
@@ -124,7 +130,9 @@ def format_mixing(mixing: dict[str, dict[str, dict[str, dict[str, Any]]]]) -> st
     return "\n".join(blocks)
 
 
-def write_report_tables(store: DataStore, results: dict[str, dict[str, Any]], out_dir: str | os.PathLike[str], split: str = "test") -> tuple[Path, Path]:
+def write_report_tables(
+    store: DataStore, results: dict[str, dict[str, Any]], out_dir: str | os.PathLike[str], split: str = "test"
+) -> tuple[Path, Path]:
     """Write ``evaluation.md`` and ``evaluation.json`` into ``out_dir``; returns their paths.
 
     The JSON has, per reconstruction name, ``psnr_mean``, ``psnr_std``, ``ssim_mean``,
@@ -138,7 +146,13 @@ def write_report_tables(store: DataStore, results: dict[str, dict[str, Any]], ou
     mixing = mixing_matrices(results)
     text = format_table(results, title) + ("\n" + format_mixing(mixing) if mixing else "")
     md, js = out / "evaluation.md", out / "evaluation.json"
-    payload = {"split": split, "geometry": g.to_dict(), "simulation": store.meta.get("simulation"), "results": results, "mixing": mixing}
+    payload = {
+        "split": split,
+        "geometry": g.to_dict(),
+        "simulation": store.meta.get("simulation"),
+        "results": results,
+        "mixing": mixing,
+    }
     atomic_write_text(md, text)
     atomic_write_text(js, json.dumps(payload, indent=2))
     return md, js

@@ -71,7 +71,9 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     deg = np.rad2deg(geometry.angle_range)
     extent = (0, deg, geometry.n_det - 0.5, -0.5)
     vmax = float(max(sample.sinogram.max(), sample.sinogram_eta.max()))
-    for col, (data, title) in enumerate(((sample.sinogram_eta, "unperturbed sinogram y_eta"), (sample.sinogram, "perturbed sinogram y"))):
+    for col, (data, title) in enumerate(
+        ((sample.sinogram_eta, "unperturbed sinogram y_eta"), (sample.sinogram, "perturbed sinogram y"))
+    ):
         ax = fig.add_subplot(grid[1, col])
         image(ax, data.T, title, vmin=0, vmax=vmax, extent=extent, aspect="auto")
         ax.set_xlabel("view angle [deg]")
@@ -82,7 +84,9 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     return _save(fig, out, dpi=100)
 
 
-def compare_reconstructions(store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]) -> Path:
+def compare_reconstructions(
+    store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]
+) -> Path:
     """Figure: ground truth and each reconstruction (top) with its difference image (below).
 
     One block of two rows per sample; columns are the ground truth followed by ``names``.

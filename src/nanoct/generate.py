@@ -67,5 +67,12 @@ def generate_dataset(
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
     pending = [int(i) for i in (~store.done).nonzero()[0]]
-    run_tasks(partial(_simulate_into, str(store.path)), pending, workers=workers, scheduler=scheduler, desc="generate", progress=progress)
+    run_tasks(
+        partial(_simulate_into, str(store.path)),
+        pending,
+        workers=workers,
+        scheduler=scheduler,
+        desc="generate",
+        progress=progress,
+    )
     return DataStore.open(store.path, mode="r+")

@@ -193,6 +193,4 @@ def get_preset(name: str) -> Geometry:
     try:
         return PRESETS[name]
     except KeyError:
-        raise ValueError(
-            f"unknown preset {name!r}; choose one of: {', '.join(preset_names())}"
-        ) from None
+        raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(preset_names())}") from None

@@ -21,7 +21,9 @@ GAUSSIAN_COVERAGE = {"1": 0.6827, "2": 0.9545, "3": 0.9973}
 def _data_range(gt: np.ndarray) -> float:
     rng = float(gt.max() - gt.min())
     if rng <= 0:
-        raise ValueError("the ground truth is constant (max == min); PSNR/SSIM with data_range = max - min are undefined")
+        raise ValueError(
+            "the ground truth is constant (max == min); PSNR/SSIM with data_range = max - min are undefined"
+        )
     return rng
 
 

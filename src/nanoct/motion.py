@@ -140,8 +140,7 @@ class MotionParams:
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible dictionary of all fields (ranges as lists)."""
         return {
-            f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
-            for f in dataclasses.fields(self)
+            f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v for f in dataclasses.fields(self)
         }
 
     @classmethod
@@ -160,9 +159,7 @@ class MotionParams:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(
-                f"unknown MotionParams fields {unknown}; valid fields: {sorted(names)}"
-            )
+            raise ValueError(f"unknown MotionParams fields {unknown}; valid fields: {sorted(names)}")
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
         return cls(**values)
 
@@ -274,9 +271,7 @@ def rotation_matrix(theta_deg: float | np.ndarray) -> np.ndarray:
     return np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
 
 
-def plot_motion(
-    motion: np.ndarray, ax: Axes | None = None, angles: np.ndarray | None = None
-) -> Figure:
+def plot_motion(motion: np.ndarray, ax: Axes | None = None, angles: np.ndarray | None = None) -> Figure:
     """Plot a motion array: shifts on the left axis, rotation on a twin right axis.
 
     Parameters
@@ -303,10 +298,7 @@ def plot_motion(
     else:
         angles = np.asarray(angles, dtype=np.float64)
         if angles.shape != (motion.shape[0],):
-            raise ValueError(
-                f"angles has shape {angles.shape}; pass one angle per view, "
-                f"shape ({motion.shape[0]},)"
-            )
+            raise ValueError(f"angles has shape {angles.shape}; pass one angle per view, shape ({motion.shape[0]},)")
         x, xlabel = np.rad2deg(angles), r"view angle $\varphi$ [deg]"
     if ax is None:
         from matplotlib.figure import Figure

@@ -152,9 +152,7 @@ class PhantomSpec:
         return self.shapes[1:]
 
 
-def _random_half_axes(
-    rng: np.random.Generator, kind: ShapeKind, extent: float
-) -> tuple[float, float]:
+def _random_half_axes(rng: np.random.Generator, kind: ShapeKind, extent: float) -> tuple[float, float]:
     """Half-axes with random aspect ratio whose bounding radius equals ``extent``."""
     aspect = rng.uniform(*_ASPECT)
     a = extent if kind == "ellipse" else extent / math.hypot(1.0, aspect)
@@ -302,8 +300,7 @@ def downsample(fine: np.ndarray, oversample: int) -> np.ndarray:
     fine = np.asarray(fine)
     if fine.ndim != 2 or fine.shape[0] % oversample or fine.shape[1] % oversample:
         raise ValueError(
-            f"fine has shape {fine.shape}; it must be 2-D with both sides divisible by "
-            f"oversample={oversample}"
+            f"fine has shape {fine.shape}; it must be 2-D with both sides divisible by oversample={oversample}"
         )
     rows, cols = fine.shape[0] // oversample, fine.shape[1] // oversample
     blocks = fine.reshape(rows, oversample, cols, oversample)

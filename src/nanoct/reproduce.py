@@ -20,8 +20,8 @@ from typing import Any
 from .errors import NanoctError
 from .evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, write_report_tables
 from .fanout import run_tasks
-from .fileio import atomic_write_text, remove_stale_temporaries
 from .figures import compare_reconstructions, show_sample, uncertainty_maps
+from .fileio import atomic_write_text, remove_stale_temporaries
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
 from .recon.batch import reconstruct_dataset
@@ -118,10 +118,20 @@ def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], 
     from .learn.train import train
 
     model, input_name = jobs[index]
-    _with_threads(threads, partial(
-        train, data, model, input_name, Path(runs) / f"{model}-{input_name}", epochs=study.epochs[model],
-        lr=study.lr.get(model), model_kwargs=study.model_kwargs.get(model), progress=False,
-    ))
+    _with_threads(
+        threads,
+        partial(
+            train,
+            data,
+            model,
+            input_name,
+            Path(runs) / f"{model}-{input_name}",
+            epochs=study.epochs[model],
+            lr=study.lr.get(model),
+            model_kwargs=study.model_kwargs.get(model),
+            progress=False,
+        ),
+    )
     return index
 
 
@@ -131,10 +141,18 @@ def _predict_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, 
 
     model, train_input, input_name = jobs[index]
     kwargs = {"n_samples": study.n_samples} if model_class(model).has_uncertainty else None
-    _with_threads(threads, partial(
-        predict, data, Path(runs) / f"{model}-{train_input}", input_name, split="test", progress=False,
-        reconstruct_kwargs=kwargs,
-    ))
+    _with_threads(
+        threads,
+        partial(
+            predict,
+            data,
+            Path(runs) / f"{model}-{train_input}",
+            input_name,
+            split="test",
+            progress=False,
+            reconstruct_kwargs=kwargs,
+        ),
+    )
     return index
 
 
@@ -185,7 +203,9 @@ def reproduce_study(
 
     # 1. data and first reconstructions
     config = SimulationConfig.for_geometry(geometry, perturbed=perturbed)
-    store = generate_dataset(data, geometry, n or study.n, seed=0, config=config, split_fractions=study.split_fractions, **fan)
+    store = generate_dataset(
+        data, geometry, n or study.n, seed=0, config=config, split_fractions=study.split_fractions, **fan
+    )
     recons = _recons(perturbed)
     for name, (method, params) in recons.items():
         reconstruct_dataset(data, method, params=params, name=name, **fan)
@@ -203,11 +223,20 @@ def reproduce_study(
         jobs = [(m, i) for m, i in train_jobs if (m == "unet" and scheduler is None) == in_process]
         if jobs:
             run_tasks(
-                partial(_train_job, str(data), str(runs), study, jobs, cores if in_process else job_threads), range(len(jobs)),
-                desc="train", unit="run", **(fan | {"workers": 0} if in_process else fan),
+                partial(_train_job, str(data), str(runs), study, jobs, cores if in_process else job_threads),
+                range(len(jobs)),
+                desc="train",
+                unit="run",
+                **(fan | {"workers": 0} if in_process else fan),
             )
     predict_jobs = [(m, t, i) for m in models for t in inputs for i in inputs if i == t or m in study.mixing]
-    run_tasks(partial(_predict_job, str(data), str(runs), study, predict_jobs, job_threads), range(len(predict_jobs)), desc="predict", unit="run", **fan)
+    run_tasks(
+        partial(_predict_job, str(data), str(runs), study, predict_jobs, job_threads),
+        range(len(predict_jobs)),
+        desc="predict",
+        unit="run",
+        **fan,
+    )
 
     # 3. tables and figures
     names = inputs + [f"{i}+{m}" for m in models for i in inputs]

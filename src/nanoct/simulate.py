@@ -114,7 +114,11 @@ def simulate_sample(geometry: Geometry, config: SimulationConfig, seed: int, ind
     # faster than ASTRA on the fly (paper-parallel: 120 ms against 310 ms) and gives equal values
     matrix = system_matrix(geometry, config.projector, oversample=s)
     y_eta = (matrix @ fine.ravel()).reshape(geometry.sino_shape)
-    y = RayTransform(geometry, motion, projector=config.projector, oversample=s).forward(fine) if config.perturbed else y_eta.copy()
+    y = (
+        RayTransform(geometry, motion, projector=config.projector, oversample=s).forward(fine)
+        if config.perturbed
+        else y_eta.copy()
+    )
     eta = model_error(y, y_eta)  # the model error alone; noise is the separate level delta
     if config.noise_std > 0:
         y = (y + rng_noise.normal(0.0, config.noise_std, size=y.shape)).astype(np.float32)

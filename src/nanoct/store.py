@@ -101,7 +101,10 @@ class DataStore:
         self._group = group
         meta = group.attrs.get("nanoct")
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-            raise StoreError(f"{path} is a Zarr group but not a nanoct data set (format {FORMAT}); generate one with 'nanoct generate'")
+            raise StoreError(
+                f"{path} is a Zarr group but not a nanoct data set (format {FORMAT}); generate one "
+                "with 'nanoct generate'"
+            )
         self.meta: dict[str, Any] = meta
         self.geometry = Geometry.from_dict(meta["geometry"])
         self.n: int = int(meta["n"])
@@ -119,7 +122,9 @@ class DataStore:
         """
         path = Path(path)
         if not (path / "zarr.json").is_file():
-            raise StoreError(f"no nanoct data set at {path} (missing {path / 'zarr.json'}); create one with 'nanoct generate'")
+            raise StoreError(
+                f"no nanoct data set at {path} (missing {path / 'zarr.json'}); create one with 'nanoct generate'"
+            )
         try:
             group = zarr.open_group(str(path), mode=mode)
         except Exception as exc:  # damaged metadata
@@ -127,7 +132,9 @@ class DataStore:
         store = cls(path, group)
         for name in ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "split", "done"):
             if name not in group:
-                raise StoreError(f"the data set at {path} is damaged: array '{name}' is missing; delete it and generate it again")
+                raise StoreError(
+                    f"the data set at {path} is damaged: array '{name}' is missing; delete it and generate it again"
+                )
         return store
 
     @classmethod
@@ -282,7 +289,9 @@ class DataStore:
         if not 0 <= index < self.n:
             raise IndexError(f"sample index {index} is out of range 0..{self.n - 1}")
         if not self._array("done")[index]:
-            raise StoreError(f"sample {index} of {self.path} is not generated yet; run 'nanoct generate' again to finish it")
+            raise StoreError(
+                f"sample {index} of {self.path} is not generated yet; run 'nanoct generate' again to finish it"
+            )
         try:
             return Sample(
                 phantom=self._array("phantoms")[index],
@@ -298,7 +307,9 @@ class DataStore:
         """Ground-truth phantoms of the given samples, shape (len(indices), N, N)."""
         idx = np.asarray(list(indices), dtype=int)
         if not self._flags("done", idx).all():
-            raise StoreError(f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again")
+            raise StoreError(
+                f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again"
+            )
         return self._array("phantoms").get_orthogonal_selection((idx, slice(None), slice(None)))
 
     # ------------------------------------------------------------------ reconstructions
@@ -309,7 +320,9 @@ class DataStore:
         group = self._group["reconstructions"]
         return sorted(k for k in group.array_keys() if group[k].ndim == 3)
 
-    def prepare_reconstruction(self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False) -> None:
+    def prepare_reconstruction(
+        self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False
+    ) -> None:
         """Create ``reconstructions/<name>`` (and its progress flags) if missing.
 
         ``shifts`` adds ``reconstructions/<name>_shifts`` (n, K) for estimated motion,
@@ -332,17 +345,30 @@ class DataStore:
             self.remove_partial_writes(self._reconstruction_keys(name))  # resuming: clear a killed run's temporaries
             return
         size = self.geometry.n
-        self._group.create_array(f"progress/{name}", shape=(self.n,), chunks=(1,), dtype="bool", fill_value=False, overwrite=True)
+        self._group.create_array(
+            f"progress/{name}", shape=(self.n,), chunks=(1,), dtype="bool", fill_value=False, overwrite=True
+        )
         if shifts:
             self._group.create_array(
-                f"reconstructions/{name}_shifts", shape=(self.n, self.geometry.n_angles), chunks=(1, self.geometry.n_angles),
-                dtype="float32", fill_value=0, overwrite=True,
+                f"reconstructions/{name}_shifts",
+                shape=(self.n, self.geometry.n_angles),
+                chunks=(1, self.geometry.n_angles),
+                dtype="float32",
+                fill_value=0,
+                overwrite=True,
             )
         if uncertainty:
             self._group.create_array(
-                f"uncertainty/{name}", shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True
+                f"uncertainty/{name}",
+                shape=(self.n, size, size),
+                chunks=(1, size, size),
+                dtype="float32",
+                fill_value=0,
+                overwrite=True,
             )
-        arr = self._group.create_array(key, shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True)
+        arr = self._group.create_array(
+            key, shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True
+        )
         arr.attrs["params"] = params  # written last: marks the reconstruction as set up
 
     def delete_reconstruction(self, name: str) -> None:
@@ -384,11 +410,16 @@ class DataStore:
             If the reconstruction is absent or incomplete for the requested samples.
         """
         if f"reconstructions/{name}" not in self._group:
-            raise StoreError(f"{self.path} has no reconstruction '{name}'; present: {self.reconstruction_names() or 'none'}")
+            raise StoreError(
+                f"{self.path} has no reconstruction '{name}'; present: {self.reconstruction_names() or 'none'}"
+            )
         idx = np.arange(self.n) if indices is None else np.asarray(list(indices), dtype=int)
         missing = idx[~self._flags(f"progress/{name}", idx)]
         if missing.size:
-            raise StoreError(f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. {missing[:5].tolist()}); run 'nanoct reconstruct' again")
+            raise StoreError(
+                f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. "
+                f"{missing[:5].tolist()}); run 'nanoct reconstruct' again"
+            )
         if idx.size == 0:
             return np.zeros((0, *self.geometry.image_shape), np.float32)
         return self._group[f"reconstructions/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
@@ -404,7 +435,9 @@ class DataStore:
         idx = np.asarray(list(indices), dtype=int)
         missing = idx[~self._flags(f"progress/{name}", idx)]
         if missing.size:
-            raise StoreError(f"uncertainty of '{name}' is missing {missing.size} requested sample(s); run 'nanoct predict' again")
+            raise StoreError(
+                f"uncertainty of '{name}' is missing {missing.size} requested sample(s); run 'nanoct predict' again"
+            )
         return self._group[f"uncertainty/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
 
     def reconstruction_params(self, name: str) -> dict[str, Any]:

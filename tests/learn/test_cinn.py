@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_flows import CINN_TINY as TINY
 
 from nanoct.learn.cinn import CiNN
 from nanoct.learn.invertible import OrthogonalDownsampling
-from test_flows import CINN_TINY as TINY
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

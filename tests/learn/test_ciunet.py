@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_flows import CIUNET_TINY as TINY
 
 from nanoct.learn.ciunet import CiUNet, CiUNetRes
 from nanoct.learn.invertible import OrthogonalDownsampling, OrthogonalUpsampling
 from nanoct.learn.unet import UNet
-from test_flows import CIUNET_TINY as TINY
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -31,8 +31,9 @@ def test_paper_structure():
     # reversed connection: encoder couplings get UNet decoder features and vice versa
     conds = {node.name: node.output_dims[0] for node in m.flow.condition_nodes}
     assert conds["cond_dec_4"] == (128, 1, 1) and conds["cond_enc_1"] == (32, 8, 8)
-    coupling = {node.name: [c.name for c in node.conditions] for node in m.flow.node_list
-                if node.name.startswith("coupling_")}
+    coupling = {
+        node.name: [c.name for c in node.conditions] for node in m.flow.node_list if node.name.startswith("coupling_")
+    }
     assert coupling["coupling_pre_0"] == ["cond_dec_1"] and coupling["coupling_enc4_0"] == ["cond_dec_4"]
     assert coupling["coupling_dec1_1"] == ["cond_enc_1"]
 
@@ -49,8 +50,9 @@ def test_conditions_come_from_the_unet_in_reversed_order():
 
 
 def test_resampling_orthogonal_haar_and_couplings_identity_at_init(images, check_haar_init):
-    check_haar_init(CiUNet(**TINY), (OrthogonalDownsampling, OrthogonalUpsampling),
-                    n_resampling=2 + 2 + 2, n_couplings=1 + 2 + 1)  # resampling: pre-block, encoder, decoder
+    check_haar_init(
+        CiUNet(**TINY), (OrthogonalDownsampling, OrthogonalUpsampling), n_resampling=2 + 2 + 2, n_couplings=1 + 2 + 1
+    )  # resampling: pre-block, encoder, decoder
     # so, without ActNorm after the couplings, the flow is (input ActNorm +) Haar down/up = identity
     m = CiUNet(**{**TINY, "actnorm": False})
     x_tilde, x = images(2, 8, 8, seed=3)

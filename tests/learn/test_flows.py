@@ -21,8 +21,16 @@ from nanoct.learn.invertible import CheckpointMismatchError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-CINN_TINY = dict(n_scales=3, blocks_per_scale=2, fc_dim=8, fc_blocks=2, cond_channels=4, cond_width=4, fc_cond_dim=8,
-                 hidden_ratio=1.0)
+CINN_TINY = dict(
+    n_scales=3,
+    blocks_per_scale=2,
+    fc_dim=8,
+    fc_blocks=2,
+    cond_channels=4,
+    cond_width=4,
+    fc_cond_dim=8,
+    hidden_ratio=1.0,
+)
 CIUNET_TINY = dict(n_scales=3, blocks_per_scale=1, pre_blocks=1, cond_channels=(4, 4, 8), hidden_ratio=1.0)
 
 
@@ -47,24 +55,45 @@ class Arch:
 
 
 def _cinn(name, cls, residual):
-    return Arch(name, cls, residual, CINN_TINY, cond_channels=[4, 4], hparam_keys={"seed"},
-                bad_configs=[{"cond_channels": [4, 4, 4]},
-                             {"fc_dim": 64}],  # more than the coarsest signal of an 8x8 image
-                mismatch_blocks={"blocks_per_scale": 3}, mismatch_cond={"cond_channels": 6},
-                mismatch_scales={"n_scales": 2, "cond_channels": 4})
+    return Arch(
+        name,
+        cls,
+        residual,
+        CINN_TINY,
+        cond_channels=[4, 4],
+        hparam_keys={"seed"},
+        bad_configs=[{"cond_channels": [4, 4, 4]}, {"fc_dim": 64}],  # more than the coarsest signal of an 8x8 image
+        mismatch_blocks={"blocks_per_scale": 3},
+        mismatch_cond={"cond_channels": 6},
+        mismatch_scales={"n_scales": 2, "cond_channels": 4},
+    )
 
 
 def _ciunet(name, cls, residual):
-    return Arch(name, cls, residual, CIUNET_TINY, cond_channels=[4, 4, 8], hparam_keys={"cond_norm", "kernel_size"},
-                bad_configs=[{"cond_channels": [4, 4]},  # one entry per scale
-                             {"n_scales": 1}],
-                mismatch_blocks={"blocks_per_scale": 2}, mismatch_cond={"cond_channels": (4, 8, 8)},
-                mismatch_scales={"n_scales": 4, "cond_channels": (4, 4, 8, 8)},
-                other_arch=lambda: CiNN(n_scales=3, fc_dim=8, cond_channels=4))
+    return Arch(
+        name,
+        cls,
+        residual,
+        CIUNET_TINY,
+        cond_channels=[4, 4, 8],
+        hparam_keys={"cond_norm", "kernel_size"},
+        bad_configs=[
+            {"cond_channels": [4, 4]},  # one entry per scale
+            {"n_scales": 1},
+        ],
+        mismatch_blocks={"blocks_per_scale": 2},
+        mismatch_cond={"cond_channels": (4, 8, 8)},
+        mismatch_scales={"n_scales": 4, "cond_channels": (4, 4, 8, 8)},
+        other_arch=lambda: CiNN(n_scales=3, fc_dim=8, cond_channels=4),
+    )
 
 
-ARCHS = [_cinn("cinn", CiNN, False), _cinn("cinn-res", CiNNRes, True),
-         _ciunet("ciunet", CiUNet, False), _ciunet("ciunet-res", CiUNetRes, True)]
+ARCHS = [
+    _cinn("cinn", CiNN, False),
+    _cinn("cinn-res", CiNNRes, True),
+    _ciunet("ciunet", CiUNet, False),
+    _ciunet("ciunet-res", CiUNetRes, True),
+]
 
 
 @pytest.fixture(params=ARCHS, ids=[a.name for a in ARCHS])
@@ -158,8 +187,9 @@ def test_reconstruct_follows_the_paper_formulas(arch, images, perturb):
     # chunking only changes how the samples are batched
     s = m.sample(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3)
     assert s.shape == (2, 5, 1, 13, 10)
-    mean2, std2 = m.reconstruct(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3,
-                                generator=torch.Generator().manual_seed(8))
+    mean2, std2 = m.reconstruct(
+        x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3, generator=torch.Generator().manual_seed(8)
+    )
     s2 = m.sample(x_tilde.expand(2, -1, -1, -1), n_samples=5, chunk=3, generator=torch.Generator().manual_seed(8))
     torch.testing.assert_close(mean2, s2.mean(1), atol=1e-5, rtol=0)
     torch.testing.assert_close(std2, s2.std(1, unbiased=False), atol=1e-5, rtol=0)

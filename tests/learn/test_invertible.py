@@ -175,7 +175,7 @@ def test_running_moments_match_direct_computation_for_any_chunking():
     for chunk in (1, 7, 150):
         rm = RunningMoments(3, (4,))
         for r0 in range(0, 150, chunk):
-            rm.update(flat[r0: r0 + chunk], index[r0: r0 + chunk])
+            rm.update(flat[r0 : r0 + chunk], index[r0 : r0 + chunk])
         mean, std = rm.result()
         torch.testing.assert_close(mean, values.double().mean(1))
         torch.testing.assert_close(std, values.double().std(1, unbiased=False))

@@ -23,7 +23,9 @@ SMALL = {"channels": [4, 4, 8, 8, 16]}
 def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("predict")
     path = root / "tiny"
-    generate_dataset(path, get_preset("tiny-parallel"), 12, seed=7, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+    generate_dataset(
+        path, get_preset("tiny-parallel"), 12, seed=7, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25)
+    )
     reconstruct_dataset(path, "fbp", workers=0, progress=False)
     reconstruct_dataset(path, "fbp", name="other", split="test", workers=0, progress=False)  # a second "method"
     run = train(path, "unet", "fbp", root / "run", epochs=2, batch_size=2, progress=False, model_kwargs=SMALL)
@@ -81,8 +83,11 @@ def test_input_mixing(setup):
     params = store.reconstruction_params("other+unet@fbp")
     assert params["input"] == "other" and params["train_input"] == "fbp"
     # "other" is the same FBP under another name, so the mixed result equals the plain one
-    np.testing.assert_allclose(store.read_reconstruction("other+unet@fbp", store.indices("test")),
-                               store.read_reconstruction("fbp+unet", store.indices("test")), atol=1e-6)
+    np.testing.assert_allclose(
+        store.read_reconstruction("other+unet@fbp", store.indices("test")),
+        store.read_reconstruction("fbp+unet", store.indices("test")),
+        atol=1e-6,
+    )
 
 
 def test_other_checkpoint_needs_overwrite(setup):
@@ -120,7 +125,9 @@ def test_bad_input(setup, tmp_path):
         predict(path, other, progress=False)
     # a store without test samples
     no_test = tmp_path / "notest"
-    generate_dataset(no_test, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(0.5, 0.5, 0.0))
+    generate_dataset(
+        no_test, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(0.5, 0.5, 0.0)
+    )
     reconstruct_dataset(no_test, "fbp", workers=0, progress=False)
     with pytest.raises(NanoctError, match="test split .* has no samples"):
         predict(no_test, run, progress=False)

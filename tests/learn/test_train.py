@@ -31,7 +31,9 @@ FAST = dict(batch_size=2, progress=False, model_kwargs=SMALL)
 def store(tmp_path_factory):
     """12 tiny-parallel samples (6 train, 3 val, 3 test) with FBP of all and a partial input."""
     path = tmp_path_factory.mktemp("learn") / "tiny"
-    generate_dataset(path, get_preset("tiny-parallel"), 12, seed=5, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25))
+    generate_dataset(
+        path, get_preset("tiny-parallel"), 12, seed=5, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25)
+    )
     reconstruct_dataset(path, "fbp", workers=0, progress=False)
     reconstruct_dataset(path, "fbp", name="partial", split="test", workers=0, progress=False)
     return path
@@ -139,8 +141,23 @@ def test_unet_default_schedule_is_cosine(store, tmp_path):
 def test_resume_after_sigkill(store, tmp_path):
     """A real kill (SIGKILL) of the training process; the rerun continues at the next epoch."""
     run = tmp_path / "run"
-    cmd = [sys.executable, "-m", "nanoct.learn.train", str(store), "--model", "unet", "--input", "fbp", "--out", str(run),
-           "--batch-size", "2", "--model-kwargs", json.dumps(SMALL), "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "nanoct.learn.train",
+        str(store),
+        "--model",
+        "unet",
+        "--input",
+        "fbp",
+        "--out",
+        str(run),
+        "--batch-size",
+        "2",
+        "--model-kwargs",
+        json.dumps(SMALL),
+        "--no-progress",
+    ]
     proc = subprocess.Popen([*cmd, "--epochs", "10000"], stderr=subprocess.PIPE)
     try:
         deadline = time.time() + 60
@@ -183,7 +200,16 @@ def test_mismatched_request_refused(store, tmp_path):
     with pytest.raises(NanoctError, match="differs in: lr"):
         train(store, "unet", "fbp", run, epochs=2, lr=1e-4, **FAST)
     with pytest.raises(NanoctError, match="architecture|hparams"):
-        train(store, "unet", "fbp", run, epochs=2, batch_size=2, progress=False, model_kwargs={"channels": [4, 4, 8, 8, 8]})
+        train(
+            store,
+            "unet",
+            "fbp",
+            run,
+            epochs=2,
+            batch_size=2,
+            progress=False,
+            model_kwargs={"channels": [4, 4, 8, 8, 8]},
+        )
     reconstruct_dataset(store, "fbp", name="fbp_copy", workers=0, progress=False)
     with pytest.raises(NanoctError, match="differs in: input"):
         train(store, "unet", "fbp_copy", run, epochs=2, **FAST)
@@ -224,9 +250,32 @@ def test_corrupt_and_mismatched_checkpoints(store, tmp_path):
 def test_ddp_two_processes_gloo(store, tmp_path):
     run = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "CUDA_VISIBLE_DEVICES": ""}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "nanoct.learn.train",
-           str(store), "--model", "unet", "--input", "fbp", "--out", str(run), "--epochs", "5", "--batch-size", "2",
-           "--max-steps", "3", "--model-kwargs", json.dumps(SMALL), "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        "-m",
+        "nanoct.learn.train",
+        str(store),
+        "--model",
+        "unet",
+        "--input",
+        "fbp",
+        "--out",
+        str(run),
+        "--epochs",
+        "5",
+        "--batch-size",
+        "2",
+        "--max-steps",
+        "3",
+        "--model-kwargs",
+        json.dumps(SMALL),
+        "--no-progress",
+    ]
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
     last = load_checkpoint(run / "last.pt")

@@ -79,7 +79,14 @@ def test_postprocessor_interface():
     assert "unet" in model_names()
     model = build_model("unet", channels=list(SMALL))
     assert isinstance(model, PostProcessor) and isinstance(model, UNetPost) and model.name == "unet"
-    assert model.hparams == {"channels": list(SMALL), "skip_channels": 4, "use_sigmoid": True, "use_norm": True, "pad_mode": "reflect", "out_bias": 0.0}
+    assert model.hparams == {
+        "channels": list(SMALL),
+        "skip_channels": 4,
+        "use_sigmoid": True,
+        "use_norm": True,
+        "pad_mode": "reflect",
+        "out_bias": 0.0,
+    }
     assert build_model("unet", **model.hparams).hparams == model.hparams
     x_tilde, x = torch.rand(3, 1, 31, 31), torch.rand(3, 1, 31, 31)
     loss, logs = model.loss(x_tilde, x)

@@ -55,6 +55,8 @@ def test_resume_computes_only_missing_samples(tiny_store, monkeypatch):
 
 def test_bad_method_parameters_are_reported(tiny_store):
     with pytest.raises(ValueError, match="relaxation"):
-        reconstruct_dataset(tiny_store.path, "kaczmarz", split="test", params={"relaxation": 3.0}, name="bad", workers=0, progress=False)
+        reconstruct_dataset(
+            tiny_store.path, "kaczmarz", split="test", params={"relaxation": 3.0}, name="bad", workers=0, progress=False
+        )
     with pytest.raises(NanoctError, match="unknown"):
         reconstruct_dataset(tiny_store.path, "art", workers=0, progress=False)

@@ -15,8 +15,11 @@ from nanoct.recon.dremel import dremel, shift_cross_corr
 def signal(n, shift):
     """Smooth non-symmetric test projection, moved by ``shift`` samples to larger indices."""
     t = np.arange(n) - shift
-    return (np.exp(-(((t - 0.45 * n) / 6.0) ** 2)) + 0.6 * np.exp(-(((t - 0.3 * n) / 3.0) ** 2))
-            + 0.3 * (np.tanh(t - 0.6 * n) - np.tanh(t - 0.7 * n)))
+    return (
+        np.exp(-(((t - 0.45 * n) / 6.0) ** 2))
+        + 0.6 * np.exp(-(((t - 0.3 * n) / 3.0) ** 2))
+        + 0.3 * (np.tanh(t - 0.6 * n) - np.tanh(t - 0.7 * n))
+    )
 
 
 @pytest.mark.parametrize("f_sr", [2, 4])

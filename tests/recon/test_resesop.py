@@ -24,7 +24,9 @@ def small_problem(seed=0):
     mat = sp.csr_matrix(dense, dtype=np.float32)
     mat.sort_indices()
     x = rng.uniform(0, 1, 36)
-    y = (mat @ x).astype(np.float32).reshape(SMALL.sino_shape) + rng.normal(0, 0.05, SMALL.sino_shape).astype(np.float32)
+    y = (mat @ x).astype(np.float32).reshape(SMALL.sino_shape) + rng.normal(0, 0.05, SMALL.sino_shape).astype(
+        np.float32
+    )
     return mat, y
 
 

@@ -55,8 +55,13 @@ def get_rng_state() -> dict[str, Any]:
     kind, keys, pos, has_gauss, gauss = np.random.get_state()
     state: dict[str, Any] = {
         "torch": torch.get_rng_state(),
-        "numpy": {"kind": str(kind), "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
-                  "has_gauss": int(has_gauss), "gauss": float(gauss)},
+        "numpy": {
+            "kind": str(kind),
+            "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)),
+            "pos": int(pos),
+            "has_gauss": int(has_gauss),
+            "gauss": float(gauss),
+        },
         "python": random.getstate(),
     }
     if torch.cuda.is_available():
@@ -151,11 +156,16 @@ def load_checkpoint(
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:
-        raise NanoctError(f"checkpoint {path} is corrupt or not a nanoct checkpoint ({type(exc).__name__}: {exc}); delete it and train again") from exc
+        raise NanoctError(
+            f"checkpoint {path} is corrupt or not a nanoct checkpoint ({type(exc).__name__}: {exc}); "
+            "delete it and train again"
+        ) from exc
     if not isinstance(ckpt, dict) or any(k not in ckpt for k in _REQUIRED):
         raise NanoctError(f"{path} is not a nanoct checkpoint (missing fields); delete it and train again")
     if ckpt["format"] != CHECKPOINT_FORMAT:
-        raise NanoctError(f"checkpoint {path} has format {ckpt['format']}, this nanoct reads format {CHECKPOINT_FORMAT}")
+        raise NanoctError(
+            f"checkpoint {path} has format {ckpt['format']}, this nanoct reads format {CHECKPOINT_FORMAT}"
+        )
     if model_name is not None and ckpt["model"] != model_name:
         raise NanoctError(f"checkpoint {path} holds a '{ckpt['model']}' model, not '{model_name}'")
     if image_size is not None and int(ckpt["image_size"]) != int(image_size):
@@ -181,5 +191,7 @@ def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike[str] = "
     try:
         model.load_state_dict(ckpt["model_state"])
     except RuntimeError as exc:
-        raise NanoctError(f"the weights in {path} do not fit a '{ckpt['model']}' with {ckpt['hparams']}: {exc}") from exc
+        raise NanoctError(
+            f"the weights in {path} do not fit a '{ckpt['model']}' with {ckpt['hparams']}: {exc}"
+        ) from exc
     return model

@@ -25,7 +25,7 @@ from sampling would not be calibrated.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import FrEIA.framework as Ff
 import FrEIA.modules as Fm
@@ -46,8 +46,9 @@ __all__ = ["CiNN", "CiNNRes", "ResNetConditioner"]
 class _ResBlock(nn.Module):
     def __init__(self, c_in: int, c_out: int) -> None:
         super().__init__()
-        self.body = nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(),
-                                  nn.Conv2d(c_out, c_out, 3, padding=1))
+        self.body = nn.Sequential(
+            nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(), nn.Conv2d(c_out, c_out, 3, padding=1)
+        )
         self.skip = nn.Identity() if c_in == c_out else nn.Conv2d(c_in, c_out, 1)
         self.act = nn.LeakyReLU()
 
@@ -64,12 +65,12 @@ class ResNetConditioner(nn.Module):
         self.stem = nn.Sequential(nn.Conv2d(1, width, 3, padding=1), nn.LeakyReLU(), _ResBlock(width, width))
         levels, prev = [], width
         for ch in channels:
-            levels.append(nn.Sequential(nn.Conv2d(prev, ch, 3, stride=2, padding=1), nn.LeakyReLU(),
-                                        _ResBlock(ch, ch)))
+            levels.append(nn.Sequential(nn.Conv2d(prev, ch, 3, stride=2, padding=1), nn.LeakyReLU(), _ResBlock(ch, ch)))
             prev = ch
         self.levels = nn.ModuleList(levels)
-        self.global_head = nn.Sequential(nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(prev, fc_dim),
-                                         nn.LeakyReLU(), nn.Linear(fc_dim, fc_dim))
+        self.global_head = nn.Sequential(
+            nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(prev, fc_dim), nn.LeakyReLU(), nn.Linear(fc_dim, fc_dim)
+        )
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         h = self.stem(x)
@@ -122,10 +123,21 @@ class CiNN(ConditionalFlow):
     name = "cinn"
     residual = False
 
-    def __init__(self, n_scales: int = 6, blocks_per_scale: int = 6, fc_dim: int = 128, fc_blocks: int = 4,
-                 cond_channels: int | Sequence[int] = (4, 16, 32, 64, 64), cond_width: int = 16,
-                 fc_cond_dim: int = 128, hidden_ratio: float = 2.0, actnorm: bool = True,
-                 target_noise: float = 0.005, orthogonal_map: str = "cayley", seed: int = 0) -> None:
+    def __init__(
+        self,
+        n_scales: int = 6,
+        blocks_per_scale: int = 6,
+        fc_dim: int = 128,
+        fc_blocks: int = 4,
+        cond_channels: int | Sequence[int] = (4, 16, 32, 64, 64),
+        cond_width: int = 16,
+        fc_cond_dim: int = 128,
+        hidden_ratio: float = 2.0,
+        actnorm: bool = True,
+        target_noise: float = 0.005,
+        orthogonal_map: str = "cayley",
+        seed: int = 0,
+    ) -> None:
         if int(n_scales) < 1:
             raise ValueError(f"n_scales must be >= 1, got {n_scales}")
         n_sections = int(n_scales) - 1
@@ -134,22 +146,38 @@ class CiNN(ConditionalFlow):
         cond_channels = [int(c) for c in cond_channels]
         if len(cond_channels) != n_sections:
             raise ValueError(f"cond_channels needs n_scales - 1 = {n_sections} entries, got {len(cond_channels)}")
-        for label, val, lo in (("blocks_per_scale", blocks_per_scale, 0), ("fc_dim", fc_dim, 2),
-                               ("fc_blocks", fc_blocks, 0), ("cond_width", cond_width, 1),
-                               ("fc_cond_dim", fc_cond_dim, 1)):
+        for label, val, lo in (
+            ("blocks_per_scale", blocks_per_scale, 0),
+            ("fc_dim", fc_dim, 2),
+            ("fc_blocks", fc_blocks, 0),
+            ("cond_width", cond_width, 1),
+            ("fc_cond_dim", fc_cond_dim, 1),
+        ):
             if int(val) < lo:
                 raise ValueError(f"{label} must be >= {lo}, got {val}")
         if any(c < 1 for c in cond_channels):
             raise ValueError(f"cond_channels must be positive, got {cond_channels}")
-        super().__init__(n_scales=int(n_scales), blocks_per_scale=int(blocks_per_scale), fc_dim=int(fc_dim),
-                         fc_blocks=int(fc_blocks), cond_channels=cond_channels, cond_width=int(cond_width),
-                         fc_cond_dim=int(fc_cond_dim), hidden_ratio=float(hidden_ratio), actnorm=bool(actnorm),
-                         target_noise=float(target_noise), orthogonal_map=str(orthogonal_map), seed=int(seed))
+        super().__init__(
+            n_scales=int(n_scales),
+            blocks_per_scale=int(blocks_per_scale),
+            fc_dim=int(fc_dim),
+            fc_blocks=int(fc_blocks),
+            cond_channels=cond_channels,
+            cond_width=int(cond_width),
+            fc_cond_dim=int(fc_cond_dim),
+            hidden_ratio=float(hidden_ratio),
+            actnorm=bool(actnorm),
+            target_noise=float(target_noise),
+            orthogonal_map=str(orthogonal_map),
+            seed=int(seed),
+        )
         self.multiple = 2 ** int(n_scales)
         coarse_channels = 2 ** (int(n_scales) + 1)
         if int(fc_dim) > coarse_channels:
-            raise ValueError(f"fc_dim must be <= {coarse_channels} (the coarsest signal of the smallest image, "
-                             f"2^(n_scales+1) values), got {fc_dim}")
+            raise ValueError(
+                f"fc_dim must be <= {coarse_channels} (the coarsest signal of the smallest image, "
+                f"2^(n_scales+1) values), got {fc_dim}"
+            )
         self.cond_net = ResNetConditioner(cond_channels, int(cond_width), int(fc_cond_dim))
         # FrEIA needs concrete sizes to build a graph; the convolutional graph is built for the
         # smallest valid size and runs at any multiple of it (its layers are size-agnostic), and
@@ -162,25 +190,40 @@ class CiNN(ConditionalFlow):
     def _build_conv(self, h: int, w: int) -> Ff.GraphINN:
         hp = self.hparams
         n, ratio, seed = hp["n_scales"], hp["hidden_ratio"], hp["seed"]
-        conds = [Ff.ConditionNode(c, h // 2 ** (s + 1), w // 2 ** (s + 1), name=f"cond_{s}")
-                 for s, c in enumerate(hp["cond_channels"])]
+        conds = [
+            Ff.ConditionNode(c, h // 2 ** (s + 1), w // 2 ** (s + 1), name=f"cond_{s}")
+            for s, c in enumerate(hp["cond_channels"])
+        ]
         nodes: list[Ff.Node] = [Ff.InputNode(1, h, w, name="input")]
         if hp["actnorm"]:
             nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
-        nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]},
-                             name="down_0"))
+        nodes.append(
+            Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name="down_0")
+        )
         outs: list[Ff.Node] = []
         for s in range(n - 1):
             for k in range(hp["blocks_per_scale"]):
-                nodes.append(Ff.Node(nodes[-1], ConditionalNICECoupling,
-                                     {"kernel_size": 1 if k % 2 == 0 else 3, "hidden_ratio": ratio},
-                                     conditions=conds[s], name=f"coupling_{s}_{k}"))
+                nodes.append(
+                    Ff.Node(
+                        nodes[-1],
+                        ConditionalNICECoupling,
+                        {"kernel_size": 1 if k % 2 == 0 else 3, "hidden_ratio": ratio},
+                        conditions=conds[s],
+                        name=f"coupling_{s}_{k}",
+                    )
+                )
                 if hp["actnorm"]:
                     nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_{s}_{k}"))
-                nodes.append(Ff.Node(nodes[-1], Fm.PermuteRandom, {"seed": seed * 100_003 + 1000 * s + k},
-                                     name=f"permute_{s}_{k}"))
-            nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]},
-                                 name=f"down_{s + 1}"))
+                nodes.append(
+                    Ff.Node(
+                        nodes[-1], Fm.PermuteRandom, {"seed": seed * 100_003 + 1000 * s + k}, name=f"permute_{s}_{k}"
+                    )
+                )
+            nodes.append(
+                Ff.Node(
+                    nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name=f"down_{s + 1}"
+                )
+            )
             nodes.append(Ff.Node(nodes[-1], Fm.Split, {"n_sections": 2, "dim": 0}, name=f"split_{s + 1}"))
             outs.append(Ff.OutputNode(nodes[-1].out1, name=f"z_{s + 1}"))
         outs.append(Ff.OutputNode(nodes[-1].out0 if n > 1 else nodes[-1], name="z_coarse"))
@@ -193,10 +236,20 @@ class CiNN(ConditionalFlow):
         cond_fc = Ff.ConditionNode(hp["fc_cond_dim"], name="cond_fc")
         nodes: list[Ff.Node] = [Ff.InputNode(hp["fc_dim"], name="fc_in")]
         for k in range(hp["fc_blocks"]):
-            nodes.append(Ff.Node(nodes[-1], Fm.PermuteRandom, {"seed": hp["seed"] * 100_003 + 99_000 + k},
-                                 name=f"permute_fc_{k}"))
-            nodes.append(Ff.Node(nodes[-1], ConditionalNICECoupling, {"hidden_ratio": hp["hidden_ratio"]},
-                                 conditions=cond_fc, name=f"coupling_fc_{k}"))
+            nodes.append(
+                Ff.Node(
+                    nodes[-1], Fm.PermuteRandom, {"seed": hp["seed"] * 100_003 + 99_000 + k}, name=f"permute_fc_{k}"
+                )
+            )
+            nodes.append(
+                Ff.Node(
+                    nodes[-1],
+                    ConditionalNICECoupling,
+                    {"hidden_ratio": hp["hidden_ratio"]},
+                    conditions=cond_fc,
+                    name=f"coupling_fc_{k}",
+                )
+            )
             if hp["actnorm"]:
                 nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_fc_{k}"))
         out = Ff.OutputNode(nodes[-1], name="fc_out")
@@ -210,7 +263,7 @@ class CiNN(ConditionalFlow):
         h, w = size
         shapes = [(2 ** (s + 3), h // 2 ** (s + 2), w // 2 ** (s + 2)) for s in range(self.hparams["n_scales"] - 1)]
         n = self.hparams["n_scales"]
-        shapes.append((2 ** (n + 1), h // 2 ** n, w // 2 ** n))
+        shapes.append((2 ** (n + 1), h // 2**n, w // 2**n))
         return shapes
 
     def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -24,7 +24,7 @@ level has 32 channels at L = 5, as in the paper.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import FrEIA.framework as Ff
 import FrEIA.modules as Fm
@@ -80,10 +80,19 @@ class CiUNet(ConditionalFlow):
     name = "ciunet"
     residual = False
 
-    def __init__(self, n_scales: int = 5, blocks_per_scale: int = 2, pre_blocks: int = 1,
-                 cond_channels: Sequence[int] = PAPER_CHANNELS, cond_norm: bool = True,
-                 hidden_ratio: float = 1.0, kernel_size: int = 3, actnorm: bool = True,
-                 target_noise: float = 0.005, orthogonal_map: str = "cayley") -> None:
+    def __init__(
+        self,
+        n_scales: int = 5,
+        blocks_per_scale: int = 2,
+        pre_blocks: int = 1,
+        cond_channels: Sequence[int] = PAPER_CHANNELS,
+        cond_norm: bool = True,
+        hidden_ratio: float = 1.0,
+        kernel_size: int = 3,
+        actnorm: bool = True,
+        target_noise: float = 0.005,
+        orthogonal_map: str = "cayley",
+    ) -> None:
         n_scales = int(n_scales)
         if n_scales < 2:
             raise ValueError(f"n_scales must be >= 2, got {n_scales}")
@@ -94,13 +103,22 @@ class CiUNet(ConditionalFlow):
             raise ValueError(f"blocks_per_scale must be >= 1 and pre_blocks >= 0, got {blocks_per_scale}, {pre_blocks}")
         if int(kernel_size) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
-        super().__init__(n_scales=n_scales, blocks_per_scale=int(blocks_per_scale), pre_blocks=int(pre_blocks),
-                         cond_channels=cond_channels, cond_norm=bool(cond_norm), hidden_ratio=float(hidden_ratio),
-                         kernel_size=int(kernel_size), actnorm=bool(actnorm), target_noise=float(target_noise),
-                         orthogonal_map=str(orthogonal_map))
+        super().__init__(
+            n_scales=n_scales,
+            blocks_per_scale=int(blocks_per_scale),
+            pre_blocks=int(pre_blocks),
+            cond_channels=cond_channels,
+            cond_norm=bool(cond_norm),
+            hidden_ratio=float(hidden_ratio),
+            kernel_size=int(kernel_size),
+            actnorm=bool(actnorm),
+            target_noise=float(target_noise),
+            orthogonal_map=str(orthogonal_map),
+        )
         self.multiple = 2 ** (n_scales - 1)
-        self.cond_net = UNet(1, 1, channels=cond_channels, use_sigmoid=False, use_norm=bool(cond_norm),
-                             pad_mode="reflect")
+        self.cond_net = UNet(
+            1, 1, channels=cond_channels, use_sigmoid=False, use_norm=bool(cond_norm), pad_mode="reflect"
+        )
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)
         self.cond_net.outc = nn.Identity()
@@ -119,8 +137,11 @@ class CiUNet(ConditionalFlow):
 
         def couplings(count: int, cond: Ff.ConditionNode, tag: str) -> None:
             for k in range(count):
-                nodes.append(Ff.Node(nodes[-1], ConditionalNICECoupling, coupling_args, conditions=cond,
-                                     name=f"coupling_{tag}_{k}"))
+                nodes.append(
+                    Ff.Node(
+                        nodes[-1], ConditionalNICECoupling, coupling_args, conditions=cond, name=f"coupling_{tag}_{k}"
+                    )
+                )
                 if hp["actnorm"]:
                     nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_{tag}_{k}"))
 

@@ -72,7 +72,9 @@ class ReconDataset(Dataset):
         missing or incomplete for the split.
     """
 
-    def __init__(self, store_path: str | os.PathLike[str], input_name: str, split: str, *, in_memory: bool | None = None) -> None:
+    def __init__(
+        self, store_path: str | os.PathLike[str], input_name: str, split: str, *, in_memory: bool | None = None
+    ) -> None:
         if split != "all" and split not in SPLITS:
             raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
         store = DataStore.open(store_path)
@@ -82,7 +84,10 @@ class ReconDataset(Dataset):
         self.indices = store.indices(split)
         self.image_size = int(store.geometry.n)
         if self.indices.size == 0:
-            raise NanoctError(f"the {split} split of {store.path} is empty; generate the data set with more samples or other split fractions")
+            raise NanoctError(
+                f"the {split} split of {store.path} is empty; generate the data set with more samples "
+                "or other split fractions"
+            )
         if not store.done[self.indices].all():
             raise NanoctError(f"{store.path} is not completely generated; run 'nanoct generate' again to finish it")
         check_input(store, input_name, self.indices, split)
@@ -118,7 +123,9 @@ class ReconDataset(Dataset):
         i = int(self.indices[item])
         x_tilde = store.read_reconstruction(self.input_name, [i])[0]
         x = store.read_phantoms([i])[0]
-        return torch.from_numpy(np.asarray(x_tilde, np.float32))[None], torch.from_numpy(np.asarray(x, np.float32))[None]
+        return torch.from_numpy(np.asarray(x_tilde, np.float32))[None], torch.from_numpy(np.asarray(x, np.float32))[
+            None
+        ]
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)

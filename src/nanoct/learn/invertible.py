@@ -24,8 +24,9 @@ plain FrEIA graphs (``GraphINN`` of ``Node``/``ConditionNode``):
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 import FrEIA.modules as Fm
 import numpy as np
@@ -68,8 +69,14 @@ TRAINING_DEFAULTS: dict[str, Any] = {
     "epochs": 500,
     "select": "min_val_loss",
     "grad_clip_norm": 1.0,
-    "lr_scheduler": {"name": "ReduceLROnPlateau", "factor": 0.8, "patience": 2, "threshold": 0.005,
-                     "cooldown": 1, "min_lr": 1e-10},
+    "lr_scheduler": {
+        "name": "ReduceLROnPlateau",
+        "factor": 0.8,
+        "patience": 2,
+        "threshold": 0.005,
+        "cooldown": 1,
+        "min_lr": 1e-10,
+    },
 }
 
 
@@ -196,8 +203,10 @@ def conv_subnet(kernel_size: int = 3, hidden_ratio: float = 2.0, min_hidden: int
     def make(c_in: int, c_out: int) -> nn.Module:
         hidden = max(min_hidden, int(round(hidden_ratio * c_in)))
         return _ZeroLast(
-            nn.Conv2d(c_in, hidden, kernel_size, padding=pad), nn.LeakyReLU(),
-            nn.Conv2d(hidden, hidden, kernel_size, padding=pad), nn.LeakyReLU(),
+            nn.Conv2d(c_in, hidden, kernel_size, padding=pad),
+            nn.LeakyReLU(),
+            nn.Conv2d(hidden, hidden, kernel_size, padding=pad),
+            nn.LeakyReLU(),
             nn.Conv2d(hidden, c_out, kernel_size, padding=pad),
         )
 
@@ -209,8 +218,9 @@ def fc_subnet(hidden_ratio: float = 2.0, min_hidden: int = 8):
 
     def make(c_in: int, c_out: int) -> nn.Module:
         hidden = max(min_hidden, int(round(hidden_ratio * c_in)))
-        return _ZeroLast(nn.Linear(c_in, hidden), nn.LeakyReLU(), nn.Linear(hidden, hidden), nn.LeakyReLU(),
-                         nn.Linear(hidden, c_out))
+        return _ZeroLast(
+            nn.Linear(c_in, hidden), nn.LeakyReLU(), nn.Linear(hidden, hidden), nn.LeakyReLU(), nn.Linear(hidden, c_out)
+        )
 
     return make
 
@@ -228,8 +238,9 @@ class ConditionalNICECoupling(Fm.NICECouplingBlock):
         hidden_ratio, min_hidden: subnet width (see :func:`conv_subnet`).
     """
 
-    def __init__(self, dims_in, dims_c=None, kernel_size: int = 3, hidden_ratio: float = 2.0,
-                 min_hidden: int = 8) -> None:
+    def __init__(
+        self, dims_in, dims_c=None, kernel_size: int = 3, hidden_ratio: float = 2.0, min_hidden: int = 8
+    ) -> None:
         dims_c = [] if dims_c is None else dims_c
         if len(dims_in[0]) == 1:
             ctor = fc_subnet(hidden_ratio, min_hidden)
@@ -237,8 +248,8 @@ class ConditionalNICECoupling(Fm.NICECouplingBlock):
             ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
         super().__init__(dims_in, dims_c, subnet_constructor=ctor)
 
-    def forward(self, x, c=[], rev: bool = False, jac: bool = True):
-        (out,), _ = super().forward(x, c, rev=rev, jac=jac)
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        (out,), _ = super().forward(x, c or [], rev=rev, jac=jac)
         return (out,), torch.zeros(out.shape[0], dtype=out.dtype, device=out.device)
 
 
@@ -293,8 +304,7 @@ def preserve_numpy_rng() -> Iterator[None]:
 
 
 # ----------------------------------------------------------------------------- padding
-def pad_to_multiple(x: torch.Tensor, multiple: int, mode: str = "constant",
-                    value: float = 0.0) -> torch.Tensor:
+def pad_to_multiple(x: torch.Tensor, multiple: int, mode: str = "constant", value: float = 0.0) -> torch.Tensor:
     """Pad (B, C, H, W) at the bottom and right to the next multiple of ``multiple``.
 
     ``mode`` is ``"constant"`` (with ``value``), ``"reflect"`` or ``"replicate"``; reflection
@@ -444,8 +454,10 @@ class ConditionalFlow(PostProcessor):
         self._check_condition(x_tilde)
         if not torch.is_tensor(v) or tuple(v.shape) != tuple(x_tilde.shape):
             shape = tuple(v.shape) if torch.is_tensor(v) else type(v).__name__
-            raise ValueError(f"{self.name}: {what} has shape {shape} but the condition x_tilde has shape "
-                             f"{tuple(x_tilde.shape)}; they must be equal")
+            raise ValueError(
+                f"{self.name}: {what} has shape {shape} but the condition x_tilde has shape "
+                f"{tuple(x_tilde.shape)}; they must be equal"
+            )
 
     def padded_size(self, h: int, w: int) -> tuple[int, int]:
         m = self.multiple
@@ -483,8 +495,10 @@ class ConditionalFlow(PostProcessor):
         d = self.latent_dim(h, w)
         if not torch.is_tensor(z) or z.dim() != 2 or tuple(z.shape) != (b, d):
             shape = tuple(z.shape) if torch.is_tensor(z) else type(z).__name__
-            raise ValueError(f"{self.name}: z must have shape ({b}, {d}) for a condition of shape "
-                             f"{tuple(x_tilde.shape)}, got {shape}")
+            raise ValueError(
+                f"{self.name}: z must have shape ({b}, {d}) for a condition of shape "
+                f"{tuple(x_tilde.shape)}, got {shape}"
+            )
         return self._inverse_with(z, self.condition(x_tilde), (h, w))
 
     # -- PostProcessor ----------------------------------------------------------------------------
@@ -525,8 +539,9 @@ class ConditionalFlow(PostProcessor):
         self._check_pair(x, x_tilde, "x")
         self.forward(self._target(x_tilde, x), x_tilde)
 
-    def _sample_rows(self, x_tilde: torch.Tensor, n_samples: int, chunk: int,
-                     generator: torch.Generator | None) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+    def _sample_rows(
+        self, x_tilde: torch.Tensor, n_samples: int, chunk: int, generator: torch.Generator | None
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """Yield (image index per row, v samples) in passes of at most ``chunk`` rows."""
         b, _, h, w = x_tilde.shape
         d = self.latent_dim(h, w)
@@ -535,8 +550,13 @@ class ConditionalFlow(PostProcessor):
         for r0 in range(0, total, chunk):
             rows = torch.arange(r0, min(r0 + chunk, total), device=x_tilde.device)
             img = torch.div(rows, n_samples, rounding_mode="floor")
-            z = torch.randn(len(rows), d, generator=generator, dtype=x_tilde.dtype,
-                            device="cpu" if generator is None else generator.device).to(x_tilde.device)
+            z = torch.randn(
+                len(rows),
+                d,
+                generator=generator,
+                dtype=x_tilde.dtype,
+                device="cpu" if generator is None else generator.device,
+            ).to(x_tilde.device)
             cs = [c.index_select(0, img) for c in conds]
             yield img, self._inverse_with(z, cs, (h, w))
 
@@ -553,8 +573,14 @@ class ConditionalFlow(PostProcessor):
                 raise ValueError(f"{label} must be a positive integer, got {val!r}")
 
     @torch.no_grad()
-    def sample(self, x_tilde: torch.Tensor, n_samples: int = 1, chunk: int = 32,
-               generator: torch.Generator | None = None, seed: int | None = None) -> torch.Tensor:
+    def sample(
+        self,
+        x_tilde: torch.Tensor,
+        n_samples: int = 1,
+        chunk: int = 32,
+        generator: torch.Generator | None = None,
+        seed: int | None = None,
+    ) -> torch.Tensor:
         """``n_samples`` reconstructions per input, (B, n_samples, 1, H, W): ``G^-1(z)`` (or
         ``x_tilde - G^-1(z)`` for the residual variants) with z ~ N(0, I)."""
         self._check_condition(x_tilde)
@@ -565,14 +591,20 @@ class ConditionalFlow(PostProcessor):
         pos = 0
         with parametrize_cached():
             for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
-                out[pos: pos + len(img)] = x_tilde[img] - v if self.residual else v
+                out[pos : pos + len(img)] = x_tilde[img] - v if self.residual else v
                 pos += len(img)
         return out.view(b, n_samples, 1, h, w)
 
     @torch.no_grad()
-    def reconstruct(self, x_tilde: torch.Tensor, n_samples: int = 100, chunk: int = 32,
-                    generator: torch.Generator | None = None, seed: int | None = None,
-                    **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    def reconstruct(
+        self,
+        x_tilde: torch.Tensor,
+        n_samples: int = 100,
+        chunk: int = 32,
+        generator: torch.Generator | None = None,
+        seed: int | None = None,
+        **kwargs: Any,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and pixel-wise standard deviation over ``n_samples`` latent samples per input.
 
         ``x_reco = 1/M sum_m G^-1(z_m)`` and ``sigma = (1/M sum_m (G^-1(z_m) - x_reco)^2)^(1/2)``;
@@ -607,7 +639,8 @@ class ConditionalFlow(PostProcessor):
                 raise
             raise CheckpointMismatchError(
                 f"{self.name} with {self.hparams}: the state dict does not match this architecture/size "
-                f"(build the model with the checkpoint's name and hparams): {e}") from e
+                f"(build the model with the checkpoint's name and hparams): {e}"
+            ) from e
 
 
 @contextmanager

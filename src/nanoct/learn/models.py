@@ -38,9 +38,15 @@ MODELS: dict[str, ModelSpec] = {
     # the paper: Adam lr 1e-5, batch 16, 500 epochs; gradient clipping at 1.0 and a plateau
     # schedule as in cinn_for_imaging (documented options, see nanoct.learn.invertible)
     "cinn": ModelSpec("nanoct.learn.cinn:CiNN", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
-    "cinn-res": ModelSpec("nanoct.learn.cinn:CiNNRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
-    "ciunet": ModelSpec("nanoct.learn.ciunet:CiUNet", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
-    "ciunet-res": ModelSpec("nanoct.learn.ciunet:CiUNetRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
+    "cinn-res": ModelSpec(
+        "nanoct.learn.cinn:CiNNRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"
+    ),
+    "ciunet": ModelSpec(
+        "nanoct.learn.ciunet:CiUNet", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"
+    ),
+    "ciunet-res": ModelSpec(
+        "nanoct.learn.ciunet:CiUNetRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"
+    ),
 }
 
 

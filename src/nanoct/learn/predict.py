@@ -144,7 +144,9 @@ def predict(
     with tqdm(total=int(todo.size), desc=out, unit="img", disable=not progress) as bar:
         for start in range(0, todo.size, 1 if sampling else batch_size):
             idx = todo[start : start + (1 if sampling else batch_size)]
-            x_tilde = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, idx), np.float32))[:, None]
+            x_tilde = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, idx), np.float32))[
+                :, None
+            ]
             x_tilde = x_tilde.to(dev)
             if use_cl:
                 x_tilde = x_tilde.contiguous(memory_format=torch.channels_last)

@@ -223,7 +223,9 @@ def train(
     clip = spec.clip_grad if clip_grad is None else (float(clip_grad) or None)
     sched = (spec.scheduler or "none") if scheduler is None else str(scheduler)
     if epochs < 1 or batch_size < 1 or not lr > 0 or (max_steps is not None and max_steps < 1):
-        raise NanoctError(f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive")
+        raise NanoctError(
+            f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive"
+        )
     if sched not in SCHEDULERS:
         raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")
 
@@ -248,10 +250,28 @@ def train(
         if batch_size % world:
             raise NanoctError(f"batch size {batch_size} is not divisible by the {world} processes")
         return _train(
-            store_path, model_name, input_name, Path(out_dir), epochs=epochs, batch_size=batch_size, local_batch=local_batch,
-            lr=lr, seed=int(seed), dev=dev, use_cl=use_cl, progress=progress and main_rank, max_steps=max_steps,
-            model_kwargs=dict(model_kwargs or {}), clip=clip, sched=sched, num_workers=num_workers, in_memory=in_memory,
-            rank=rank, world=world, distributed=distributed, on_epoch_end=on_epoch_end,
+            store_path,
+            model_name,
+            input_name,
+            Path(out_dir),
+            epochs=epochs,
+            batch_size=batch_size,
+            local_batch=local_batch,
+            lr=lr,
+            seed=int(seed),
+            dev=dev,
+            use_cl=use_cl,
+            progress=progress and main_rank,
+            max_steps=max_steps,
+            model_kwargs=dict(model_kwargs or {}),
+            clip=clip,
+            sched=sched,
+            num_workers=num_workers,
+            in_memory=in_memory,
+            rank=rank,
+            world=world,
+            distributed=distributed,
+            on_epoch_end=on_epoch_end,
         )
     finally:
         if own_group and dist.is_initialized():
@@ -259,10 +279,29 @@ def train(
 
 
 def _train(
-    store_path: Any, model_name: str, input_name: str, out: Path, *, epochs: int, batch_size: int, local_batch: int,
-    lr: float, seed: int, dev: torch.device, use_cl: bool, progress: bool, max_steps: int | None,
-    model_kwargs: dict[str, Any], clip: float | None, sched: str, num_workers: int, in_memory: bool | None,
-    rank: int, world: int, distributed: bool, on_epoch_end: Callable[[int, dict[str, Any]], None] | None,
+    store_path: Any,
+    model_name: str,
+    input_name: str,
+    out: Path,
+    *,
+    epochs: int,
+    batch_size: int,
+    local_batch: int,
+    lr: float,
+    seed: int,
+    dev: torch.device,
+    use_cl: bool,
+    progress: bool,
+    max_steps: int | None,
+    model_kwargs: dict[str, Any],
+    clip: float | None,
+    sched: str,
+    num_workers: int,
+    in_memory: bool | None,
+    rank: int,
+    world: int,
+    distributed: bool,
+    on_epoch_end: Callable[[int, dict[str, Any]], None] | None,
 ) -> Path:
     from tqdm.auto import tqdm
 
@@ -277,8 +316,13 @@ def _train(
         "model": model_name,
         "hparams": json.loads(json.dumps(model.hparams)),
         "input": input_name,
-        "data": {"n": store.n, "seed": store.seed, "geometry": store.geometry.to_dict(),
-                 "train": len(train_ds), "val": len(val_ds)},
+        "data": {
+            "n": store.n,
+            "seed": store.seed,
+            "geometry": store.geometry.to_dict(),
+            "train": len(train_ds),
+            "val": len(val_ds),
+        },
         "image_size": train_ds.image_size,
         "batch_size": batch_size,
         "lr": lr,
@@ -299,13 +343,17 @@ def _train(
     last_path, best_path, cfg_path, log_path = out / "last.pt", out / "best.pt", out / "config.json", out / "log.csv"
     ckpt = None
     if last_path.exists():
-        ckpt = load_checkpoint(last_path, model_name=model_name, image_size=train_ds.image_size, hparams=config["hparams"])
+        ckpt = load_checkpoint(
+            last_path, model_name=model_name, image_size=train_ds.image_size, hparams=config["hparams"]
+        )
         old = ckpt.get("config") or {}
     elif cfg_path.exists():
         try:
             old = json.loads(cfg_path.read_text())
         except (OSError, ValueError) as exc:
-            raise NanoctError(f"{cfg_path} is unreadable ({exc}); delete the run directory or choose another --out") from exc
+            raise NanoctError(
+                f"{cfg_path} is unreadable ({exc}); delete the run directory or choose another --out"
+            ) from exc
     else:
         old = None
     if old is not None and _diff(config, old):
@@ -325,7 +373,9 @@ def _train(
             if lr_sched is not None and ckpt.get("scheduler_state") is not None:
                 lr_sched.load_state_dict(ckpt["scheduler_state"])
         except (RuntimeError, ValueError, KeyError, TypeError) as exc:
-            raise NanoctError(f"{last_path} does not fit this model ({exc}); delete the run directory or choose another --out") from exc
+            raise NanoctError(
+                f"{last_path} does not fit this model ({exc}); delete the run directory or choose another --out"
+            ) from exc
         set_rng_state(ckpt.get("rng", {}))
         start_epoch, step = int(ckpt["epoch"]) + 1, int(ckpt.get("step", 0))
         best_val, best_epoch = float(ckpt.get("best_val_loss", math.inf)), int(ckpt.get("best_epoch", 0))
@@ -341,13 +391,19 @@ def _train(
         return out
 
     # ---------------------------------------------------------------- data
-    train_sampler = DistributedSampler(train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed, drop_last=False)
+    train_sampler = DistributedSampler(
+        train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed, drop_last=False
+    )
     loader_gen = torch.Generator()
     loader_kw: dict[str, Any] = {"num_workers": num_workers, "pin_memory": dev.type == "cuda"}
     if num_workers > 0:
         loader_kw["worker_init_fn"] = _worker_init
-    train_loader = DataLoader(train_ds, batch_size=local_batch, sampler=train_sampler, generator=loader_gen, **loader_kw)
-    val_loader = DataLoader(Subset(val_ds, list(range(rank, len(val_ds), world))), batch_size=local_batch, shuffle=False, **loader_kw)
+    train_loader = DataLoader(
+        train_ds, batch_size=local_batch, sampler=train_sampler, generator=loader_gen, **loader_kw
+    )
+    val_loader = DataLoader(
+        Subset(val_ds, list(range(rank, len(val_ds), world))), batch_size=local_batch, shuffle=False, **loader_kw
+    )
 
     if ckpt is None and hasattr(model, "data_init"):
         # data-dependent initialisation (ActNorm) from the same first train images on every
@@ -369,8 +425,14 @@ def _train(
             dist.all_reduce(t)
         return t.tolist()
 
-    epoch_bar = tqdm(range(start_epoch, epochs + 1), desc=f"train {model_name}", unit="epoch", disable=not progress,
-                     initial=start_epoch - 1, total=epochs)
+    epoch_bar = tqdm(
+        range(start_epoch, epochs + 1),
+        desc=f"train {model_name}",
+        unit="epoch",
+        disable=not progress,
+        initial=start_epoch - 1,
+        total=epochs,
+    )
     for epoch in epoch_bar:
         t0 = time.perf_counter()
         if sched == "cosine":
@@ -428,14 +490,30 @@ def _train(
         row: dict[str, Any] = {"epoch": epoch, "train_loss": train_stats.pop("loss"), "val_loss": val_stats.pop("loss")}
         row.update({f"train_{k}": v for k, v in train_stats.items()})
         row.update({f"val_{k}": v for k, v in val_stats.items()})
-        row.update({"lr": optimizer.param_groups[0]["lr"], "best": int(improved), "steps": step,
-                    "seconds": round(time.perf_counter() - t0, 3)})
+        row.update(
+            {
+                "lr": optimizer.param_groups[0]["lr"],
+                "best": int(improved),
+                "steps": step,
+                "seconds": round(time.perf_counter() - t0, 3),
+            }
+        )
         history.append(row)
         # ------------------------------------------------ write (rank 0)
         if main_rank:
-            kw = dict(model=model, input_name=input_name, image_size=train_ds.image_size, epoch=epoch, step=step,
-                      optimizer=optimizer, scheduler=lr_sched, best_val_loss=best_val, best_epoch=best_epoch,
-                      history=history, config=config)
+            kw = dict(
+                model=model,
+                input_name=input_name,
+                image_size=train_ds.image_size,
+                epoch=epoch,
+                step=step,
+                optimizer=optimizer,
+                scheduler=lr_sched,
+                best_val_loss=best_val,
+                best_epoch=best_epoch,
+                history=history,
+                config=config,
+            )
             if improved:
                 save_checkpoint(best_path, **kw)
             save_checkpoint(last_path, **kw)
@@ -472,9 +550,21 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     try:
         train(
-            a.store, a.model, a.input, a.out, epochs=a.epochs, batch_size=a.batch_size, lr=a.lr, seed=a.seed,
-            device=a.device, progress=not a.no_progress, max_steps=a.max_steps, model_kwargs=json.loads(a.model_kwargs),
-            clip_grad=a.clip_grad, scheduler=a.scheduler, num_workers=a.num_workers,
+            a.store,
+            a.model,
+            a.input,
+            a.out,
+            epochs=a.epochs,
+            batch_size=a.batch_size,
+            lr=a.lr,
+            seed=a.seed,
+            device=a.device,
+            progress=not a.no_progress,
+            max_steps=a.max_steps,
+            model_kwargs=json.loads(a.model_kwargs),
+            clip_grad=a.clip_grad,
+            scheduler=a.scheduler,
+            num_workers=a.num_workers,
         )
     except NanoctError as exc:
         print(f"error: {exc}", file=sys.stderr)

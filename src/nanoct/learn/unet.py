@@ -100,7 +100,9 @@ class UNet(nn.Module):
         channels = [int(c) for c in channels]
         if not channels or min(channels) < 1:
             raise ValueError(f"channels {channels} must be a non-empty list of positive integers")
-        skips = [int(skip_channels)] * len(channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+        skips = (
+            [int(skip_channels)] * len(channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+        )
         if len(skips) != len(channels):
             raise ValueError(f"skip_channels {skips} must have one entry per scale ({len(channels)})")
         if pad_mode not in ("reflect", "replicate", "constant"):
@@ -111,7 +113,9 @@ class UNet(nn.Module):
         self.pad_mode = pad_mode
         self.inc = nn.Sequential(*_conv(in_ch, channels[0], 1, use_norm))
         self.down = nn.ModuleList(
-            nn.Sequential(*_conv(channels[i - 1], channels[i], 2, use_norm), *_conv(channels[i], channels[i], 1, use_norm))
+            nn.Sequential(
+                *_conv(channels[i - 1], channels[i], 2, use_norm), *_conv(channels[i], channels[i], 1, use_norm)
+            )
             for i in range(1, self.scales)
         )
         # up[j] goes from scale (scales-1-j) to scale (scales-2-j)
@@ -190,8 +194,12 @@ class UNetPost(PostProcessor):
     ) -> None:
         skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
         super().__init__(
-            channels=[int(c) for c in channels], skip_channels=skips, use_sigmoid=bool(use_sigmoid),
-            use_norm=bool(use_norm), pad_mode=str(pad_mode), out_bias=float(out_bias),
+            channels=[int(c) for c in channels],
+            skip_channels=skips,
+            use_sigmoid=bool(use_sigmoid),
+            use_norm=bool(use_norm),
+            pad_mode=str(pad_mode),
+            out_bias=float(out_bias),
         )
         self.net = UNet(1, 1, **self.hparams)
 

@@ -106,7 +106,9 @@ def reconstruct_dataset(
     not_done = ~store.done[wanted]
     if not_done.any():
         missing = int(not_done.sum())
-        raise NanoctError(f"{missing} sample(s) of split '{split}' are not generated yet; finish 'nanoct generate' first")
+        raise NanoctError(
+            f"{missing} sample(s) of split '{split}' are not generated yet; finish 'nanoct generate' first"
+        )
     if overwrite:
         store.delete_reconstruction(name)
     stored = {"method": method, **params}

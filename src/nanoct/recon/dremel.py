@@ -50,7 +50,8 @@ See :func:`dremel` and ``benchmarks/README.md``.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -193,8 +194,9 @@ def _interp_weights(pos, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg,
-               p, z, g):  # pragma: no cover - compiled
+def _view_step(
+    indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg, p, z, g
+):  # pragma: no cover - compiled
     """One Dremel view step in place; fills ``z`` (model projection) and returns ``||z - y_k||^2``.
 
     Pass ``indices`` as unsigned integers (:func:`~nanoct.recon.kaczmarz.unsigned_indices`).
@@ -232,8 +234,8 @@ def _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega,
             continue
         c = np.float32(-omega * g[l])
         r = base + l
-        idx = indices[indptr[r]:indptr[r + 1]]
-        a = data[indptr[r]:indptr[r + 1]]
+        idx = indices[indptr[r] : indptr[r + 1]]
+        a = data[indptr[r] : indptr[r + 1]]
         if nonneg:
             for q in range(idx.shape[0]):
                 j = idx[q]
@@ -314,16 +316,39 @@ def _xcorr_shift(zc, zmean, yc, ymean, f_sr, mode, subpixel, c):  # pragma: no c
 
 
 @numba.njit(cache=True, nogil=True)
-def _dremel_sweep(indptr, indices, data, rowsum, inv_col, y, x, views, n_det, shifts, det_per_obj,
-                  omega, nonneg, correct, lam, f_sr, mode, subpixel, ycorr, ymean,
-                  p, z, g, zc, c):  # pragma: no cover - compiled
+def _dremel_sweep(
+    indptr,
+    indices,
+    data,
+    rowsum,
+    inv_col,
+    y,
+    x,
+    views,
+    n_det,
+    shifts,
+    det_per_obj,
+    omega,
+    nonneg,
+    correct,
+    lam,
+    f_sr,
+    mode,
+    subpixel,
+    ycorr,
+    ymean,
+    p,
+    z,
+    g,
+    zc,
+    c,
+):  # pragma: no cover - compiled
     """One Dremel iteration (view steps and shift updates) in place; returns the summed ``||z - y_k||^2``."""
     run = 0.0
     for i in range(views.shape[0]):
         k = views[i]
         d = shifts[k] * det_per_obj
-        run += _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg,
-                          p, z, g)
+        run += _view_step(indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg, p, z, g)
         if correct:
             zmean = _upsample_centre(z, f_sr, zc)
             sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
@@ -500,7 +525,11 @@ def dremel(
         raise ValueError(f"shift_relaxation={shift_relaxation!r} must lie in (0, 1]")
     if order not in ORDERS:
         raise ValueError(f"order={order!r} is unknown; use one of {ORDERS}")
-    if isinstance(correction_start, bool) or not isinstance(correction_start, (int, np.integer)) or correction_start < 0:
+    if (
+        isinstance(correction_start, bool)
+        or not isinstance(correction_start, (int, np.integer))
+        or correction_start < 0
+    ):
         raise ValueError(f"correction_start={correction_start!r} must be an integer >= 0")
     if isinstance(f_sr, bool) or not isinstance(f_sr, (int, np.integer)) or f_sr < 1:
         raise ValueError(f"f_sr={f_sr!r} must be a positive integer")
@@ -535,21 +564,54 @@ def dremel(
     stop = "max_iter"
     for it in range(n_iter):
         views = view_order(n_views, order, rng)
-        run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, views, n_det, shifts,
-                            det_per_obj, omega, bool(nonneg), it >= correction_start, lam, f_sr, mode,
-                            bool(subpixel), ycorr, ymean, p, z, g, zc, c)
+        run = _dremel_sweep(
+            mat.indptr,
+            indices,
+            mat.data,
+            rowsum,
+            inv_col,
+            y,
+            x,
+            views,
+            n_det,
+            shifts,
+            det_per_obj,
+            omega,
+            bool(nonneg),
+            it >= correction_start,
+            lam,
+            f_sr,
+            mode,
+            bool(subpixel),
+            ycorr,
+            ymean,
+            p,
+            z,
+            g,
+            zc,
+            c,
+        )
         if residual == "exact":
-            residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det,
-                                                     shifts * det_per_obj, p)))
+            residuals.append(
+                float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, shifts * det_per_obj, p))
+            )
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), shifts.astype(np.float32)):
             stop = "callback"
             break
     params = dict(
-        method="dremel", n_iter=n_iter, relaxation=omega, shift_relaxation=lam, order=order,
-        nonneg=bool(nonneg), correction_start=int(correction_start), f_sr=int(f_sr),
-        weighting=weighting, subpixel=bool(subpixel), seed=seed,
+        method="dremel",
+        n_iter=n_iter,
+        relaxation=omega,
+        shift_relaxation=lam,
+        order=order,
+        nonneg=bool(nonneg),
+        correction_start=int(correction_start),
+        f_sr=int(f_sr),
+        weighting=weighting,
+        subpixel=bool(subpixel),
+        seed=seed,
         residual=residual,
     )
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, shifts.astype(np.float32), params)

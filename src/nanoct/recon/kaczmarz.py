@@ -29,7 +29,8 @@ sweep (an alternating projection between "one Kaczmarz sweep" and the closed con
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -266,8 +267,9 @@ def _kaczmarz_sweep(indptr, indices, data, rownorm2, y, x, views, n_det, omega):
     return run
 
 
-def kaczmarz_reference(matrix: sp.csr_matrix, y: np.ndarray, x: np.ndarray, views: np.ndarray,
-                       n_det: int, omega: float) -> np.ndarray:
+def kaczmarz_reference(
+    matrix: sp.csr_matrix, y: np.ndarray, x: np.ndarray, views: np.ndarray, n_det: int, omega: float
+) -> np.ndarray:
     """Straightforward numpy version of one Kaczmarz sweep (test oracle and benchmark baseline).
 
     Same visiting order and arithmetic as the numba kernel, one row at a time with numpy
@@ -276,11 +278,11 @@ def kaczmarz_reference(matrix: sp.csr_matrix, y: np.ndarray, x: np.ndarray, view
     indptr, indices, data = matrix.indptr, matrix.indices, matrix.data
     for k in views:
         for r in range(int(k) * n_det, (int(k) + 1) * n_det):
-            a = data[indptr[r]:indptr[r + 1]].astype(np.float64)
+            a = data[indptr[r] : indptr[r + 1]].astype(np.float64)
             nr = float(a @ a)
             if nr <= 0.0:
                 continue
-            idx = indices[indptr[r]:indptr[r + 1]]
+            idx = indices[indptr[r] : indptr[r + 1]]
             x[idx] += omega * (y[r] - a @ x[idx]) / nr * a
     return x
 
@@ -381,7 +383,12 @@ def kaczmarz(
             stop = "callback"
             break
     params = dict(
-        method="kaczmarz", n_sweeps=n_sweeps, relaxation=omega, order=order, nonneg=bool(nonneg),
-        seed=seed, residual=residual,
+        method="kaczmarz",
+        n_sweeps=n_sweeps,
+        relaxation=omega,
+        order=order,
+        nonneg=bool(nonneg),
+        seed=seed,
+        residual=residual,
     )
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, params)

@@ -43,7 +43,8 @@ See the docstring of :func:`resesop` and ``benchmarks/README.md``.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -85,8 +86,9 @@ def expand_eta(eta: Any, geometry: Geometry, name: str = "eta") -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _resesop_sweep(indptr, indices, data, rownorm2, y, x, width, tau, views, n_det,
-                   wo, state, flags, sticky):  # pragma: no cover - compiled
+def _resesop_sweep(
+    indptr, indices, data, rownorm2, y, x, width, tau, views, n_det, wo, state, flags, sticky
+):  # pragma: no cover - compiled
     """One RESESOP-Kaczmarz sweep in place.
 
     ``state`` (float64, length 3) carries the previous search direction between calls:
@@ -182,8 +184,16 @@ def _row_dot(indptr, indices, data, r, x):  # pragma: no cover - compiled
     return s
 
 
-def resesop_reference(matrix: sp.csr_matrix, y: np.ndarray, x: np.ndarray, width: np.ndarray,
-                      tau: float, views: np.ndarray, n_det: int, state: dict) -> int:
+def resesop_reference(
+    matrix: sp.csr_matrix,
+    y: np.ndarray,
+    x: np.ndarray,
+    width: np.ndarray,
+    tau: float,
+    views: np.ndarray,
+    n_det: int,
+    state: dict,
+) -> int:
     """Straightforward numpy version of one sweep of Algorithm 2 (test oracle, benchmark baseline).
 
     Written literally in terms of the search directions ``u = A_kl^* w`` (dense vectors),
@@ -193,8 +203,8 @@ def resesop_reference(matrix: sp.csr_matrix, y: np.ndarray, x: np.ndarray, width
     n_upd = 0
     for k in views:
         for r in range(int(k) * n_det, (int(k) + 1) * n_det):
-            a_idx = matrix.indices[matrix.indptr[r]:matrix.indptr[r + 1]]
-            a_val = matrix.data[matrix.indptr[r]:matrix.indptr[r + 1]].astype(np.float64)
+            a_idx = matrix.indices[matrix.indptr[r] : matrix.indptr[r + 1]]
+            a_val = matrix.data[matrix.indptr[r] : matrix.indptr[r + 1]].astype(np.float64)
             if float(a_val @ a_val) <= 0.0:
                 continue
             w = float(a_val @ x[a_idx]) - y[r]
@@ -353,8 +363,20 @@ def resesop(
     for sweep in range(max_sweeps):
         views = view_order(geometry.n_angles, order, rng)
         n_upd, run, n_flag = _resesop_sweep(
-            mat.indptr, mat.indices, mat.data, norms, y, x, width, tau_f, views, geometry.n_det,
-            wo, state, flags, stop_rule == "sticky",
+            mat.indptr,
+            mat.indices,
+            mat.data,
+            norms,
+            y,
+            x,
+            width,
+            tau_f,
+            views,
+            geometry.n_det,
+            wo,
+            state,
+            flags,
+            stop_rule == "sticky",
         )
         updates.append(int(n_upd))
         if nonneg and n_upd:
@@ -373,8 +395,16 @@ def resesop(
             stop = "callback"
             break
     params = dict(
-        method="resesop", eta_scale=float(eta_scale), delta=float(delta), tau=tau_f,
-        max_sweeps=max_sweeps, order=order, nonneg=bool(nonneg), stop_rule=stop_rule, seed=seed,
-        residual=residual, n_updates=updates,
+        method="resesop",
+        eta_scale=float(eta_scale),
+        delta=float(delta),
+        tau=tau_f,
+        max_sweeps=max_sweeps,
+        order=order,
+        nonneg=bool(nonneg),
+        stop_rule=stop_rule,
+        seed=seed,
+        residual=residual,
+        n_updates=updates,
     )
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, params)
