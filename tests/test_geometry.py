@@ -225,7 +225,8 @@ def test_fan_source_radius_boundary() -> None:
 def test_dict_round_trip(name: str) -> None:
     g = get_preset(name)
     d = g.to_dict()
-    assert set(d) == {f.name for f in dataclasses.fields(Geometry)}
+    # scan-only fields (explicit angles, axis offset) are left out while at their defaults
+    assert set(d) == {f.name for f in dataclasses.fields(Geometry)} - {"view_angles", "center_offset"}
     assert Geometry.from_dict(d) == g
     # through JSON, as stored with the data sets
     back = Geometry.from_dict(json.loads(json.dumps(d)))

@@ -6,9 +6,13 @@ Conventions (the one place they are defined; see ``docs/conventions.md``)
   rotation axis, with physical coordinates ``r1 = col - (N-1)/2`` (to the right) and
   ``r2 = (N-1)/2 - row`` (upwards).
 * A sinogram is ``y[k, l]`` of shape (K angles, L detector pixels).
-* View ``k`` has angle ``phi_k = k * angle_range / K`` (counter-clockwise from the r1 axis).
+* View ``k`` has angle ``phi_k = k * angle_range / K`` (counter-clockwise from the r1 axis), or
+  the ``k``-th entry of ``view_angles`` when a scan gives its angles explicitly (any order,
+  any range, radians).
   In parallel beam the detector coordinate of a point r is ``s = r1 cos(phi) + r2 sin(phi)``
-  and detector pixel ``l`` is centred at ``s = (l - (L-1)/2) * det_spacing``.
+  and detector pixel ``l`` is centred at ``s = (l - (L-1)/2 - center_offset) * det_spacing``:
+  the rotation axis is seen at pixel ``(L-1)/2 + center_offset`` (``center_offset`` > 0: the
+  axis lies towards higher detector indices; TomoPy's ``center`` is ``(L-1)/2 + center_offset``).
   In fan beam the source sits at ``source_radius * (sin(phi), -cos(phi))`` and the flat
   detector, centred at ``detector_radius * (-sin(phi), cos(phi))``, has its pixel axis along
   ``(cos(phi), sin(phi))``; at ``phi = 0`` the rays travel upwards (+r2).
@@ -59,6 +63,18 @@ class Geometry:
         Distance source - rotation axis in pixels (fan beam only, else 0).
     detector_radius : float
         Distance rotation axis - detector in pixels (fan beam only, else 0).
+    view_angles : tuple of float, optional
+        Explicit view angles in radians (K of them, any order and range), as a measured scan
+        gives them; ``None`` spreads the views uniformly over ``[0, angle_range)``.
+    center_offset : float
+        Position of the rotation axis on the detector relative to its centre, in detector
+        pixels (see the module docstring for the sign).
+
+    Notes
+    -----
+    ``view_angles`` and ``center_offset`` are left out of :meth:`to_dict` (and so of cache
+    keys and stored data sets) while they have their defaults, so the presets' descriptions
+    are the same as before these fields existed.
     """
 
     kind: Kind
@@ -69,13 +85,15 @@ class Geometry:
     angle_range: float = math.pi
     source_radius: float = 0.0
     detector_radius: float = 0.0
+    view_angles: tuple[float, ...] | None = None
+    center_offset: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("parallel", "fan"):
             raise ValueError(f"geometry kind {self.kind!r} is unknown; use 'parallel' or 'fan'")
         for name in ("n", "n_angles", "n_det"):  # plain ints: JSON and cache keys
             object.__setattr__(self, name, check_int(getattr(self, name), name, 1))
-        for name in ("det_spacing", "angle_range", "source_radius", "detector_radius"):
+        for name in ("det_spacing", "angle_range", "source_radius", "detector_radius", "center_offset"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ValueError(f"{name}={value!r} must be a number")
@@ -92,12 +110,52 @@ class Geometry:
                 )
             if not self.detector_radius >= 0:
                 raise ValueError(f"detector_radius={self.detector_radius!r} must be >= 0")
+        if not math.isfinite(self.center_offset):
+            raise ValueError(f"center_offset={self.center_offset!r} must be a finite number of detector pixels")
+        if self.view_angles is not None:
+            self._check_view_angles()
+
+    def _check_view_angles(self) -> None:
+        angles = np.asarray(self.view_angles, dtype=np.float64)
+        if angles.ndim != 1 or angles.size != self.n_angles:
+            raise ValueError(
+                f"view_angles has {angles.size} value(s) but n_angles={self.n_angles}; give one angle per view"
+            )
+        if not np.isfinite(angles).all():
+            raise ValueError("view_angles contains NaN or infinite values")
+        if np.unique(np.round(np.mod(angles, 2 * math.pi), 12)).size != angles.size:
+            raise ValueError("view_angles repeats an angle (modulo 2 pi); each view needs its own angle")
+        object.__setattr__(self, "view_angles", tuple(float(a) for a in angles))
 
     # ------------------------------------------------------------------ derived values
     @property
     def angles(self) -> np.ndarray:
         """View angles ``phi_k`` in radians, shape (K,), float64."""
+        if self.view_angles is not None:
+            return np.array(self.view_angles, dtype=np.float64)
         return np.arange(self.n_angles) * (self.angle_range / self.n_angles)
+
+    @property
+    def angle_weights(self) -> np.ndarray:
+        """Angular quadrature weight of each view in radians, shape (K,), float64.
+
+        Uniform views get ``angle_range / K`` each. Explicit ``view_angles`` get half the gap
+        to each angular neighbour on the circle of period ``pi`` (parallel beam, opposite
+        rays carry the same data) or ``2 pi`` (fan beam), scaled so that the weights add up to
+        ``pi`` (parallel) or ``2 pi`` (fan): a scan over more than the period (e.g. 360 degrees
+        in parallel beam) then counts every direction once on average.
+        """
+        if self.view_angles is None:
+            return np.full(self.n_angles, self.angle_range / self.n_angles)
+        period = math.pi if self.kind == "parallel" else 2 * math.pi
+        phase = np.mod(self.angles, period)
+        order = np.argsort(phase, kind="stable")
+        sorted_phase = phase[order]
+        gaps = np.diff(np.concatenate([sorted_phase, sorted_phase[:1] + period]))  # gap to the next view
+        half = 0.5 * (gaps + np.roll(gaps, 1))
+        weights = np.empty(self.n_angles)
+        weights[order] = half
+        return weights * (period / weights.sum())
 
     @property
     def image_shape(self) -> tuple[int, int]:
@@ -132,13 +190,74 @@ class Geometry:
 
     # ------------------------------------------------------------------ (de)serialisation
     def to_dict(self) -> dict[str, Any]:
-        """Plain-JSON description (stored with every data set)."""
-        return asdict(self)
+        """Plain-JSON description (stored with every data set); scan fields only when set."""
+        data = asdict(self)
+        if self.view_angles is None:
+            del data["view_angles"]
+        else:
+            data["view_angles"] = list(self.view_angles)
+        if self.center_offset == 0.0:
+            del data["center_offset"]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Geometry:
         """Inverse of :meth:`to_dict`."""
+        data = dict(data)
+        if data.get("view_angles") is not None:
+            data["view_angles"] = tuple(data["view_angles"])
         return cls(**data)
+
+    @classmethod
+    def from_angles(
+        cls,
+        angles: Any,
+        n: int,
+        n_det: int,
+        *,
+        kind: Kind = "parallel",
+        degrees: bool = False,
+        center_offset: float = 0.0,
+        det_spacing: float = 1.0,
+        source_radius: float = 0.0,
+        detector_radius: float = 0.0,
+    ) -> Geometry:
+        """Geometry of a measured scan from its list of view angles.
+
+        Parameters
+        ----------
+        angles : array_like of shape (K,)
+            View angles, in radians unless ``degrees``; any order and range.
+        n : int
+            Reconstructed image size N.
+        n_det : int
+            Detector pixels L of one sinogram row.
+        kind : {"parallel", "fan"}
+            Beam geometry.
+        degrees : bool
+            The angles are in degrees (NXtomo, Data Exchange files and CIL use degrees).
+        center_offset : float
+            Rotation-axis position relative to the detector centre, in detector pixels.
+        det_spacing, source_radius, detector_radius : float
+            As in :class:`Geometry`.
+
+        Returns
+        -------
+        Geometry
+            With ``view_angles`` in radians and ``angle_range`` the smallest of pi / 2 pi
+            (parallel / fan) and the angles' span, for information.
+        """
+        values = np.asarray(angles, dtype=np.float64).ravel()
+        if degrees:
+            values = np.deg2rad(values)
+        if values.size == 0:
+            raise ValueError("angles is empty; a scan needs at least one view")
+        full = math.pi if kind == "parallel" else 2 * math.pi
+        span = float(np.ptp(values)) * (1 + 1 / max(values.size - 1, 1)) if values.size > 1 else full
+        return cls(
+            kind, n, values.size, n_det, det_spacing, min(max(span, 1e-9), 2 * math.pi),
+            source_radius, detector_radius, tuple(values.tolist()), center_offset,
+        )  # fmt: skip
 
     def key(self) -> str:
         """Short stable string identifying the geometry (used in cache keys)."""

@@ -77,6 +77,8 @@ def astra_vectors(geometry: Geometry, motion: np.ndarray | None = None) -> np.nd
     else:
         first = np.stack([s, -c], axis=1) * geometry.source_radius  # source position
         centre = np.stack([-s, c], axis=1) * geometry.detector_radius
+    if geometry.center_offset:  # the axis is seen at pixel (L-1)/2 + offset: the detector centre moves the other way
+        centre = centre - geometry.center_offset * u
     if motion is not None:
         th = np.deg2rad(motion[:, 2])
         rot = np.stack([np.stack([np.cos(th), -np.sin(th)], -1), np.stack([np.sin(th), np.cos(th)], -1)], -2)
