@@ -1,0 +1,367 @@
+"""Reading measured scans: NXtomo and Data Exchange HDF5, TIFF stacks, ``.npy`` arrays.
+
+A reader returns a :class:`RawScan`: the projections as a ``(K views, R detector rows, L
+detector columns)`` float32 stack, optional flat and dark fields of shape ``(F, R, L)``, and the
+view angles in radians. :func:`line_integrals` turns it into sinograms ``-log((p - d) / (f - d))``
+and :func:`sinograms` into one ``(K, L)`` sinogram per detector row (slice), optionally cropped
+and binned along the detector. Files are read with h5py and tifffile; nothing here parses a
+file format by hand.
+
+Conventions at this border (inside nanoct angles are radians and sinograms ``(K, L)``):
+NXtomo ``rotation_angle`` and Data Exchange ``theta`` are degrees (as NeXus, TomoPy's files
+and CIL use them); angle files are text with one angle per view, degrees unless stated.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import NanoctError
+
+__all__ = ["FORMATS", "RawScan", "detect_format", "line_integrals", "read_angles", "read_scan", "sinograms"]
+
+FORMATS = ("nxtomo", "dxchange", "tiff", "npy")
+
+# NXtomo: where the detector data, image keys and angles usually live (first found is used)
+_NX_DATA = ("entry/instrument/detector/data", "entry/data/data", "entry1/instrument/detector/data")
+_NX_KEYS = ("entry/instrument/detector/image_key", "entry/data/image_key", "entry1/instrument/detector/image_key")
+_NX_ANGLES = ("entry/sample/rotation_angle", "entry/data/rotation_angle", "entry1/sample/rotation_angle")
+
+
+@dataclass(frozen=True)
+class RawScan:
+    """Projections of a measured scan as read from its file.
+
+    Attributes
+    ----------
+    projections : ndarray of shape (K, R, L), float32
+        One detector image (R rows, L columns) per view; intensities, or line integrals when
+        ``is_line_integral``.
+    angles : ndarray of shape (K,), float64
+        View angles in radians.
+    flats, darks : ndarray of shape (F, R, L) or None
+        Flat (open beam) and dark fields, if the file has them.
+    is_line_integral : bool
+        The projections are already ``-log`` normalised (no flat/dark correction applies).
+    source : dict
+        Where the data came from (file, format, dataset paths), stored with the import.
+    """
+
+    projections: np.ndarray
+    angles: np.ndarray
+    flats: np.ndarray | None = None
+    darks: np.ndarray | None = None
+    is_line_integral: bool = False
+    source: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        proj = np.asarray(self.projections)
+        if proj.ndim == 2:  # one sinogram (K, L): one detector row
+            proj = proj[:, None, :]
+        if proj.ndim != 3:
+            raise NanoctError(
+                f"projections have shape {proj.shape}; expected (views, rows, columns) or (views, columns)"
+            )
+        object.__setattr__(self, "projections", np.ascontiguousarray(proj, dtype=np.float32))
+        angles = np.asarray(self.angles, dtype=np.float64).ravel()
+        if angles.size != proj.shape[0]:
+            raise NanoctError(
+                f"{angles.size} angle(s) for {proj.shape[0]} projection(s); the angles must list one value per view"
+            )
+        if not np.isfinite(angles).all():
+            raise NanoctError("the angles contain NaN or infinite values")
+        object.__setattr__(self, "angles", angles)
+        for name in ("flats", "darks"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=np.float32)
+            arr = arr[None] if arr.ndim == 2 else arr
+            if arr.ndim != 3 or arr.shape[1:] != proj.shape[1:]:
+                raise NanoctError(
+                    f"{name} have shape {arr.shape}, but one projection is {proj.shape[1:]} (rows, columns); "
+                    f"give {name} of the same detector size"
+                )
+            object.__setattr__(self, name, arr)
+
+    @property
+    def n_views(self) -> int:
+        """Number of projections K."""
+        return int(self.projections.shape[0])
+
+
+def detect_format(path: str | os.PathLike[str]) -> str:
+    """Guess a scan's format from its path (and, for HDF5, its content).
+
+    Raises
+    ------
+    NanoctError
+        For a missing path or an unknown extension; the message lists :data:`FORMATS`.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise NanoctError(f"{path} does not exist; give the scan file or TIFF folder")
+    suffix = path.suffix.lower()
+    if path.is_dir() or suffix in (".tif", ".tiff"):
+        return "tiff"
+    if suffix == ".npy":
+        return "npy"
+    if suffix in (".h5", ".hdf5", ".nx", ".nxs", ".hdf"):
+        with _open_h5(path) as f:
+            if "exchange/data" in f:
+                return "dxchange"
+            if _first(f, _NX_DATA) is not None:
+                return "nxtomo"
+        raise NanoctError(
+            f"{path} is HDF5 but neither NXtomo ({_NX_DATA[0]}) nor Data Exchange (exchange/data); "
+            "pass --format and the dataset layout, or convert the file"
+        )
+    raise NanoctError(f"cannot tell the format of {path} from its extension; pass --format ({', '.join(FORMATS)})")
+
+
+def read_angles(path: str | os.PathLike[str], *, degrees: bool = True) -> np.ndarray:
+    """Angles from a text file with one value per view (radians returned).
+
+    Raises
+    ------
+    NanoctError
+        If the file is missing or not numeric.
+    """
+    try:
+        values = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except OSError as exc:
+        raise NanoctError(f"cannot read the angles file {path}: {exc}") from exc
+    except ValueError as exc:
+        raise NanoctError(f"the angles file {path} is not a list of numbers ({exc})") from exc
+    values = values.ravel() if values.ndim == 1 else values[:, -1]  # "view angle" two-column files too
+    return np.deg2rad(values) if degrees else values
+
+
+def read_scan(
+    path: str | os.PathLike[str],
+    *,
+    fmt: str | None = None,
+    angles_file: str | os.PathLike[str] | None = None,
+    degrees: bool = True,
+    flats: str | os.PathLike[str] | None = None,
+    darks: str | os.PathLike[str] | None = None,
+    is_line_integral: bool = False,
+) -> RawScan:
+    """Read a measured scan.
+
+    Parameters
+    ----------
+    path : path
+        NXtomo or Data Exchange HDF5 file, a multi-page TIFF, a folder of TIFFs (sorted by
+        name, one projection each) or a ``.npy`` stack ``(K, R, L)`` / sinogram ``(K, L)``.
+    fmt : {"nxtomo", "dxchange", "tiff", "npy"}, optional
+        Format; guessed from the path by default.
+    angles_file : path, optional
+        Text file of view angles, required for TIFF and ``.npy`` (HDF5 files carry theirs;
+        given anyway, it overrides them).
+    degrees : bool
+        Unit of the angles file (HDF5 angles are read in the unit their format defines).
+    flats, darks : path, optional
+        TIFF or ``.npy`` flat and dark fields for TIFF and ``.npy`` scans.
+    is_line_integral : bool
+        The data are already line integrals (no flat/dark correction, no ``-log``).
+
+    Returns
+    -------
+    RawScan
+
+    Raises
+    ------
+    NanoctError
+        A missing file, dataset or key, angle count != projection count, flats or darks of
+        another shape, an unknown format; each message names the file and what to do.
+    """
+    fmt = fmt or detect_format(path)
+    if fmt not in FORMATS:
+        raise NanoctError(f"--format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
+    if fmt == "nxtomo":
+        scan = _read_nxtomo(Path(path))
+    elif fmt == "dxchange":
+        scan = _read_dxchange(Path(path))
+    else:
+        if angles_file is None:
+            raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
+        stack = _read_array(Path(path), fmt)
+        scan = RawScan(
+            stack,
+            read_angles(angles_file, degrees=degrees),
+            flats=None if flats is None else _read_array(Path(flats), None),
+            darks=None if darks is None else _read_array(Path(darks), None),
+            source={"file": str(path), "format": fmt},
+        )
+    if angles_file is not None and fmt in ("nxtomo", "dxchange"):
+        scan = replace(scan, angles=read_angles(angles_file, degrees=degrees))
+    if is_line_integral:
+        scan = replace(scan, is_line_integral=True, flats=None, darks=None)
+    return scan
+
+
+def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-6) -> np.ndarray:
+    """Flat/dark-corrected line integrals ``-log((p - d) / (f - d))`` of a scan, ``(K, R, L)``.
+
+    Mean flat and dark fields are used; without flats the projections are taken as already
+    normalised transmissions, without darks the dark current is 0. Transmissions that are not
+    positive (dead pixels, a dark field above the signal) are raised to ``floor`` when they are
+    at most a fraction ``tolerance`` of all values; more than that is taken for a wrong flat,
+    dark or unit and refused.
+
+    Raises
+    ------
+    NanoctError
+        For NaN input, a non-positive flat-minus-dark, or too many non-positive transmissions.
+    """
+    proj = scan.projections
+    if not np.isfinite(proj).all():
+        raise NanoctError(f"the projections contain {int((~np.isfinite(proj)).sum())} NaN or infinite value(s)")
+    if scan.is_line_integral:
+        return proj.copy()
+    dark = np.zeros(proj.shape[1:], np.float32) if scan.darks is None else scan.darks.mean(axis=0)
+    flat = None if scan.flats is None else scan.flats.mean(axis=0)
+    if flat is None:
+        transmission = proj - dark
+    else:
+        gain = flat - dark
+        bad = ~(gain > 0)
+        if bad.mean() > tolerance:
+            raise NanoctError(
+                f"flat minus dark is not positive in {bad.mean():.1%} of detector pixels; "
+                "check the flat and dark fields"
+            )
+        transmission = (proj - dark) / np.where(bad, 1.0, gain)
+    nonpositive = ~(transmission > 0)
+    if nonpositive.mean() > tolerance:
+        raise NanoctError(
+            f"{nonpositive.mean():.2%} of the flat/dark-corrected values are <= 0 (tolerance {tolerance:.2%}); "
+            "check the flat and dark fields, or pass --line-integrals if the data are already -log normalised"
+        )
+    return -np.log(np.maximum(transmission, floor)).astype(np.float32)
+
+
+def sinograms(
+    data: np.ndarray,
+    *,
+    rows: slice | None = None,
+    crop: tuple[int, int] | None = None,
+    binning: int = 1,
+) -> np.ndarray:
+    """One sinogram ``(K, L')`` per detector row of a ``(K, R, L)`` stack: returns ``(S, K, L')``.
+
+    Parameters
+    ----------
+    data : ndarray of shape (K, R, L)
+        Line integrals.
+    rows : slice, optional
+        Detector rows (slices) to keep, e.g. ``slice(100, 110)``.
+    crop : (int, int), optional
+        Detector columns ``[first, stop)`` to keep.
+    binning : int
+        Average this many neighbouring detector columns (and rows, where the selection has at
+        least that many), dropping a remainder; the detector pixel then grows by this factor.
+
+    Raises
+    ------
+    NanoctError
+        If the selection is empty or the binning does not fit.
+    """
+    stack = np.asarray(data, dtype=np.float32)
+    if rows is not None:
+        stack = stack[:, rows]
+    if crop is not None:
+        first, stop = crop
+        if not 0 <= first < stop <= stack.shape[2]:
+            raise NanoctError(f"--crop {first},{stop} must satisfy 0 <= first < stop <= {stack.shape[2]} columns")
+        stack = stack[:, :, first:stop]
+    if stack.shape[1] == 0:
+        raise NanoctError(f"the row selection {rows} keeps no detector row of {data.shape[1]}")
+    if not 1 <= binning <= stack.shape[2]:
+        raise NanoctError(f"--binning {binning} must be between 1 and the {stack.shape[2]} detector columns")
+    if binning > 1:  # columns always; rows (slices) too where there are enough of them
+        k, r, c = stack.shape
+        cols = c // binning * binning
+        stack = stack[:, :, :cols].reshape(k, r, cols // binning, binning).mean(axis=3)
+        if r >= binning:
+            kept = r // binning * binning
+            stack = stack[:, :kept].reshape(k, kept // binning, binning, -1).mean(axis=2)
+    return np.ascontiguousarray(stack.transpose(1, 0, 2))
+
+
+# ---------------------------------------------------------------------------------- readers
+def _open_h5(path: Path) -> Any:
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise NanoctError(f"cannot open {path} as HDF5 ({exc}); is it a complete .h5/.nxs file?") from exc
+
+
+def _first(f: Any, candidates: tuple[str, ...]) -> str | None:
+    return next((c for c in candidates if c in f), None)
+
+
+def _read_nxtomo(path: Path) -> RawScan:
+    with _open_h5(path) as f:
+        data_path = _first(f, _NX_DATA)
+        if data_path is None:
+            raise NanoctError(f"{path}: no NXtomo detector data (looked for {', '.join(_NX_DATA)})")
+        keys_path, angles_path = _first(f, _NX_KEYS), _first(f, _NX_ANGLES)
+        if angles_path is None:
+            raise NanoctError(f"{path}: no rotation angles (looked for {', '.join(_NX_ANGLES)}); pass --angles FILE")
+        data = np.asarray(f[data_path][()], dtype=np.float32)
+        angles = np.asarray(f[angles_path][()], dtype=np.float64).ravel()
+        keys = np.zeros(data.shape[0], int) if keys_path is None else np.asarray(f[keys_path][()]).ravel()
+    if keys.size != data.shape[0] or angles.size != data.shape[0]:
+        raise NanoctError(
+            f"{path}: {data.shape[0]} detector frames but {keys.size} image keys and {angles.size} angles; "
+            "NXtomo lists one key and one angle per frame"
+        )
+    proj = keys == 0
+    if not proj.any():
+        raise NanoctError(f"{path}: no projection frames (image_key 0)")
+    return RawScan(
+        data[proj],
+        np.deg2rad(angles[proj]),
+        flats=data[keys == 1] if (keys == 1).any() else None,
+        darks=data[keys == 2] if (keys == 2).any() else None,
+        source={"file": str(path), "format": "nxtomo", "data": data_path, "image_key": keys_path},
+    )
+
+
+def _read_dxchange(path: Path) -> RawScan:
+    with _open_h5(path) as f:
+        if "exchange/theta" not in f:
+            raise NanoctError(f"{path}: no /exchange/theta (angles in degrees); pass --angles FILE")
+        data = np.asarray(f["exchange/data"][()], dtype=np.float32)
+        theta = np.asarray(f["exchange/theta"][()], dtype=np.float64)
+        flats = np.asarray(f["exchange/data_white"][()], np.float32) if "exchange/data_white" in f else None
+        darks = np.asarray(f["exchange/data_dark"][()], np.float32) if "exchange/data_dark" in f else None
+    return RawScan(data, np.deg2rad(theta), flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
+
+
+def _read_array(path: Path, fmt: str | None) -> np.ndarray:
+    if not path.exists():
+        raise NanoctError(f"{path} does not exist")
+    fmt = fmt or ("npy" if path.suffix.lower() == ".npy" else "tiff")
+    try:
+        if fmt == "npy":
+            return np.load(path, allow_pickle=False)
+        import tifffile
+
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
+            if not files:
+                raise NanoctError(f"{path} holds no .tif/.tiff files")
+            return np.stack([tifffile.imread(p) for p in files])
+        return tifffile.imread(path)
+    except (OSError, ValueError) as exc:
+        raise NanoctError(f"cannot read {path} as {fmt} ({exc})") from exc
