@@ -8,7 +8,7 @@ import pytest
 import tifffile
 
 from nanoct.errors import NanoctError
-from nanoct.scanio import detect_format, line_integrals, read_scan, sinograms
+from nanoct.scanio import detect_format, line_integrals, read_scan, read_shifts, sinograms, write_images, write_shifts
 
 K, R, L = 12, 3, 21
 
@@ -182,3 +182,42 @@ def test_bad_input(tmp_path, truth, case, message):
 
     with pytest.raises(NanoctError, match=message):
         run()
+
+
+@pytest.mark.parametrize("suffix", [".tif", ".npy", ".h5"])
+def test_export_round_trip(tmp_path, suffix):
+    images = np.random.default_rng(3).random((4, 9, 9)).astype(np.float32)
+    path = write_images(tmp_path / f"recon{suffix}", images, attrs={"name": "dremel"})
+    if suffix == ".tif":
+        back = tifffile.imread(path)
+    elif suffix == ".npy":
+        back = np.load(path)
+    else:
+        with h5py.File(path) as f:
+            back = f["data"][()]
+            assert f["data"].attrs["name"] == "dremel"
+    np.testing.assert_array_equal(back, images)
+    assert back.dtype == np.float32
+    assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]  # no temporary left
+
+
+def test_shifts_round_trip(tmp_path):
+    shifts = np.random.default_rng(4).normal(0, 1.5, 17)
+    path = write_shifts(tmp_path / "shifts.txt", shifts, angles=np.linspace(0, np.pi, 17, endpoint=False))
+    np.testing.assert_allclose(read_shifts(path, 17), shifts, atol=1e-6)
+    one_column = tmp_path / "plain.txt"
+    np.savetxt(one_column, shifts)
+    np.testing.assert_allclose(read_shifts(one_column, 17), shifts)
+    with pytest.raises(NanoctError, match="has 17 views"):
+        read_shifts(path, 16)
+    (tmp_path / "bad.txt").write_text("0 1.0\n0 2.0\n")
+    with pytest.raises(NanoctError, match="once each"):
+        read_shifts(tmp_path / "bad.txt", 2)
+
+
+def test_export_refuses_unknown_extension_and_nan(tmp_path):
+    with pytest.raises(NanoctError, match="export format"):
+        write_images(tmp_path / "x.png", np.zeros((1, 3, 3)))
+    with pytest.raises(NanoctError, match="NaN"):
+        write_shifts(tmp_path / "s.txt", [0.0, np.nan])
+    assert not any(tmp_path.iterdir())

@@ -1,4 +1,4 @@
-"""Reading measured scans: NXtomo and Data Exchange HDF5, TIFF stacks, ``.npy`` arrays.
+"""Measured scans in and results out: NXtomo / Data Exchange HDF5, TIFF stacks, ``.npy``.
 
 A reader returns a :class:`RawScan`: the projections as a ``(K views, R detector rows, L
 detector columns)`` float32 stack, optional flat and dark fields of shape ``(F, R, L)``, and the
@@ -23,9 +23,22 @@ import numpy as np
 
 from .errors import NanoctError
 
-__all__ = ["FORMATS", "RawScan", "detect_format", "line_integrals", "read_angles", "read_scan", "sinograms"]
+__all__ = [
+    "EXPORT_FORMATS",
+    "FORMATS",
+    "RawScan",
+    "detect_format",
+    "line_integrals",
+    "read_angles",
+    "read_scan",
+    "read_shifts",
+    "sinograms",
+    "write_images",
+    "write_shifts",
+]
 
 FORMATS = ("nxtomo", "dxchange", "tiff", "npy")
+EXPORT_FORMATS = {".tif": "tiff", ".tiff": "tiff", ".npy": "npy", ".h5": "hdf5", ".hdf5": "hdf5"}
 
 # NXtomo: where the detector data, image keys and angles usually live (first found is used)
 _NX_DATA = ("entry/instrument/detector/data", "entry/data/data", "entry1/instrument/detector/data")
@@ -365,3 +378,112 @@ def _read_array(path: Path, fmt: str | None) -> np.ndarray:
         return tifffile.imread(path)
     except (OSError, ValueError) as exc:
         raise NanoctError(f"cannot read {path} as {fmt} ({exc})") from exc
+
+
+# ---------------------------------------------------------------------------------- writers
+def write_images(
+    path: str | os.PathLike[str], images: Any, *, dataset: str = "data", attrs: dict | None = None
+) -> Path:
+    """Write a stack of images ``(S, N, N)`` as float32 TIFF (one page each), ``.npy`` or HDF5.
+
+    The format follows the extension (:data:`EXPORT_FORMATS`). The file is written to a
+    temporary sibling and renamed, so a failed or interrupted export leaves no partial file.
+
+    Parameters
+    ----------
+    path : path
+        Output file.
+    images : array_like of shape (S, N, N) or (N, N)
+        Reconstructions or std maps.
+    dataset : str
+        HDF5 dataset name.
+    attrs : dict, optional
+        HDF5 attributes of the dataset (JSON-able values), e.g. where the images came from.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    fmt = EXPORT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise NanoctError(f"cannot tell the export format of {path}; use one of {', '.join(sorted(EXPORT_FORMATS))}")
+    stack = np.asarray(images, dtype=np.float32)
+    stack = stack[None] if stack.ndim == 2 else stack
+    if stack.ndim != 3:
+        raise NanoctError(f"images have shape {stack.shape}; expected (slices, rows, columns)")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        if fmt == "tiff":
+            import tifffile
+
+            tifffile.imwrite(tmp, stack, photometric="minisblack")
+        elif fmt == "npy":
+            np.save(tmp, stack)
+        else:
+            import h5py
+
+            with h5py.File(tmp, "w") as f:
+                ds = f.create_dataset(dataset, data=stack)
+                for key, value in (attrs or {}).items():
+                    ds.attrs[key] = value if isinstance(value, (int, float, str)) else repr(value)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_shifts(path: str | os.PathLike[str], shifts: Any, *, angles: Any = None) -> Path:
+    """Per-view shifts as a two-column text file ``view shift_px`` (nabu-style), atomically.
+
+    Parameters
+    ----------
+    path : path
+        Output text file.
+    shifts : array_like of shape (K,)
+        Shift of the object along the detector axis per view, in detector pixels (sign of
+        ``t . e_u``, as Dremel estimates it).
+    angles : array_like of shape (K,), optional
+        View angles in radians, written as a comment line for the reader's benefit.
+
+    Returns
+    -------
+    Path
+    """
+    from .fileio import atomic_write_text
+
+    values = np.asarray(shifts, dtype=np.float64).ravel()
+    if not np.isfinite(values).all():
+        raise NanoctError("the shifts contain NaN or infinite values; nothing was written")
+    lines = ["# view shift_px (object shift along the detector axis, detector pixels; nanoct)"]
+    if angles is not None:
+        lines.append("# angles_deg " + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel())))
+    lines += [f"{k} {v:.6f}" for k, v in enumerate(values)]
+    return atomic_write_text(Path(path), "\n".join(lines) + "\n")
+
+
+def read_shifts(path: str | os.PathLike[str], n_views: int) -> np.ndarray:
+    """Read per-view shifts: a two-column ``view shift`` text file or one shift per line.
+
+    Raises
+    ------
+    NanoctError
+        If the file is missing, not numeric, or has another number of views.
+    """
+    try:
+        table = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
+    except OSError as exc:
+        raise NanoctError(f"cannot read the shifts file {path}: {exc}") from exc
+    except ValueError as exc:
+        raise NanoctError(f"the shifts file {path} is not a table of numbers ({exc})") from exc
+    if table.shape[1] == 1:
+        shifts = table[:, 0]
+    else:
+        views = table[:, 0].astype(int)
+        if not np.array_equal(np.sort(views), np.arange(views.size)):
+            raise NanoctError(f"the shifts file {path} must list the views 0..{views.size - 1} once each")
+        shifts = np.empty(views.size)
+        shifts[views] = table[:, 1]
+    if shifts.size != n_views:
+        raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}")
+    return shifts
