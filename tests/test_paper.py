@@ -17,6 +17,7 @@ from nanoct.paper import (
     TABLES,
     comparison_rows,
     format_comparison,
+    format_mixing_comparison,
     paper_entry,
     paper_lookup,
     paper_mixing,
@@ -204,3 +205,18 @@ def test_every_value_against_latex_source():
                         assert tuple(paper_value("parallel", col, model, train))[2 * j : 2 * j + 2] == pair
                         checked += 1
     assert checked == 48 + 250
+
+
+def test_format_mixing_comparison():
+    results = {"fbp+unet": _scores(31.5, 0.95), "resesop+unet@fbp": _scores(30.25, 0.9)}
+    text = format_mixing_comparison(results, "unet")
+    rows = [line for line in text.splitlines() if line.startswith("| fbp |")]
+    assert len(rows) == 2  # PSNR and SSIM tables
+    psnr_cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    # trained on FBP: applied to FBP (ours 31.50, paper 33.04), to RESESOP (ours 30.25, paper 32.06)
+    assert psnr_cells == ["fbp", "31.50 (33.04)", "– (31.16)", "30.25 (32.06)", "– (31.37)", "– (32.68)"]
+    assert rows[1].split("|")[2].strip() == "0.950 (0.984)"
+    assert "tab:parallel_perturbed_quantitative_mixing" in text
+    assert "cinnres" in format_mixing_comparison({}, "cinn-res")
+    with pytest.raises(NanoctError, match="unknown model"):
+        format_mixing_comparison({}, "vnet")

@@ -35,6 +35,7 @@ __all__ = [
     "PaperValue",
     "comparison_rows",
     "format_comparison",
+    "format_mixing_comparison",
     "paper_entry",
     "paper_lookup",
     "paper_mixing",
@@ -552,3 +553,35 @@ def format_comparison(results: dict[str, dict[str, Any]], setting: str, title: s
     if sources:
         lines += ["", "Paper values from: " + "; ".join(sources) + "."]
     return "\n".join(lines) + "\n"
+
+
+def format_mixing_comparison(results: dict[str, dict[str, Any]], model: str) -> str:
+    """Markdown input-mixing tables of one network, ours next to the paper's in each cell.
+
+    Rows are the training input, columns the test input (the paper's layout), one table for
+    PSNR and one for SSIM; a cell reads ``ours (paper)`` with means only, a dash for a value
+    we or the paper do not have. ``results`` as in :func:`comparison_rows`: the diagonal is
+    ``<input>+<model>``, the other cells ``<input>+<model>@<train_input>``.
+
+    Raises
+    ------
+    NanoctError
+        If ``model`` is unknown.
+    """
+    _check_key("model", model, MODELS)
+    blocks = []
+    for metric, label, digits in (("psnr", "PSNR [dB]", 2), ("ssim", "SSIM", 3)):
+        lines = [f"### {model}: {label}, ours (paper); rows = trained on, columns = applied to", ""]
+        lines += ["| trained on \\ applied to | " + " | ".join(_MIX_COLUMNS) + " |", "|---" * 6 + "|"]
+        for train in _MIX_COLUMNS:
+            cells = []
+            for test in _MIX_COLUMNS:
+                name = f"{test}+{model}" + ("" if test == train else f"@{train}")
+                ours = results.get(name)
+                paper = paper_value("parallel", test, model, train)
+                ours_text = "–" if ours is None else f"{ours[f'{metric}_mean']:.{digits}f}"
+                paper_text = "–" if paper is None else f"{getattr(paper, f'{metric}_mean'):.{digits}f}"
+                cells.append(f"{ours_text} ({paper_text})")
+            lines.append(f"| {train} | " + " | ".join(cells) + " |")
+        blocks.append("\n".join(lines) + "\n")
+    return "\n".join(blocks) + f"\nPaper values from: {TABLES[f'mixing-{model}'].cite()}.\n"
