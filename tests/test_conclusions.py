@@ -115,6 +115,10 @@ def test_input_mixing_claim():
     robust = paper_like() | {"fbp+unet@resesop": (32.5, 0.985), "dremel+unet@resesop": (37.5, 0.99)}
     check = get(check_conclusions(table(robust), "parallel"), "resesop_trained_lose_most[unet]")
     assert check["verdict"] == "does not hold"
+    # a missing mixing row is named, not silently left out of the mean
+    partial = {k: v for k, v in paper_like().items() if k != "dremel+unet@fbp"}
+    check = get(check_conclusions(table(partial), "parallel"), "resesop_trained_lose_most[unet]")
+    assert check["missing"] == ["dremel+unet@fbp"] and len(check["comparisons"]) == 2  # only the Dremel-trained pair
     # no mixing rows for the CiNN: not applicable, with the rows it needed
     cinn = get(check_conclusions(table(paper_like()), "parallel"), "resesop_trained_lose_most[cinn]")
     assert cinn["verdict"] == "not applicable" and "fbp+cinn@resesop" in cinn["missing"]
