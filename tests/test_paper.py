@@ -158,7 +158,9 @@ def test_format_comparison():
 
 # The whole transcription against the LaTeX source, where it is available:
 # NANOCT_PAPER_TEX=/path/to/paper.tex pytest tests/test_paper.py
-_TEX = os.environ.get("NANOCT_PAPER_TEX")
+# the paper's LaTeX source: $NANOCT_PAPER_TEX, else the project's shared/ beside the checkout (where CI has it)
+_SHARED_TEX = Path(__file__).resolve().parents[2] / "shared" / "seed" / "000_97f2f407435e89fd.txt"
+_TEX = os.environ.get("NANOCT_PAPER_TEX") or (str(_SHARED_TEX) if _SHARED_TEX.is_file() else None)
 _NUM = r"([0-9.]+)\s*\\pm\s*([0-9.]+)(?:\s*\\cdot\s*10\^\{(-?\d+)\})?"
 _TEX_INPUTS = {
     "FBP": "fbp",
