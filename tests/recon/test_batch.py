@@ -5,14 +5,16 @@ import pytest
 
 from nanoct.errors import NanoctError, StoreError
 from nanoct.metrics import psnr
-from nanoct.recon.batch import output_name, reconstruct_dataset
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.recon.registry import output_name
 from nanoct.store import DataStore
 
 
 def test_output_names():
-    assert output_name("resesop", 1.0) == "resesop"
-    assert output_name("resesop", 0.8) == "resesop_eta0.8"
-    assert output_name("resesop", 1.2) == "resesop_eta1.2"
+    assert output_name("resesop", {"eta_scale": 1.0}) == "resesop"
+    assert output_name("resesop") == "resesop"
+    assert output_name("resesop", {"eta_scale": 0.8}) == "resesop_eta0.8"
+    assert output_name("resesop", {"eta_scale": 1.2}) == "resesop_eta1.2"
     assert output_name("dremel") == "dremel"
 
 
@@ -54,7 +56,7 @@ def test_resume_computes_only_missing_samples(tiny_store, monkeypatch):
 
 
 def test_bad_method_parameters_are_reported(tiny_store):
-    with pytest.raises(ValueError, match="relaxation"):
+    with pytest.raises(NanoctError, match="relaxation"):
         reconstruct_dataset(
             tiny_store.path, "kaczmarz", split="test", params={"relaxation": 3.0}, name="bad", workers=0, progress=False
         )
