@@ -143,10 +143,9 @@ def shift_cross_corr(z: Any, y: Any, f_sr: int = 2, *, weighting: str = "additiv
     ``c_l`` by exactly ``|l| mean(z) mean(y)`` when both projections vanish at the detector
     ends (the object stays in the field of view). ``weighting="additive"`` (default) adds
     this back, which makes the estimator unbiased. ``"overlap"`` multiplies by the inverse
-    overlap fraction ``n_SR / (n_SR - |l|)``, the textbook "unbiased correlation" weight; on
-    projections of phantoms it over-compensates and biases the shift away from 0 (measured
-    bias of ``|est| - |true|``: +0.3 px at tiny, +0.9 to +1.3 px at paper-parallel scale;
-    "additive": <= 0.04 px). ``"none"`` keeps the bias towards 0 (-0.1 to -1.1 px).
+    overlap fraction ``n_SR / (n_SR - |l|)``, the textbook "unbiased correlation" weight,
+    which over-compensates on projections of phantoms; ``"none"`` keeps the bias towards 0.
+    The measured biases are in ``docs/choices.md``.
 
     Parameters
     ----------

@@ -81,9 +81,13 @@ class MethodSpec:
         """The solver function (imported on first use)."""
         return _load(self.target)
 
+    def check_function(self) -> Callable[..., dict[str, Any]]:
+        """The parameter check ``check_params(op, **params)`` (imported on first use)."""
+        return _load(self.checker)
+
     def parameter_names(self) -> tuple[str, ...]:
         """The parameters a user may set (keyword-only parameters of the check)."""
-        sig = inspect.signature(_load(self.checker))
+        sig = inspect.signature(self.check_function())
         return tuple(n for n, p in sig.parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY)
 
 
@@ -174,7 +178,7 @@ def check_method_params(method: str, params: dict[str, Any], geometry: Geometry)
             f"accepted: {', '.join(accepted)}"
         )
     try:
-        return _load(spec.checker)(geometry, **params)
+        return spec.check_function()(geometry, **params)
     except (TypeError, ValueError) as exc:
         name = str(exc).partition("=")[0]
         flag = _flag(name) if name in accepted else "a parameter"

@@ -255,8 +255,8 @@ def _make_row_dot(acc: type, fastmath: Any) -> Callable[..., float]:
 
 
 #: ``sum(data[p] * x[indices[p]] for p in range(p0, p1))`` with float32 products and partial
-#: sums; the summation order is left to the compiler (vectorised gathers, ~1.7x faster than a
-#: sequential float64 sum); the relative rounding error is a few float32 ulps, the order of
+#: sums; the summation order is left to the compiler (vectorised gathers, faster than a
+#: sequential float64 sum: ``benchmarks/README.md``); the relative rounding error is a few float32 ulps, the order of
 #: storing ``x`` in float32. Pass ``indices`` unsigned (:func:`unsigned_indices`) to spare the
 #: negative-index checks. Used by Kaczmarz, Dremel and :func:`residual_norm`.
 row_dot = _make_row_dot(np.float32, _DOT_FASTMATH)
