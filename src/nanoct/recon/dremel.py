@@ -189,6 +189,14 @@ def _interp_weights(pos, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _project_view(indptr, indices, data, x, base, n_det, p):  # pragma: no cover - compiled
+    """Unshifted model projection of one view into ``p``: ``p[l] = <a_(base + l), x>``."""
+    for l in range(n_det):
+        r = base + l
+        p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+
+
+@numba.njit(cache=True, nogil=True)
 def _view_step(
     indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg, p, z, g
 ):  # pragma: no cover - compiled
@@ -199,9 +207,7 @@ def _view_step(
     and each pixel's increment ``c * a_rj / C_j`` is formed in float32.
     """
     base = k * n_det
-    for l in range(n_det):
-        r = base + l
-        p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+    _project_view(indptr, indices, data, x, base, n_det, p)
     res2 = 0.0
     for l in range(n_det):
         g[l] = 0.0
@@ -358,9 +364,7 @@ def _shifted_residual(indptr, indices, data, y, x, n_det, dshift, p):  # pragma:
     tot = 0.0
     for k in range(n_views):
         base = k * n_det
-        for l in range(n_det):
-            r = base + l
-            p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+        _project_view(indptr, indices, data, x, base, n_det, p)
         for l in range(n_det):
             i0, w0, w1 = _interp_weights(l + dshift[k], n_det)
             zz = 0.0
