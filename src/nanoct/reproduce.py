@@ -90,7 +90,7 @@ STUDIES: dict[str, Study] = {
 
 
 #: The paper's reconstructions (method, parameters), in its table order.
-PAPER_RECONS: tuple[tuple[str, dict[str, Any]], ...] = (
+_PAPER_RECONS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("fbp", {}),
     ("dremel", {}),
     ("resesop", {"eta_scale": 1.0}),
@@ -102,9 +102,9 @@ PAPER_RECONS: tuple[tuple[str, dict[str, Any]], ...] = (
 def _recons(perturbed: bool = True) -> dict[str, tuple[str, dict[str, Any]]]:
     """Output name -> (method, parameters) of the study's reconstructions."""
     if not perturbed:  # the paper's unperturbed table: each method once, eta = 0 where a method uses eta
-        methods = dict.fromkeys(m for m, _ in PAPER_RECONS)
+        methods = dict.fromkeys(m for m, _ in _PAPER_RECONS)
         return {m: (m, {"eta_scale": 0.0} if method_spec(m).needs_eta else {}) for m in methods}
-    return {output_name(m, p): (m, p) for m, p in PAPER_RECONS}
+    return {output_name(m, p): (m, p) for m, p in _PAPER_RECONS}
 
 
 def _with_threads(threads: int, job: Callable[[], object]) -> None:
