@@ -36,15 +36,9 @@ from nanoct.geometry import get_preset  # noqa: E402
 from nanoct.operators import RayTransform, astra_vectors, system_matrix  # noqa: E402
 from nanoct.phantoms import downsample, random_phantom  # noqa: E402
 from nanoct.recon.dremel import _XCorr, dremel  # noqa: E402
-from nanoct.recon.kaczmarz import (  # noqa: E402
-    _kaczmarz_sweep,
-    kaczmarz_reference,
-    residual_norm,
-    row_norms_squared,
-    unsigned_indices,
-    view_order,
-)
+from nanoct.recon.kaczmarz import _kaczmarz_sweep, kaczmarz_reference  # noqa: E402
 from nanoct.recon.resesop import resesop, resesop_reference  # noqa: E402
+from nanoct.recon.rowaction import residual_norm, row_norms_squared, unsigned_indices, view_order  # noqa: E402
 
 
 def timeit(fn, repeat: int) -> float:
@@ -203,10 +197,10 @@ def main() -> None:
 
         # ---- RESESOP 20 sweeps
         for residual in ("running", "exact"):
-            resesop(g, y, eta, max_sweeps=1, matrix=mat)  # compile
-            res, t_res, peak = with_memory(lambda: resesop(g, y, eta, max_sweeps=20, matrix=mat, residual=residual))
+            resesop(g, y, eta, n_iter=1, matrix=mat)  # compile
+            res, t_res, peak = with_memory(lambda: resesop(g, y, eta, n_iter=20, matrix=mat, residual=residual))
             print(
-                f"RESESOP ({res.n_sweeps} sweeps, residual={residual}, stop={res.stop_reason}): {t_res:6.2f} s, "
+                f"RESESOP ({res.iterations} sweeps, residual={residual}, stop={res.stop_reason}): {t_res:6.2f} s, "
                 f"tracemalloc peak {peak:6.1f} MiB, updates/sweep {res.params['n_updates'][0]} -> "
                 f"{res.params['n_updates'][-1]}"
             )

@@ -10,6 +10,7 @@ from typing import Any
 import typer
 
 from .errors import NanoctError
+from .recon.registry import method_help, method_spec, methods_with_eta
 
 app = typer.Typer(
     help="nanoct: CT reconstruction with inexact (motion-perturbed) forward operators.",
@@ -101,9 +102,13 @@ def generate(
 @app.command()
 def reconstruct(
     directory: Path = typer.Argument(..., help="Data-set store."),
-    method: str = typer.Option(..., "--method", "-m", help="fbp | kaczmarz | dremel | resesop"),
+    method: str = typer.Option(..., "--method", "-m", help=f"Reconstruction method. {method_help()}."),
     split: str = typer.Option("all", "--split", help="test | val | train | all"),
-    eta_scale: float = typer.Option(1.0, "--eta-scale", help="RESESOP: scale of eta (paper: 0.8, 1.0, 1.2)."),
+    eta_scale: float | None = typer.Option(
+        None,
+        "--eta-scale",
+        help=f"Methods that use eta ({', '.join(methods_with_eta())}): its scale (default 1; paper: 0.8, 1.0, 1.2).",
+    ),
     param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
     name: str | None = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
@@ -115,10 +120,11 @@ def reconstruct(
     from .recon.batch import reconstruct_dataset
 
     params = _parse_params(param)
-    if method == "resesop":
-        params.setdefault("eta_scale", eta_scale)
-    elif eta_scale != 1.0:
-        raise NanoctError("--eta-scale applies to --method resesop only")
+    if method_spec(method).needs_eta:
+        params.setdefault("eta_scale", 1.0 if eta_scale is None else eta_scale)
+    elif eta_scale is not None:
+        with_eta = " or ".join(f"--method {m}" for m in methods_with_eta())
+        raise NanoctError(f"--eta-scale applies to {with_eta} only (methods that use eta), not to --method {method}")
     written = reconstruct_dataset(
         directory,
         method,

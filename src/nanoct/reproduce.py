@@ -24,13 +24,12 @@ from .figures import compare_reconstructions, show_sample, uncertainty_maps
 from .fileio import atomic_write_text, remove_stale_temporaries
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
+from .learn.models import model_class, table_order
 from .recon.batch import reconstruct_dataset
+from .recon.registry import method_spec, output_name
 from .simulate import SimulationConfig
 
-__all__ = ["MODELS", "STUDIES", "Study", "reproduce_study"]
-
-#: Post-processing networks of the paper, in its table order.
-MODELS = ("unet", "cinn", "cinn-res", "ciunet", "ciunet-res")
+__all__ = ["STUDIES", "Study", "reproduce_study"]
 
 
 @dataclass(frozen=True)
@@ -55,11 +54,11 @@ class Study:
 
     n: int
     split_fractions: tuple[float, float, float]
-    epochs: dict[str, int] = field(default_factory=lambda: dict.fromkeys(MODELS, 500))
+    epochs: dict[str, int] = field(default_factory=lambda: dict.fromkeys(table_order(), 500))
     lr: dict[str, float] = field(default_factory=dict)
     model_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
     n_samples: int = 100
-    mixing: tuple[str, ...] = MODELS
+    mixing: tuple[str, ...] = table_order()
 
 
 # tiny: a 2-core laptop in under 25 minutes (measured in the README); the invertible networks
@@ -85,21 +84,27 @@ STUDIES: dict[str, Study] = {
         n_samples=100,
         mixing=("unet",),
     ),
-    "small": Study(n=2000, split_fractions=(0.9, 0.05, 0.05), epochs=dict.fromkeys(MODELS, 100)),
+    "small": Study(n=2000, split_fractions=(0.9, 0.05, 0.05), epochs=dict.fromkeys(table_order(), 100)),
     "paper": Study(n=32095, split_fractions=(0.95, 0.04, 0.01)),
 }
 
 
+#: The paper's reconstructions (method, parameters), in its table order.
+_PAPER_RECONS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("fbp", {}),
+    ("dremel", {}),
+    ("resesop", {"eta_scale": 1.0}),
+    ("resesop", {"eta_scale": 0.8}),
+    ("resesop", {"eta_scale": 1.2}),
+)
+
+
 def _recons(perturbed: bool = True) -> dict[str, tuple[str, dict[str, Any]]]:
-    if not perturbed:  # the paper's unperturbed table: RESESOP with eta = 0
-        return {"fbp": ("fbp", {}), "dremel": ("dremel", {}), "resesop": ("resesop", {"eta_scale": 0.0})}
-    return {
-        "fbp": ("fbp", {}),
-        "dremel": ("dremel", {}),
-        "resesop": ("resesop", {"eta_scale": 1.0}),
-        "resesop_eta0.8": ("resesop", {"eta_scale": 0.8}),
-        "resesop_eta1.2": ("resesop", {"eta_scale": 1.2}),
-    }
+    """Output name -> (method, parameters) of the study's reconstructions."""
+    if not perturbed:  # the paper's unperturbed table: each method once, eta = 0 where a method uses eta
+        methods = dict.fromkeys(m for m, _ in _PAPER_RECONS)
+        return {m: (m, {"eta_scale": 0.0} if method_spec(m).needs_eta else {}) for m in methods}
+    return {output_name(m, p): (m, p) for m, p in _PAPER_RECONS}
 
 
 def _with_threads(threads: int, job: Callable[[], object]) -> None:
@@ -183,7 +188,8 @@ def reproduce_study(
     perturbed : bool
         False gives the unperturbed sanity case.
     models : tuple of str, optional
-        Post-processing networks to train (default all of :data:`MODELS`; ``()`` for none).
+        Post-processing networks to train (default all of :data:`nanoct.learn.models.MODELS`;
+        ``()`` for none).
     study : Study, optional
         Scale settings instead of the preset's entry in :data:`STUDIES`.
     workers, scheduler, progress
@@ -191,10 +197,10 @@ def reproduce_study(
     """
     if preset not in preset_names():
         raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names())}")
-    models = MODELS if models is None else tuple(models)
-    unknown = [m for m in models if m not in MODELS]
+    models = table_order() if models is None else tuple(models)
+    unknown = [m for m in models if m not in table_order()]
     if unknown:
-        raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(MODELS)}")
+        raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(table_order())}")
     geometry = get_preset(preset)
     study = study or STUDIES[preset.split("-")[0]]
     out = Path(out or Path("runs") / (preset if perturbed else f"{preset}-nomotion"))
@@ -250,7 +256,7 @@ def reproduce_study(
     for m in models:
         compare_reconstructions(store, [f"{i}+{m}" for i in inputs], test, report_dir / f"reconstructions_{m}.png")
         figures.append((f"reconstructions_{m}.png", f"Post-processed by {m}"))
-    uq = [m for m in models if m.startswith("ci")]
+    uq = [m for m in models if model_class(m).has_uncertainty]
     if uq:
         best = "ciunet-res" if "ciunet-res" in uq else uq[-1]
         uncertainty_maps(store, [f"{i}+{best}" for i in inputs], test, report_dir / "uncertainty.png")

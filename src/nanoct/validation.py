@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_array", "check_int", "check_rng"]
+__all__ = ["check_array", "check_bool", "check_choice", "check_float", "check_int", "check_rng"]
 
 
 def check_array(
@@ -72,6 +72,76 @@ def check_int(value: Any, name: str, minimum: int) -> int:
     if value < minimum:
         raise ValueError(f"{name}={value!r} is too small; use an integer >= {minimum}")
     return int(value)
+
+
+def check_float(
+    value: Any,
+    name: str,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> float:
+    """Validate a finite real number (bools and strings rejected) within optional bounds.
+
+    Parameters
+    ----------
+    value : Any
+        The argument.
+    name : str
+        Its name, used in error messages.
+    low, high : float, optional
+        Bounds; ``low_open`` / ``high_open`` exclude them.
+
+    Returns
+    -------
+    float
+        ``float(value)``.
+
+    Raises
+    ------
+    ValueError
+        If ``value`` is not a finite real number or lies outside the bounds; the message
+        names it and the accepted range.
+    """
+    lo = "" if low is None else ("(" if low_open else "[") + f"{low:g}"
+    hi = "" if high is None else f"{high:g}" + (")" if high_open else "]")
+    wanted = f"a finite number in {lo or '(-inf'}, {hi or 'inf)'}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}={value!r} must be {wanted}")
+    v = float(value)
+    too_low = low is not None and (v <= low if low_open else v < low)
+    too_high = high is not None and (v >= high if high_open else v > high)
+    if not np.isfinite(v) or too_low or too_high:
+        raise ValueError(f"{name}={value!r} is not allowed; use {wanted}")
+    return v
+
+
+def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    """Require one of ``choices`` (strings).
+
+    Raises
+    ------
+    ValueError
+        For anything else; the message lists the choices.
+    """
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name}={value!r} is unknown; use one of {', '.join(choices)}")
+    return value
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """Require a boolean (``True``/``False``, or the integers 0 and 1).
+
+    Raises
+    ------
+    ValueError
+        For anything else.
+    """
+    if isinstance(value, (bool, np.bool_)) or (isinstance(value, (int, np.integer)) and value in (0, 1)):
+        return bool(value)
+    raise ValueError(f"{name}={value!r} must be true or false")
 
 
 def check_rng(rng: Any) -> np.random.Generator:

@@ -5,14 +5,16 @@ import pytest
 
 from nanoct.errors import NanoctError, StoreError
 from nanoct.metrics import psnr
-from nanoct.recon.batch import output_name, reconstruct_dataset
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.recon.registry import output_name, reconstruct_command
 from nanoct.store import DataStore
 
 
 def test_output_names():
-    assert output_name("resesop", 1.0) == "resesop"
-    assert output_name("resesop", 0.8) == "resesop_eta0.8"
-    assert output_name("resesop", 1.2) == "resesop_eta1.2"
+    assert output_name("resesop", {"eta_scale": 1.0}) == "resesop"
+    assert output_name("resesop") == "resesop"
+    assert output_name("resesop", {"eta_scale": 0.8}) == "resesop_eta0.8"
+    assert output_name("resesop", {"eta_scale": 1.2}) == "resesop_eta1.2"
     assert output_name("dremel") == "dremel"
 
 
@@ -54,9 +56,70 @@ def test_resume_computes_only_missing_samples(tiny_store, monkeypatch):
 
 
 def test_bad_method_parameters_are_reported(tiny_store):
-    with pytest.raises(ValueError, match="relaxation"):
+    with pytest.raises(NanoctError, match="relaxation"):
         reconstruct_dataset(
             tiny_store.path, "kaczmarz", split="test", params={"relaxation": 3.0}, name="bad", workers=0, progress=False
         )
     with pytest.raises(NanoctError, match="unknown"):
         reconstruct_dataset(tiny_store.path, "art", workers=0, progress=False)
+
+
+def _snapshot(path):
+    return {str(p.relative_to(path)): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(path.rglob("*"))}
+
+
+@pytest.mark.parametrize(
+    ("method", "params", "match"),
+    [
+        ("kaczmarz", {"bogus": 1}, r"--param bogus: not a parameter of --method kaczmarz; accepted: n_iter, "),
+        ("kaczmarz", {"relaxation": float("nan")}, r"--param relaxation .*\(0, 2\)"),
+        ("fbp", {"filter": "gauss"}, r"--param filter .*ram-lak, hann"),
+        ("resesop", {"eta_scale": -1.0}, r"--eta-scale .*\[0, inf\)"),
+        ("dremel", {"n_iter": "many"}, "--param n_iter"),
+        ("sirt", {}, "--method 'sirt' is unknown; use one of fbp, kaczmarz, dremel, resesop"),
+    ],
+)
+def test_bad_parameters_fail_before_any_work(tiny_store, monkeypatch, method, params, match):
+    """Checked before an array is created, deleted (even with overwrite) or a worker starts."""
+    import nanoct.recon.batch as batch
+
+    path = tiny_store.path
+    reconstruct_dataset(path, "fbp", split="test", name="keep", workers=0, progress=False)
+    monkeypatch.setattr(batch, "run_tasks", lambda *a, **k: pytest.fail("a worker was started"))
+    before = _snapshot(path)
+    for name in ("keep", None):
+        with pytest.raises(NanoctError, match=match):
+            reconstruct_dataset(path, method, params=params, name=name, overwrite=True, workers=2, progress=False)
+    assert _snapshot(path) == before
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--method", "resesop", "--eta-scale", "-1"], "error: --eta-scale of --method resesop: eta_scale=-1.0"),
+        (["--method", "fbp", "--param", "filter=gauss"], "error: --param filter of --method fbp: filter='gauss'"),
+        (["--method", "kaczmarz", "--param", "relaxation=NaN"], "error: --param relaxation of --method kaczmarz"),
+        (["--method", "kaczmarz", "--param", "sweeps=3"], "error: --param sweeps: not a parameter"),
+        (["--method", "fbp", "--eta-scale", "0.8"], "error: --eta-scale applies to --method resesop only"),
+        (["--method", "sirt"], "error: --method 'sirt' is unknown"),
+    ],
+)
+def test_cli_reports_bad_parameters_in_one_line(tiny_store, monkeypatch, capsys, args, message):
+    import sys
+
+    from nanoct.cli import main
+
+    before = _snapshot(tiny_store.path)
+    monkeypatch.setattr(sys, "argv", ["nanoct", "reconstruct", str(tiny_store.path), "--workers", "2", *args])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.startswith(message) and err.count("\n") == 1 and "Traceback" not in err
+    assert _snapshot(tiny_store.path) == before
+
+
+def test_reconstruct_command_hints_only_registered_methods():
+    assert reconstruct_command("d", "fbp") == "nanoct reconstruct d --method fbp"
+    assert reconstruct_command("d", "resesop_eta0.8") == "nanoct reconstruct d --method resesop --eta-scale 0.8"
+    assert reconstruct_command("d", "sirt") == "nanoct reconstruct d --method <fbp|kaczmarz|dremel|resesop> --name sirt"
+    assert reconstruct_command("d", "resesop_etaX").endswith("--name resesop_etaX")

@@ -85,7 +85,7 @@ def test_recovers_translations_parallel():
         g, gt, y, true = translated("tiny-parallel", seed)
         res = dremel(g, y)
         assert res.motion.shape == (g.n_angles,) and res.motion.dtype == np.float32
-        assert res.stop_reason == "max_iter" and res.n_sweeps == 32
+        assert res.stop_reason == "max_iter" and res.iterations == 32
         assert np.sqrt(np.mean((res.motion - true) ** 2)) < 0.5
         corr.append(np.corrcoef(res.motion, true)[0, 1])
         corr_fixed.append(np.corrcoef(gauge_free(res.motion, true, g.angles), true)[0, 1])
@@ -127,7 +127,7 @@ def test_running_residual_and_callback():
     g, gt, y, true = translated("tiny-parallel", 11)
     seen = []
     res = dremel(g, y, n_iter=5, callback=lambda i, x, s: seen.append(s.copy()) or i == 2)
-    assert res.stop_reason == "callback" and res.n_sweeps == 3 and len(seen) == 3
+    assert res.stop_reason == "callback" and res.iterations == 3 and len(seen) == 3
     assert np.all(np.isfinite(res.residuals))
 
 

@@ -8,7 +8,8 @@ import scipy.sparse as sp
 
 from nanoct.geometry import Geometry, get_preset
 from nanoct.operators import RayTransform, system_matrix
-from nanoct.recon.kaczmarz import kaczmarz, kaczmarz_reference, view_order
+from nanoct.recon.kaczmarz import kaczmarz, kaczmarz_reference
+from nanoct.recon.rowaction import view_order
 
 SMALL = Geometry("parallel", 6, 5, 7)  # 35 rays x 36 pixels
 
@@ -33,7 +34,7 @@ def random_csr(geometry: Geometry, seed: int = 0) -> sp.csr_matrix:
 def test_kernel_matches_numpy_reference(order, omega):
     mat = random_csr(SMALL)
     y = np.random.default_rng(1).normal(size=SMALL.sino_shape).astype(np.float32)
-    res = kaczmarz(SMALL, y, n_sweeps=3, relaxation=omega, order=order, nonneg=False, seed=7, matrix=mat)
+    res = kaczmarz(SMALL, y, n_iter=3, relaxation=omega, order=order, nonneg=False, seed=7, matrix=mat)
     ref = np.zeros(36)
     rng = np.random.default_rng(7)
     for _ in range(3):
@@ -45,24 +46,24 @@ def test_kernel_matches_numpy_reference(order, omega):
 def test_zero_rows_skipped_no_nan():
     mat = random_csr(SMALL)
     y = np.ones(SMALL.sino_shape, np.float32)
-    res = kaczmarz(SMALL, y, n_sweeps=2, nonneg=False, matrix=mat)
+    res = kaczmarz(SMALL, y, n_iter=2, nonneg=False, matrix=mat)
     assert np.all(np.isfinite(res.image)) and np.all(np.isfinite(res.residuals))
 
 
 def test_nonneg_projection():
     mat = random_csr(SMALL)
     y = np.random.default_rng(2).normal(size=SMALL.sino_shape).astype(np.float32)
-    free = kaczmarz(SMALL, y, n_sweeps=2, nonneg=False, matrix=mat).image
-    pos = kaczmarz(SMALL, y, n_sweeps=2, nonneg=True, matrix=mat).image
+    free = kaczmarz(SMALL, y, n_iter=2, nonneg=False, matrix=mat).image
+    pos = kaczmarz(SMALL, y, n_iter=2, nonneg=True, matrix=mat).image
     assert free.min() < 0 and pos.min() >= 0
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
 def test_converges_on_consistent_data(name, consistent, psnr):
     g, x, y = consistent(name)
-    res = kaczmarz(g, y, n_sweeps=15, relaxation=1.0)
+    res = kaczmarz(g, y, n_iter=15, relaxation=1.0)
     r = np.asarray(res.residuals)
-    assert res.stop_reason == "max_sweeps" and len(r) == 15
+    assert res.stop_reason == "max_iter" and len(r) == 15
     assert np.all(np.diff(r) <= 1e-3 * r[0])  # (numerically) non-increasing
     assert r[-1] < 0.02 * np.linalg.norm(y)
     assert psnr(res.image, x) > 30
@@ -70,8 +71,8 @@ def test_converges_on_consistent_data(name, consistent, psnr):
 
 def test_accepts_unperturbed_operator_and_rejects_moved_one(consistent):
     g, x, y = consistent("tiny-parallel")
-    a = kaczmarz(RayTransform(g), y, n_sweeps=1).image
-    b = kaczmarz(g, y, n_sweeps=1).image
+    a = kaczmarz(RayTransform(g), y, n_iter=1).image
+    b = kaczmarz(g, y, n_iter=1).image
     np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="without motion"):
         kaczmarz(RayTransform(g, np.ones((g.n_angles, 3))), y)
@@ -79,8 +80,8 @@ def test_accepts_unperturbed_operator_and_rejects_moved_one(consistent):
 
 def test_callback_stops(consistent):
     g, x, y = consistent("tiny-parallel")
-    res = kaczmarz(g, y, n_sweeps=10, callback=lambda i, im: i == 2)
-    assert res.stop_reason == "callback" and res.n_sweeps == 3
+    res = kaczmarz(g, y, n_iter=10, callback=lambda i, im, motion: i == 2)
+    assert res.stop_reason == "callback" and res.iterations == 3
 
 
 def test_view_orders():
@@ -98,7 +99,7 @@ def test_view_orders():
         (dict(relaxation=0.0), "relaxation"),
         (dict(relaxation=2.0), "relaxation"),
         (dict(relaxation=-0.5), "relaxation"),
-        (dict(n_sweeps=0), "n_sweeps"),
+        (dict(n_iter=0), "n_iter"),
         (dict(order="spiral"), "order"),
         (dict(x0=np.zeros((3, 3))), "x0"),
     ],
@@ -126,7 +127,7 @@ def test_bad_sinogram(consistent):
 
 def test_row_dot_and_residual_norm_match_float64():
     """float32-accumulated row products agree with a float64 dot to float32 rounding."""
-    from nanoct.recon.kaczmarz import residual_norm, row_dot, unsigned_indices
+    from nanoct.recon.rowaction import residual_norm, row_dot, unsigned_indices
 
     g = get_preset("tiny-parallel")
     mat = system_matrix(g)

@@ -9,8 +9,9 @@ from nanoct.geometry import Geometry, get_preset
 from nanoct.motion import MotionParams, sample_motion
 from nanoct.operators import RayTransform, system_matrix
 from nanoct.phantoms import downsample, random_phantom
-from nanoct.recon.kaczmarz import kaczmarz, view_order
+from nanoct.recon.kaczmarz import kaczmarz
 from nanoct.recon.resesop import resesop, resesop_reference
+from nanoct.recon.rowaction import view_order
 
 SMALL = Geometry("parallel", 6, 5, 7)
 
@@ -35,7 +36,7 @@ def small_problem(seed=0):
 def test_kernel_matches_literal_algorithm(order, eta_value):
     mat, y = small_problem()
     eta = np.full(5, eta_value, np.float32)
-    res = resesop(SMALL, y, eta, tau=1.1, max_sweeps=4, order=order, nonneg=False, seed=3, matrix=mat)
+    res = resesop(SMALL, y, eta, tau=1.1, n_iter=4, order=order, nonneg=False, seed=3, matrix=mat)
     ref = np.zeros(36)
     rng = np.random.default_rng(3)
     state: dict = {}
@@ -50,20 +51,20 @@ def test_kernel_matches_literal_algorithm(order, eta_value):
 def test_two_directions_are_used():
     """With eta = 0 the second search direction changes the iterate (vs plain Kaczmarz)."""
     mat, y = small_problem()
-    a = resesop(SMALL, y, np.zeros(5), max_sweeps=1, order="sequential", nonneg=False, matrix=mat).image
-    b = kaczmarz(SMALL, y, n_sweeps=1, order="sequential", nonneg=False, matrix=mat).image
+    a = resesop(SMALL, y, np.zeros(5), n_iter=1, order="sequential", nonneg=False, matrix=mat).image
+    b = kaczmarz(SMALL, y, n_iter=1, order="sequential", nonneg=False, matrix=mat).image
     assert np.abs(a - b).max() > 1e-3
 
 
 @pytest.mark.parametrize("name", ["tiny-parallel", "tiny-fan"])
 def test_eta_zero_converges_like_kaczmarz(name, consistent, psnr):
     g, x, y = consistent(name)
-    res = resesop(g, y, np.zeros(g.n_angles), max_sweeps=15, order="random", residual="exact")
+    res = resesop(g, y, np.zeros(g.n_angles), n_iter=15, order="random", residual="exact")
     r = np.asarray(res.residuals)
-    assert res.stop_reason == "max_sweeps"
+    assert res.stop_reason == "max_iter"
     assert r[-1] < 0.5 * r[2] and r[-1] < 0.02 * np.linalg.norm(y)
     assert psnr(res.image, x) > 30
-    kz = kaczmarz(g, y, n_sweeps=15, relaxation=1.0).image
+    kz = kaczmarz(g, y, n_iter=15, relaxation=1.0).image
     assert np.linalg.norm(res.image - kz) < 0.1 * np.linalg.norm(x)
 
 
@@ -71,21 +72,21 @@ def test_eta_zero_converges_like_kaczmarz(name, consistent, psnr):
 def test_discrepancy_stop_with_positive_eta(name, consistent, psnr):
     g, x, y = consistent(name)
     eta = np.full(g.n_angles, 0.01 * y.max(), np.float32)
-    res = resesop(g, y, eta, tau=1.5, max_sweeps=20)
-    assert res.stop_reason == "discrepancy" and res.n_sweeps < 20
+    res = resesop(g, y, eta, tau=1.5, n_iter=20)
+    assert res.stop_reason == "discrepancy" and res.iterations < 20
     # the returned image meets the discrepancy principle for every ray
     resid = np.abs(system_matrix(g) @ res.image.ravel() - y.ravel())
     assert resid.max() <= 1.5 * eta[0] * (1 + 1e-4)
     assert psnr(res.image, x) > 25
-    sticky = resesop(g, y, eta, tau=1.5, max_sweeps=20, stop_rule="sticky")
-    assert sticky.stop_reason == "discrepancy" and sticky.n_sweeps <= res.n_sweeps
+    sticky = resesop(g, y, eta, tau=1.5, n_iter=20, stop_rule="sticky")
+    assert sticky.stop_reason == "discrepancy" and sticky.iterations <= res.iterations
 
 
 def test_per_ray_eta_equals_per_view_eta(consistent):
     g, x, y = consistent("tiny-parallel")
     eta = np.linspace(0.1, 0.3, g.n_angles).astype(np.float32)
-    a = resesop(g, y, eta, max_sweeps=3).image
-    b = resesop(g, y, np.repeat(eta[:, None], g.n_det, 1), max_sweeps=3).image
+    a = resesop(g, y, eta, n_iter=3).image
+    b = resesop(g, y, np.repeat(eta[:, None], g.n_det, 1), n_iter=3).image
     np.testing.assert_array_equal(a, b)
 
 
@@ -114,7 +115,7 @@ def test_perturbed_data_beats_unregularised(psnr):
         (np.ones(140), dict(tau=1.0), "tau"),
         (np.ones(140), dict(eta_scale=-1.0), "eta_scale"),
         (np.ones(140), dict(delta=-0.1), "delta"),
-        (np.ones(140), dict(max_sweeps=0), "max_sweeps"),
+        (np.ones(140), dict(n_iter=0), "n_iter"),
         (np.ones(140), dict(stop_rule="never"), "stop_rule"),
     ],
 )

@@ -16,7 +16,7 @@ from typing import Any
 from ..errors import NanoctError
 from .base import PostProcessor
 
-__all__ = ["MODELS", "ModelSpec", "build_model", "model_class", "model_names", "model_spec"]
+__all__ = ["MODELS", "ModelSpec", "build_model", "model_class", "model_names", "model_spec", "table_order"]
 
 
 @dataclass(frozen=True)
@@ -31,6 +31,7 @@ class ModelSpec:
     scheduler: str | None = None
 
 
+#: Registered models, in the order of the paper's tables (see :func:`table_order`).
 MODELS: dict[str, ModelSpec] = {
     # the paper: Adam with *initial* lr 1e-3, batch 16, 500 epochs; the decay is dival's UNet
     # default (cosine annealing to 1e-4); dival is by two of the paper's authors
@@ -53,6 +54,11 @@ MODELS: dict[str, ModelSpec] = {
 def model_names() -> list[str]:
     """Registered model names."""
     return sorted(MODELS)
+
+
+def table_order() -> tuple[str, ...]:
+    """Registered model names in the paper's table order (the registry's order)."""
+    return tuple(MODELS)
 
 
 def model_spec(name: str) -> ModelSpec:

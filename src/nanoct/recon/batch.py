@@ -12,43 +12,22 @@ from ..errors import NanoctError
 from ..fanout import run_tasks
 from ..geometry import Geometry
 from ..store import DataStore, Sample, open_cached
+from .registry import check_method_params, method_spec, output_name
 from .result import ReconResult
 
-__all__ = ["METHODS", "output_name", "reconstruct_dataset", "reconstruct_sample"]
-
-METHODS = ("fbp", "kaczmarz", "dremel", "resesop")
-
-
-def output_name(method: str, eta_scale: float = 1.0) -> str:
-    """Store name of a reconstruction: ``resesop_eta0.8`` for a scaled eta, else the method."""
-    if method == "resesop" and not np.isclose(eta_scale, 1.0):
-        return f"resesop_eta{eta_scale:g}"
-    return method
+__all__ = ["reconstruct_dataset", "reconstruct_sample"]
 
 
 def reconstruct_sample(method: str, geometry: Geometry, sample: Sample, params: dict[str, Any]) -> ReconResult:
     """Reconstruct one sample with ``method`` using the unperturbed (inexact) operator.
 
-    ``params`` are keyword arguments of the method's function; RESESOP gets the sample's
-    per-view model error ``eta`` (scaled by ``params["eta_scale"]`` inside the method).
+    ``params`` are keyword arguments of the method's function; a method that needs eta
+    (:attr:`~nanoct.recon.registry.MethodSpec.needs_eta`) gets the sample's per-view model
+    error (scaled by ``params["eta_scale"]`` inside the method).
     """
-    if method == "fbp":
-        from .fbp import fbp
-
-        return fbp(geometry, sample.sinogram, **params)
-    if method == "kaczmarz":
-        from .kaczmarz import kaczmarz
-
-        return kaczmarz(geometry, sample.sinogram, **params)
-    if method == "resesop":
-        from .resesop import resesop
-
-        return resesop(geometry, sample.sinogram, sample.eta, **params)
-    if method == "dremel":
-        from .dremel import dremel
-
-        return dremel(geometry, sample.sinogram, **params)
-    raise NanoctError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
+    spec = method_spec(method)
+    data = (sample.sinogram, sample.eta) if spec.needs_eta else (sample.sinogram,)
+    return spec.solver()(geometry, *data, **params)
 
 
 def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], index: int) -> int:
@@ -74,19 +53,22 @@ def reconstruct_dataset(
 ) -> str:
     """Reconstruct the samples of ``split`` into ``reconstructions/<name>``.
 
+    The method and its parameters are checked (:func:`~nanoct.recon.registry.check_method_params`)
+    before anything is written or any worker starts.
+
     Parameters
     ----------
     path : path
         Data-set store.
-    method : {"fbp", "kaczmarz", "dremel", "resesop"}
-        Reconstruction method.
+    method : str
+        A registered method (:data:`nanoct.recon.registry.METHODS`).
     split : {"all", "train", "val", "test"}
         Which samples to reconstruct (others are left missing and can be added later).
     params : dict, optional
         Keyword arguments of the method (stored with the result; a second run with other
         parameters under the same name is refused unless ``overwrite``).
     name : str, optional
-        Output name (default :func:`output_name`).
+        Output name (default :func:`~nanoct.recon.registry.output_name`).
     overwrite : bool
         Delete an existing reconstruction of that name first.
     workers, scheduler, progress
@@ -96,12 +78,17 @@ def reconstruct_dataset(
     -------
     str
         The output name.
+
+    Raises
+    ------
+    NanoctError
+        For an unknown method, a bad parameter, or samples of the split not generated yet.
     """
-    if method not in METHODS:
-        raise NanoctError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
+    spec = method_spec(method)
     params = dict(params or {})
-    name = name or output_name(method, params.get("eta_scale", 1.0))
     store = DataStore.open(path, mode="r+")
+    check_method_params(method, params, store.geometry)
+    name = name or output_name(method, params)
     wanted = store.indices(split)
     not_done = ~store.done[wanted]
     if not_done.any():
@@ -112,7 +99,7 @@ def reconstruct_dataset(
     if overwrite:
         store.delete_reconstruction(name)
     stored = {"method": method, **params}
-    store.prepare_reconstruction(name, stored, shifts=(method == "dremel"))
+    store.prepare_reconstruction(name, stored, shifts=spec.estimates_motion)
     pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
     task = partial(_reconstruct_into, str(store.path), method, name, params)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)

@@ -17,7 +17,7 @@ For each view ``k`` (in the chosen view order) one iteration does
 
 A whole iteration runs in one compiled (numba) call: the view step over the cached float32
 CSR matrix (row products accumulated in float32, see
-:func:`~nanoct.recon.kaczmarz.row_dot`) and the shift estimate, whose correlation is computed
+:func:`~nanoct.recon.rowaction.row_dot`) and the shift estimate, whose correlation is computed
 directly for every lag of the cropped window (``n_SR`` lags, ``O(n_SR^2)`` multiply-adds,
 vectorised) instead of by the FFT of :func:`shift_cross_corr`; both give the same arg-max up
 to rounding (checked on random signals in the tests).
@@ -42,9 +42,11 @@ al. 2018: the shift component along ``e_u`` is magnified by ``m`` at the rotatio
 (the magnification varies by ``~ r / R_source``, < 2.5 % over the paper's object) and the
 component along the central ray, which changes the magnification only slightly, is ignored.
 
-Defaults (chosen on validation phantoms, own seeds, not a test split)
-----------------------------------------------------------------------
-See :func:`dremel` and ``benchmarks/README.md``.
+Defaults
+--------
+The defaults were chosen on validation phantoms (own seeds, not a test split); the paper's
+ambiguities, what was chosen and the measurements are in ``docs/choices.md`` (Dremel), the
+speed in ``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -60,23 +62,19 @@ import scipy.sparse as sp
 
 from ..geometry import Geometry
 from ..operators import RayTransform
-from ..validation import check_array
-from .kaczmarz import (
-    ORDERS,
-    _check_positive_int,
-    check_relaxation,
+from ..validation import check_array, check_bool, check_choice, check_float, check_int
+from .result import ReconResult
+from .rowaction import (
+    check_common,
+    matrix_cache,
     prepare_problem,
     resolve_geometry,
     row_dot,
     unsigned_indices,
     view_order,
 )
-from .result import ReconResult
 
-__all__ = ["shift_cross_corr", "dremel", "AUTO_RELAXATION"]
-
-#: Default relaxation of :func:`dremel` is ``min(1, AUTO_RELAXATION / K)``.
-AUTO_RELAXATION = 8.0
+__all__ = ["WEIGHTINGS", "check_params", "dremel", "shift_cross_corr"]
 
 
 # ------------------------------------------------------------------ cross-correlation
@@ -87,8 +85,7 @@ class _XCorr:
     """Pre-computed pieces of :func:`shift_cross_corr` for signals of length ``n``."""
 
     def __init__(self, n: int, f_sr: int, weighting: str = "additive") -> None:
-        if weighting not in WEIGHTINGS:
-            raise ValueError(f"weighting={weighting!r} is unknown; use one of {WEIGHTINGS}")
+        check_choice(weighting, "weighting", WEIGHTINGS)
         self.n = n
         self.f = f_sr
         self.mode = weighting
@@ -146,10 +143,9 @@ def shift_cross_corr(z: Any, y: Any, f_sr: int = 2, *, weighting: str = "additiv
     ``c_l`` by exactly ``|l| mean(z) mean(y)`` when both projections vanish at the detector
     ends (the object stays in the field of view). ``weighting="additive"`` (default) adds
     this back, which makes the estimator unbiased. ``"overlap"`` multiplies by the inverse
-    overlap fraction ``n_SR / (n_SR - |l|)``, the textbook "unbiased correlation" weight; on
-    projections of phantoms it over-compensates and biases the shift away from 0 (measured
-    bias of ``|est| - |true|``: +0.3 px at tiny, +0.9 to +1.3 px at paper-parallel scale;
-    "additive": <= 0.04 px). ``"none"`` keeps the bias towards 0 (-0.1 to -1.1 px).
+    overlap fraction ``n_SR / (n_SR - |l|)``, the textbook "unbiased correlation" weight,
+    which over-compensates on projections of phantoms; ``"none"`` keeps the bias towards 0.
+    The measured biases are in ``docs/choices.md``.
 
     Parameters
     ----------
@@ -176,8 +172,7 @@ def shift_cross_corr(z: Any, y: Any, f_sr: int = 2, *, weighting: str = "additiv
     y = check_array(y, "y", ndim=1, dtype=np.float64)
     if z.shape != y.shape:
         raise ValueError(f"z and y must have the same length, got {z.shape} and {y.shape}")
-    if isinstance(f_sr, bool) or not isinstance(f_sr, (int, np.integer)) or f_sr < 1:
-        raise ValueError(f"f_sr={f_sr!r} must be a positive integer")
+    f_sr = check_int(f_sr, "f_sr", 1)
     if z.size < 2:
         raise ValueError("z and y need at least 2 samples")
     xc = _XCorr(z.size, int(f_sr), weighting)
@@ -194,19 +189,25 @@ def _interp_weights(pos, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _project_view(indptr, indices, data, x, base, n_det, p):  # pragma: no cover - compiled
+    """Unshifted model projection of one view into ``p``: ``p[l] = <a_(base + l), x>``."""
+    for l in range(n_det):
+        r = base + l
+        p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+
+
+@numba.njit(cache=True, nogil=True)
 def _view_step(
     indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg, p, z, g
 ):  # pragma: no cover - compiled
     """One Dremel view step in place; fills ``z`` (model projection) and returns ``||z - y_k||^2``.
 
     Pass ``indices`` as unsigned integers (:func:`~nanoct.recon.kaczmarz.unsigned_indices`).
-    The forward projection accumulates in float32 (:func:`~nanoct.recon.kaczmarz.row_dot`)
+    The forward projection accumulates in float32 (:func:`~nanoct.recon.rowaction.row_dot`)
     and each pixel's increment ``c * a_rj / C_j`` is formed in float32.
     """
     base = k * n_det
-    for l in range(n_det):
-        r = base + l
-        p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+    _project_view(indptr, indices, data, x, base, n_det, p)
     res2 = 0.0
     for l in range(n_det):
         g[l] = 0.0
@@ -363,9 +364,7 @@ def _shifted_residual(indptr, indices, data, y, x, n_det, dshift, p):  # pragma:
     tot = 0.0
     for k in range(n_views):
         base = k * n_det
-        for l in range(n_det):
-            r = base + l
-            p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
+        _project_view(indptr, indices, data, x, base, n_det, p)
         for l in range(n_det):
             i0, w0, w1 = _interp_weights(l + dshift[k], n_det)
             zz = 0.0
@@ -392,45 +391,96 @@ def _sums(indptr, indices, data, n_cols):  # pragma: no cover - compiled
     return rows, cols
 
 
-_SUM_CACHE: dict[tuple[int, int], tuple[sp.csr_matrix, np.ndarray, np.ndarray]] = {}
-
-
 def _row_col_sums(mat: sp.csr_matrix, n_views: int) -> tuple[np.ndarray, np.ndarray]:
-    key = (id(mat), mat.nnz)
-    hit = _SUM_CACHE.get(key)
-    if hit is not None and hit[0] is mat:
-        return hit[1], hit[2]
-    rows, cols = _sums(mat.indptr, mat.indices, mat.data, mat.shape[1])
-    cols /= n_views
-    inv_col = np.zeros(mat.shape[1], dtype=np.float32)
-    ok = cols > 1e-6
-    inv_col[ok] = (1.0 / cols[ok]).astype(np.float32)
-    if len(_SUM_CACHE) >= 4:
-        _SUM_CACHE.pop(next(iter(_SUM_CACHE)))
-    _SUM_CACHE[key] = (mat, rows, inv_col)
-    return rows, inv_col
+    """Row sums (float64) and inverse view-averaged column sums (float32, 0 where empty), cached."""
+
+    def compute(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+        rows, cols = _sums(m.indptr, m.indices, m.data, m.shape[1])
+        cols /= n_views
+        inv_col = np.zeros(m.shape[1], dtype=np.float32)
+        ok = cols > 1e-6
+        inv_col[ok] = (1.0 / cols[ok]).astype(np.float32)
+        return rows, inv_col
+
+    return matrix_cache(mat, ("dremel_sums", n_views), compute)
+
+
+def _measured_correlation(y: np.ndarray, n_views: int, n_det: int, f_sr: int) -> tuple[np.ndarray, np.ndarray]:
+    """Up-sampled, mean-subtracted measured projections (K, f_sr L) and their means (K,)."""
+    y2 = y.reshape(n_views, n_det)
+    ycorr = np.empty((n_views, f_sr * n_det))
+    ymean = np.empty(n_views)
+    for k in range(n_views):
+        ymean[k] = _upsample_centre(y2[k].astype(np.float64), f_sr, ycorr[k])
+    return ycorr, ymean
 
 
 # ------------------------------------------------------------------ public
+def check_params(
+    op: Geometry | RayTransform,
+    *,
+    n_iter: int = 32,
+    relaxation: float | None = None,
+    order: str = "random",
+    nonneg: bool = True,
+    seed: int = 0,
+    residual: str = "running",
+    shift_relaxation: float = 1.0,
+    correction_start: int = 0,
+    f_sr: int = 2,
+    weighting: str = "additive",
+    subpixel: bool = False,
+) -> dict[str, Any]:
+    """Check the tunable parameters of :func:`dremel` (same names and defaults); return them normalised.
+
+    Raises
+    ------
+    ValueError
+        Naming the first bad parameter and its accepted values.
+    """
+    common = check_common(
+        resolve_geometry(op),
+        n_iter=n_iter,
+        relaxation=relaxation,
+        order=order,
+        nonneg=nonneg,
+        seed=seed,
+        residual=residual,
+    )
+    return dict(
+        n_iter=common["n_iter"],
+        relaxation=common["relaxation"],
+        shift_relaxation=check_float(shift_relaxation, "shift_relaxation", low=0.0, high=1.0, low_open=True),
+        order=common["order"],
+        nonneg=common["nonneg"],
+        correction_start=check_int(correction_start, "correction_start", 0),
+        f_sr=check_int(f_sr, "f_sr", 1),
+        weighting=check_choice(weighting, "weighting", WEIGHTINGS),
+        subpixel=check_bool(subpixel, "subpixel"),
+        seed=common["seed"],
+        residual=common["residual"],
+    )
+
+
 def dremel(
     op: Geometry | RayTransform,
     sino: Any,
     *,
     n_iter: int = 32,
     relaxation: float | None = None,
-    shift_relaxation: float = 1.0,
     order: str = "random",
     nonneg: bool = True,
+    seed: int = 0,
+    residual: str = "running",
+    shift_relaxation: float = 1.0,
     correction_start: int = 0,
     f_sr: int = 2,
     weighting: str = "additive",
     subpixel: bool = False,
-    seed: int = 0,
     x0: Any = None,
     shifts0: Any = None,
     callback: Callable[[int, np.ndarray, np.ndarray], Any] | None = None,
     matrix: sp.csr_matrix | None = None,
-    residual: str = "running",
 ) -> ReconResult:
     """Dremel reconstruction with per-view object-shift estimation (the paper's Algorithm 1).
 
@@ -444,17 +494,25 @@ def dremel(
         Number of iterations (sweeps over all views); the paper: 32.
     relaxation : float, optional
         ``omega`` of the SART-normalised view step; SART converges for ``0 < omega < 2``.
-        Default ``min(1, 8 / K)`` (K views): one sweep then moves the image by about the same
-        amount whatever the number of views. The paper's ``omega = 1`` is in its own operator
-        scaling; see Notes for the choice.
-    shift_relaxation : float, default 1.0
-        ``lambda`` in ``(0, 1]`` (the paper: 1, no relaxation).
+        Default ``min(1, 8 / K)`` (K views,
+        :func:`~nanoct.recon.rowaction.auto_relaxation`): one sweep then moves the image by
+        about the same amount whatever the number of views. The paper's ``omega = 1`` is in
+        its own operator scaling; ``docs/choices.md`` has the measurements behind the choice.
     order : {"random", "sequential", "golden"}, default "random"
         View order. The paper's pseudo-code is sequential, which converges very slowly with
-        view-block steps (see Notes).
+        view-block steps.
     nonneg : bool, default True
         Keep ``x >= 0``: each pixel is clipped at 0 as each ray's share of the view step is
         added (see the module docstring).
+    seed : int, default 0
+        Seed of the random view order.
+    residual : {"running", "exact"}, default "running"
+        ``"running"``: root of the summed squared view residuals ``||A_k(s_k) x - y_k||^2``
+        met during the iteration, before each view's step (free). ``"exact"``:
+        ``||A(s) x - y||`` with the current image and shifts after each iteration (one more
+        pass over the matrix).
+    shift_relaxation : float, default 1.0
+        ``lambda`` in ``(0, 1]`` (the paper: 1, no relaxation).
     correction_start : int, default 0
         First iteration (0-based) in which shifts are corrected; the paper found 0 best.
     f_sr : int, default 2
@@ -464,21 +522,15 @@ def dremel(
     subpixel : bool, default False
         Parabolic refinement of the correlation peak (:func:`shift_cross_corr`; not in the
         paper).
-    seed : int, default 0
-        Seed of the random view order.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, "empty phantom").
     shifts0 : array_like of shape (K,), optional
         Initial object shifts (default zeros).
     callback : callable, optional
-        ``callback(iteration, x, shifts)`` after each iteration; True stops ("callback").
+        ``callback(iteration, x, shifts)`` after each iteration (``shifts`` a float32 copy);
+        True stops ("callback").
     matrix : scipy.sparse.csr_matrix, optional
         The system matrix (default :func:`nanoct.operators.system_matrix`).
-    residual : {"running", "exact"}, default "running"
-        ``"running"``: root of the summed squared view residuals ``||A_k(s_k) x - y_k||^2``
-        met during the iteration, before each view's step (free). ``"exact"``:
-        ``||A(s) x - y||`` with the current image and shifts after each iteration (one more
-        pass over the matrix).
 
     Returns
     -------
@@ -495,48 +547,21 @@ def dremel(
     convergence guarantee (as in the paper). A translation common to all views
     (``a cos phi_k + b sin phi_k``) is not determined by the data (the image can absorb it),
     so estimated shifts may differ from the true ones by such a term.
-
-    Defaults, chosen on validation samples of the project's simulator (paper motion model,
-    2x finer simulation grid, seed 9001, not a test split); mean PSNR / SSIM / correlation
-    of estimated and true ``t . e_u``:
-
-    * tiny-parallel (4 samples; FBP 25.0 / 0.51): omega = 0.2: 29.2 / 0.92 / 0.95;
-      0.1: 30.4 / 0.94 / 0.95; 0.05: 32.1 / 0.95 / 0.96; 0.02: 30.8 / 0.96 / 0.96;
-      lambda = 0.5 (omega 0.05): 31.7 / 0.94; the literal reading (omega = 1, sequential,
-      no x >= 0): 19.6 / 0.23 / 0.52; omega = 1 sequential with x >= 0: 23.3 / 0.69 / 0.84.
-    * tiny-fan (4 samples, 33 views; FBP 23.0 / 0.35): omega = 0.02: 24.9 / 0.85;
-      0.05: 29.6 / 0.95; 0.2: 33.2 / 0.95; default (8/33 = 0.24): 33.8 / 0.95 / 0.88.
-    * paper-parallel (2 samples; FBP 29.6 / 0.74): omega = 0.02: 33.9 / 0.98 / 0.94 (shift
-      RMSE 0.29 px); 0.05: 33.4 / 0.96 / 0.94; 0.1: 32.4 / 0.94 / 0.94. With the multiplicative
-      "overlap" weighting the shifts were biased (omega = 0.2: correlation -0.28). The literal
-      reading (omega = 1, sequential, no x >= 0): 15.8 / 0.13 / 0.24.
-
-    The best omega scales like 1 / K, hence ``min(1, 8 / K)``; ``lambda = 1`` and correction
-    from the first iteration (the paper's choices) were kept; random and golden order were
-    equal, sequential order was worse.
     """
-    n_iter = _check_positive_int(n_iter, "n_iter")
-    if relaxation is None:
-        k_views = resolve_geometry(op).n_angles
-        relaxation = min(1.0, AUTO_RELAXATION / k_views)
-    omega = check_relaxation(relaxation, "relaxation", 0.0, 2.0)
-    lam = float(shift_relaxation)
-    if not (0.0 < lam <= 1.0):
-        raise ValueError(f"shift_relaxation={shift_relaxation!r} must lie in (0, 1]")
-    if order not in ORDERS:
-        raise ValueError(f"order={order!r} is unknown; use one of {ORDERS}")
-    if (
-        isinstance(correction_start, bool)
-        or not isinstance(correction_start, (int, np.integer))
-        or correction_start < 0
-    ):
-        raise ValueError(f"correction_start={correction_start!r} must be an integer >= 0")
-    if isinstance(f_sr, bool) or not isinstance(f_sr, (int, np.integer)) or f_sr < 1:
-        raise ValueError(f"f_sr={f_sr!r} must be a positive integer")
-    if residual not in ("exact", "running"):
-        raise ValueError(f"residual={residual!r} must be 'exact' or 'running'")
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting={weighting!r} is unknown; use one of {WEIGHTINGS}")
+    p = check_params(
+        op,
+        n_iter=n_iter,
+        relaxation=relaxation,
+        order=order,
+        nonneg=nonneg,
+        seed=seed,
+        residual=residual,
+        shift_relaxation=shift_relaxation,
+        correction_start=correction_start,
+        f_sr=f_sr,
+        weighting=weighting,
+        subpixel=subpixel,
+    )
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:
@@ -545,73 +570,25 @@ def dremel(
         shifts = check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
     rowsum, inv_col = _row_col_sums(mat, n_views)
     det_per_obj = geometry.magnification / geometry.det_spacing  # detector px per object px
-    f_sr = int(f_sr)
-    n_sr = f_sr * n_det
-    y2 = y.reshape(n_views, n_det)
-    ycorr = np.empty((n_views, n_sr))  # up-sampled, mean-subtracted measured projections
-    ymean = np.empty(n_views)
-    for k in range(n_views):
-        ymean[k] = _upsample_centre(y2[k].astype(np.float64), f_sr, ycorr[k])
-    mode = WEIGHTINGS.index(weighting)
+    f_sr = p["f_sr"]
+    ycorr, ymean = _measured_correlation(y, n_views, n_det, f_sr)
     indices = unsigned_indices(mat)
-    rng = np.random.default_rng(seed)
-    p = np.zeros(n_det)
-    z = np.zeros(n_det)
-    g = np.zeros(n_det)
-    zc = np.zeros(n_sr)
-    c = np.zeros(n_sr)
+    rng = np.random.default_rng(p["seed"])
+    work = (np.zeros(n_det), np.zeros(n_det), np.zeros(n_det), np.zeros(f_sr * n_det), np.zeros(f_sr * n_det))
+    shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"], ycorr, ymean)
     residuals: list[float] = []
     stop = "max_iter"
-    for it in range(n_iter):
-        views = view_order(n_views, order, rng)
-        run = _dremel_sweep(
-            mat.indptr,
-            indices,
-            mat.data,
-            rowsum,
-            inv_col,
-            y,
-            x,
-            views,
-            n_det,
-            shifts,
-            det_per_obj,
-            omega,
-            bool(nonneg),
-            it >= correction_start,
-            lam,
-            f_sr,
-            mode,
-            bool(subpixel),
-            ycorr,
-            ymean,
-            p,
-            z,
-            g,
-            zc,
-            c,
-        )
-        if residual == "exact":
-            residuals.append(
-                float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, shifts * det_per_obj, p))
-            )
+    for it in range(p["n_iter"]):
+        views = view_order(n_views, p["order"], rng)
+        step_args = (views, n_det, shifts, det_per_obj, p["relaxation"], p["nonneg"], it >= p["correction_start"])
+        run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, *work)
+        if p["residual"] == "exact":
+            dshift = shifts * det_per_obj
+            residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), shifts.astype(np.float32)):
             stop = "callback"
             break
-    params = dict(
-        method="dremel",
-        n_iter=n_iter,
-        relaxation=omega,
-        shift_relaxation=lam,
-        order=order,
-        nonneg=bool(nonneg),
-        correction_start=int(correction_start),
-        f_sr=int(f_sr),
-        weighting=weighting,
-        subpixel=bool(subpixel),
-        seed=seed,
-        residual=residual,
-    )
-    return ReconResult(x.reshape(geometry.image_shape), residuals, stop, shifts.astype(np.float32), params)
+    image = x.reshape(geometry.image_shape)
+    return ReconResult(image, residuals, stop, shifts.astype(np.float32), {"method": "dremel", **p})

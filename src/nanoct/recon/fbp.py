@@ -10,14 +10,18 @@ covers parallel beam only and is used in the tests as an independent reference.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 
 from ..geometry import Geometry
-from ..validation import check_array
+from ..operators import RayTransform
+from ..validation import check_array, check_choice
 from .result import ReconResult
+from .rowaction import resolve_geometry
 
-__all__ = ["FILTERS", "fbp", "ramp_filter"]
+__all__ = ["FILTERS", "check_params", "fbp", "ramp_filter"]
 
 FILTERS = ("ram-lak", "hann")
 
@@ -41,8 +45,7 @@ def ramp_filter(sino: np.ndarray, spacing: float, filter: str = "ram-lak") -> np
         ``spacing * (h * p)`` for each projection p: the discrete convolution approximating
         the ramp-filtered projection.
     """
-    if filter not in FILTERS:
-        raise ValueError(f"filter {filter!r} is unknown; use one of {FILTERS}")
+    check_choice(filter, "filter", FILTERS)
     n_det = sino.shape[1]
     size = int(2 ** np.ceil(np.log2(2 * n_det)))
     n = np.concatenate([np.arange(0, size // 2 + 1), np.arange(-(size // 2) + 1, 0)])
@@ -100,15 +103,30 @@ def _backproject(geometry: Geometry, filtered: np.ndarray, spacing: float) -> np
     )
 
 
-def fbp(geometry: Geometry, sino: np.ndarray, *, filter: str = "ram-lak") -> ReconResult:
+def check_params(op: Geometry | RayTransform, *, filter: str = "ram-lak") -> dict[str, Any]:
+    """Check the parameters of :func:`fbp` (same names and defaults); return them normalised.
+
+    Raises
+    ------
+    ValueError
+        For an unknown filter, or a fan-beam scan that does not cover a full turn.
+    """
+    geometry = resolve_geometry(op)
+    if geometry.kind == "fan" and not np.isclose(geometry.angle_range, 2 * np.pi):
+        raise ValueError("fan-beam FBP needs a full 2 pi scan (no short-scan weighting)")
+    return {"filter": check_choice(filter, "filter", FILTERS)}
+
+
+def fbp(op: Geometry | RayTransform, sino: Any, *, filter: str = "ram-lak") -> ReconResult:
     """Filtered back projection of an (unperturbed-model) sinogram.
 
     Parameters
     ----------
-    geometry : Geometry
-        Scan geometry (parallel over [0, pi) or fan over [0, 2 pi)).
-    sino : ndarray of shape (K, L)
-        Sinogram of line integrals in pixel units.
+    op : Geometry or RayTransform
+        Scan geometry (parallel over [0, pi) or fan over [0, 2 pi)), or an unperturbed ray
+        transform with ``oversample=1``, as for the iterative methods.
+    sino : array_like of shape (K, L)
+        Sinogram of line integrals in pixel units; must be finite.
     filter : {"ram-lak", "hann"}
         Reconstruction filter (default Ram-Lak).
 
@@ -117,6 +135,8 @@ def fbp(geometry: Geometry, sino: np.ndarray, *, filter: str = "ram-lak") -> Rec
     ReconResult
         ``image`` is the (N, N) float32 reconstruction; ``stop_reason`` is ``"direct"``.
     """
+    params = check_params(op, filter=filter)
+    geometry = resolve_geometry(op)
     sino = check_array(sino, "sinogram", shape=geometry.sino_shape).astype(np.float64)
     d_phi = geometry.angle_range / geometry.n_angles
     if geometry.kind == "parallel":
@@ -130,7 +150,5 @@ def fbp(geometry: Geometry, sino: np.ndarray, *, filter: str = "ram-lak") -> Rec
         src = geometry.source_radius
         filtered = ramp_filter(sino * (src / np.sqrt(src**2 + u**2)), spacing, filter)
         scale = d_phi / 2  # every ray is measured twice over a full turn
-        if not np.isclose(geometry.angle_range, 2 * np.pi):
-            raise ValueError("fan-beam FBP needs a full 2 pi scan (no short-scan weighting)")
     image = _backproject(geometry, filtered, spacing) * scale
-    return ReconResult(image=image.astype(np.float32), params={"method": "fbp", "filter": filter})
+    return ReconResult(image=image.astype(np.float32), params={"method": "fbp", **params})

@@ -35,9 +35,13 @@ Ambiguities of the paper's pseudo-code and what this implementation does
   the Gram determinant vanishes and the second direction is dropped (``t = 0``).
 * **Non-negativity** (not in the paper): optional projection onto ``x >= 0`` after each sweep.
 
-Defaults, measured on validation phantoms (own seeds, not a test split)
-------------------------------------------------------------------------
-See the docstring of :func:`resesop` and ``benchmarks/README.md``.
+Row products are accumulated in float64 (:func:`~nanoct.recon.rowaction.row_dot_f64`): the
+stripe tests compare residuals with widths that can be small.
+
+Defaults
+--------
+Chosen on validation phantoms (own seeds, not a test split); the measurements are in
+``docs/choices.md`` (RESESOP), the speed in ``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -52,19 +56,23 @@ import scipy.sparse as sp
 
 from ..geometry import Geometry
 from ..operators import RayTransform
-from ..validation import check_array
-from .kaczmarz import (
-    ORDERS,
-    _check_positive_int,
+from ..validation import check_array, check_choice, check_float
+from .result import ReconResult
+from .rowaction import (
+    check_common,
     clip_nonneg,
     prepare_problem,
     residual_norm,
+    resolve_geometry,
+    row_dot_f64,
     row_norms_squared,
     view_order,
 )
-from .result import ReconResult
 
-__all__ = ["resesop", "expand_eta", "resesop_reference"]
+__all__ = ["STOP_RULES", "check_params", "expand_eta", "resesop", "resesop_reference"]
+
+#: Stop rules of :func:`resesop` (see the module docstring, "Stopping flags").
+STOP_RULES = ("sweep", "sticky")
 
 
 def expand_eta(eta: Any, geometry: Geometry, name: str = "eta") -> np.ndarray:
@@ -110,10 +118,7 @@ def _resesop_sweep(
                 continue
             p0 = indptr[r]
             p1 = indptr[r + 1]
-            s = 0.0
-            for p in range(p0, p1):
-                s += data[p] * x[indices[p]]
-            w = s - y[r]
+            w = row_dot_f64(indices, data, x, p0, p1) - y[r]
             run += w * w
             c = width[r]
             aw = abs(w)
@@ -128,9 +133,7 @@ def _resesop_sweep(
             coef_new = -step
             coef_old = 0.0
             if old >= 0:
-                g = 0.0
-                for p in range(p0, p1):
-                    g += data[p] * wo[indices[p]]
+                g = row_dot_f64(indices, data, wo, p0, p1)
                 c_old = old_val - step * g  # <a_old, x~>
                 y_old = y[old]
                 w_old = width[old]
@@ -174,14 +177,6 @@ def _resesop_sweep(
         if flags[r]:
             n_flag += 1
     return n_upd, run, n_flag
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_dot(indptr, indices, data, r, x):  # pragma: no cover - compiled
-    s = 0.0
-    for p in range(indptr[r], indptr[r + 1]):
-        s += data[p] * x[indices[p]]
-    return s
 
 
 def resesop_reference(
@@ -235,23 +230,65 @@ def resesop_reference(
     return n_upd
 
 
+def check_params(
+    op: Geometry | RayTransform,
+    *,
+    n_iter: int = 20,
+    order: str = "sequential",
+    nonneg: bool = True,
+    seed: int = 0,
+    residual: str = "running",
+    eta_scale: float = 1.0,
+    delta: float = 0.0,
+    tau: float = 1.01,
+    stop_rule: str = "sweep",
+) -> dict[str, Any]:
+    """Check the tunable parameters of :func:`resesop` (same names and defaults); return them normalised.
+
+    Raises
+    ------
+    ValueError
+        Naming the first bad parameter and its accepted values.
+    """
+    common = check_common(
+        resolve_geometry(op),
+        n_iter=n_iter,
+        relaxation=False,
+        order=order,
+        nonneg=nonneg,
+        seed=seed,
+        residual=residual,
+    )
+    return dict(
+        eta_scale=check_float(eta_scale, "eta_scale", low=0.0),
+        delta=check_float(delta, "delta", low=0.0),
+        tau=check_float(tau, "tau", low=1.0, low_open=True),  # the discrepancy principle needs tau > 1
+        n_iter=common["n_iter"],
+        order=common["order"],
+        nonneg=common["nonneg"],
+        stop_rule=check_choice(stop_rule, "stop_rule", STOP_RULES),
+        seed=common["seed"],
+        residual=common["residual"],
+    )
+
+
 def resesop(
     op: Geometry | RayTransform,
     sino: Any,
     eta: Any,
     *,
+    n_iter: int = 20,
+    order: str = "sequential",
+    nonneg: bool = True,
+    seed: int = 0,
+    residual: str = "running",
     eta_scale: float = 1.0,
     delta: float = 0.0,
     tau: float = 1.01,
-    max_sweeps: int = 20,
-    order: str = "sequential",
-    nonneg: bool = True,
     stop_rule: str = "sweep",
-    seed: int = 0,
     x0: Any = None,
-    callback: Callable[[int, np.ndarray], Any] | None = None,
+    callback: Callable[[int, np.ndarray, None], Any] | None = None,
     matrix: sp.csr_matrix | None = None,
-    residual: str = "running",
 ) -> ReconResult:
     """RESESOP-Kaczmarz with two search directions (the paper's Algorithm 2).
 
@@ -264,7 +301,20 @@ def resesop(
     eta : array_like of shape (K,) or (K, L)
         Model inexactness per view (``eta_kl = eta_k``) or per ray, >= 0. The paper uses
         ``eta_k = max_l |y_kl - y^eta_kl|``. ``eta = 0`` (with ``delta = 0``) is plain
-        SESOP-Kaczmarz, which never meets the discrepancy and runs ``max_sweeps`` sweeps.
+        SESOP-Kaczmarz, which never meets the discrepancy and runs ``n_iter`` sweeps.
+    n_iter : int, default 20
+        Sweep limit (the paper: 20); the discrepancy principle may stop earlier.
+    order : {"sequential", "random", "golden"}, default "sequential"
+        View order (:func:`~nanoct.recon.rowaction.view_order`); sequential as the paper's
+        pseudo-code, and measured best here (``docs/choices.md``).
+    nonneg : bool, default True
+        Project onto ``x >= 0`` after each sweep (not in the paper; see ``docs/choices.md``).
+    seed : int, default 0
+        Seed of the random view order.
+    residual : {"running", "exact"}, default "running"
+        ``"running"``: the root of the sum of squared residuals ``w`` met during the sweep,
+        before each ray's update (free). ``"exact"``: ``||A x - y||`` after each sweep (one
+        more pass over the matrix per sweep).
     eta_scale : float, default 1.0
         Factor on ``eta`` (the paper's 0.8 / 1.0 / 1.2 under-/over-estimation; also plays the
         role of the paper's ``rho``). Must be >= 0.
@@ -272,35 +322,22 @@ def resesop(
         Noise level per ray (the paper's data are noise-free: 0). Must be >= 0.
     tau : float, default 1.01
         Discrepancy factor, ``tau > 1`` (theory needs it; the paper does not give its value).
-    max_sweeps : int, default 20
-        Sweep limit (the paper: 20).
-    order : {"sequential", "random", "golden"}, default "sequential"
-        View order (see :mod:`nanoct.recon.kaczmarz`); sequential as the paper's pseudo-code,
-        and measured best here (see Notes).
-    nonneg : bool, default True
-        Project onto ``x >= 0`` after each sweep (not in the paper; see Notes).
     stop_rule : {"sweep", "sticky"}, default "sweep"
         ``"sweep"``: stop after a sweep in which every ray met the discrepancy principle (no
         update). ``"sticky"``: the paper's literal flags, set once a ray meets the
         discrepancy and never cleared; stop when all are set.
-    seed : int, default 0
-        Seed of the random view order.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, as the paper).
     callback : callable, optional
-        ``callback(sweep, x)`` after each sweep; returning True stops (reason ``"callback"``).
+        ``callback(iteration, x, None)`` after each sweep that did not meet the discrepancy
+        principle; returning True stops (reason ``"callback"``).
     matrix : scipy.sparse.csr_matrix, optional
         The system matrix (default :func:`nanoct.operators.system_matrix`).
-    residual : {"running", "exact"}, default "running"
-        ``"running"``: the root of the sum of squared residuals ``w`` met during the sweep,
-        before each ray's update (free). ``"exact"``: ``||A x - y||`` after each sweep (one
-        more pass over the matrix: +1.5 s for 20 sweeps at paper-parallel scale, which would
-        break the 2.5 s budget).
 
     Returns
     -------
     ReconResult
-        ``stop_reason`` is ``"discrepancy"``, ``"max_sweeps"`` or ``"callback"``;
+        ``stop_reason`` is ``"discrepancy"``, ``"max_iter"`` or ``"callback"``;
         ``params`` includes ``n_updates`` per sweep.
 
     Notes
@@ -310,101 +347,49 @@ def resesop(
     iterates are Fejer monotone with respect to every point of the intersection of all stripes
     (where that is non-empty); with ``tau > 1`` the method stops after finitely many updates
     (Blanke et al. 2020). The ``x >= 0`` projection is one more convex set and keeps this.
-
-    Defaults were chosen on validation samples of the project's simulator (paper motion
-    model, 2x finer simulation grid, seed 9001, not a test split), mean PSNR / SSIM, 20 sweeps,
-    ``tau = 1.01``, exact ``eta``:
-
-    ================================  ==================  ===================
-    variant                           tiny-parallel (4)   paper-parallel (2)
-    ================================  ==================  ===================
-    FBP                               25.0 / 0.51         29.6 / 0.74
-    sequential, no x >= 0 (literal)   26.2 / 0.46         28.9 / 0.58
-    sequential, x >= 0 (default)      30.6 / 0.79         32.6 / 0.89
-    random, x >= 0                    29.7 / 0.75         31.0 / 0.83
-    golden, x >= 0                    29.8 / 0.76         31.2 / 0.83
-    ================================  ==================  ===================
-
-    (The paper: RESESOP 30.65 / 0.868 at paper-parallel.) The literal reading has a higher PSNR
-    but a lower SSIM than FBP; the projection onto ``x >= 0`` after each sweep fixes that, and
-    sequential order beats random order for RESESOP (unlike plain Kaczmarz, where it is far
-    slower): the stripes stop the iteration early, and sequential order spreads the updates.
-    ``tau``: 1.01 beat 1.2, 1.5 and 2 (tiny-parallel, random order: 27.4, 27.1, 26.6, 25.8 dB).
-    With this data the discrepancy principle is rarely met within 20 sweeps (``eta`` does
-    not include the discretisation error of the model), as in the paper's fixed 20 sweeps.
     """
-    if order not in ORDERS:
-        raise ValueError(f"order={order!r} is unknown; use one of {ORDERS}")
-    if stop_rule not in ("sweep", "sticky"):
-        raise ValueError(f"stop_rule={stop_rule!r} must be 'sweep' or 'sticky'")
-    if residual not in ("exact", "running"):
-        raise ValueError(f"residual={residual!r} must be 'exact' or 'running'")
-    max_sweeps = _check_positive_int(max_sweeps, "max_sweeps")
-    try:
-        tau_f = float(tau)
-    except (TypeError, ValueError):
-        raise ValueError(f"tau={tau!r} must be a number > 1") from None
-    if not (tau_f > 1.0 and math.isfinite(tau_f)):
-        raise ValueError(f"tau={tau!r} must be a finite number > 1 (discrepancy principle)")
-    for name, val in (("eta_scale", eta_scale), ("delta", delta)):
-        if not (isinstance(val, (int, float, np.floating, np.integer)) and math.isfinite(val) and val >= 0):
-            raise ValueError(f"{name}={val!r} must be a finite number >= 0")
+    p = check_params(
+        op,
+        n_iter=n_iter,
+        order=order,
+        nonneg=nonneg,
+        seed=seed,
+        residual=residual,
+        eta_scale=eta_scale,
+        delta=delta,
+        tau=tau,
+        stop_rule=stop_rule,
+    )
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
-    eta_kl = expand_eta(eta, geometry)
-    width = (float(delta) + float(eta_scale) * eta_kl).ravel()
+    width = (p["delta"] + p["eta_scale"] * expand_eta(eta, geometry)).ravel()
     norms = row_norms_squared(mat)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(p["seed"])
     wo = np.zeros_like(x)
     state = np.array([-1.0, 0.0, 0.0])
     flags = np.zeros(y.shape[0], dtype=np.bool_)
+    sticky = p["stop_rule"] == "sticky"
     residuals: list[float] = []
     updates: list[int] = []
-    stop = "max_sweeps"
-    for sweep in range(max_sweeps):
-        views = view_order(geometry.n_angles, order, rng)
-        n_upd, run, n_flag = _resesop_sweep(
-            mat.indptr,
-            mat.indices,
-            mat.data,
-            norms,
-            y,
-            x,
-            width,
-            tau_f,
-            views,
-            geometry.n_det,
-            wo,
-            state,
-            flags,
-            stop_rule == "sticky",
-        )
+    stop = "max_iter"
+    for it in range(p["n_iter"]):
+        views = view_order(geometry.n_angles, p["order"], rng)
+        sweep_args = (norms, y, x, width, p["tau"], views, geometry.n_det, wo, state, flags, sticky)
+        n_upd, run, n_flag = _resesop_sweep(mat.indptr, mat.indices, mat.data, *sweep_args)
         updates.append(int(n_upd))
-        if nonneg and n_upd:
+        if p["nonneg"] and n_upd:
             clip_nonneg(x)
             if state[0] >= 0:  # x moved: <a_old, x> must be recomputed
-                state[1] = _row_dot(mat.indptr, mat.indices, mat.data, int(state[0]), x)
-        if residual == "exact":
+                r = int(state[0])
+                state[1] = row_dot_f64(mat.indices, mat.data, x, mat.indptr[r], mat.indptr[r + 1])
+        if p["residual"] == "exact":
             residuals.append(float(residual_norm(mat.indptr, mat.indices, mat.data, y, x)))
         else:
             residuals.append(math.sqrt(run))
-        done = n_upd == 0 if stop_rule == "sweep" else n_flag == y.shape[0]
-        if done:
+        if (n_upd == 0) if not sticky else (n_flag == y.shape[0]):
             stop = "discrepancy"
             break
-        if callback is not None and callback(sweep, x.reshape(geometry.image_shape)):
+        if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
             stop = "callback"
             break
-    params = dict(
-        method="resesop",
-        eta_scale=float(eta_scale),
-        delta=float(delta),
-        tau=tau_f,
-        max_sweeps=max_sweeps,
-        order=order,
-        nonneg=bool(nonneg),
-        stop_rule=stop_rule,
-        seed=seed,
-        residual=residual,
-        n_updates=updates,
-    )
+    params = {"method": "resesop", **p, "n_updates": updates}
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, params)

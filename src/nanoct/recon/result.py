@@ -7,7 +7,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ReconResult"]
+__all__ = ["STOP_REASONS", "ReconResult"]
+
+#: Why a method stopped: a direct method (``"direct"``), the iteration limit ``n_iter``
+#: (``"max_iter"``), the discrepancy principle (``"discrepancy"``), or the callback (``"callback"``).
+STOP_REASONS = ("direct", "max_iter", "discrepancy", "callback")
 
 
 @dataclass
@@ -21,7 +25,7 @@ class ReconResult:
     residuals : list of float
         Data residual ``||A x - y||_2`` after each sweep/iteration (empty for direct methods).
     stop_reason : str
-        Why the method stopped, e.g. ``"direct"``, ``"max_sweeps"``, ``"discrepancy"``.
+        Why the method stopped, one of :data:`STOP_REASONS`.
     motion : ndarray of shape (K,), float32, optional
         Estimated per-view object shift in pixels along the detector axis (Dremel), else None.
     params : dict
@@ -35,6 +39,6 @@ class ReconResult:
     params: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def n_sweeps(self) -> int:
+    def iterations(self) -> int:
         """Number of sweeps/iterations performed."""
         return len(self.residuals)

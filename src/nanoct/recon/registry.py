@@ -1,0 +1,204 @@
+"""Registry of reconstruction methods: the one place that lists them.
+
+Each method is registered by name with the import paths of its solver and of its parameter
+check (both imported only when used, so reading the registry costs nothing), whether it needs
+the per-view model error ``eta``, whether it estimates motion, how its output is named in a
+store, and a one-line help. :mod:`nanoct.recon.batch`, the CLI's ``reconstruct`` command and
+:mod:`nanoct.reproduce` read it. To add a method, write its module (a solver following the
+contract of :mod:`nanoct.recon` and a ``check_params(op, **params)`` with the same keyword names
+and defaults) and add one entry::
+
+    METHODS["sart"] = MethodSpec("nanoct.recon.sart:sart", "nanoct.recon.sart:check_params", "SART")
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import NanoctError
+from ..geometry import Geometry
+
+__all__ = [
+    "METHODS",
+    "MethodSpec",
+    "check_method_params",
+    "method_help",
+    "method_names",
+    "method_spec",
+    "methods_with_eta",
+    "output_name",
+    "reconstruct_command",
+]
+
+
+def _plain_name(method: str, params: dict[str, Any]) -> str:
+    return method
+
+
+def _eta_name(method: str, params: dict[str, Any]) -> str:
+    """``resesop`` for the paper's eta, ``resesop_eta0.8`` for a scaled one."""
+    scale = params.get("eta_scale", 1.0)
+    return method if np.isclose(scale, 1.0) else f"{method}_eta{scale:g}"
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A reconstruction method: where it lives and how the tools treat it.
+
+    Attributes
+    ----------
+    target : str
+        ``"module:function"`` of the solver ``f(op, sino[, eta], **params) -> ReconResult``.
+    checker : str
+        ``"module:function"`` of its parameter check ``check_params(op, **params) -> dict``
+        (keyword-only parameters = the parameters a user may set).
+    help : str
+        One line for the CLI.
+    needs_eta : bool
+        The solver takes the per-view model error ``eta`` as third argument (scaled by the
+        ``eta_scale`` parameter, the CLI's ``--eta-scale``).
+    estimates_motion : bool
+        The result carries per-view shifts (stored as ``reconstructions/<name>_shifts``).
+    output_name : callable
+        ``output_name(method, params) -> str``: the default store name of a result.
+    """
+
+    target: str
+    checker: str
+    help: str
+    needs_eta: bool = False
+    estimates_motion: bool = False
+    output_name: Callable[[str, dict[str, Any]], str] = _plain_name
+
+    def solver(self) -> Callable[..., Any]:
+        """The solver function (imported on first use)."""
+        return _load(self.target)
+
+    def check_function(self) -> Callable[..., dict[str, Any]]:
+        """The parameter check ``check_params(op, **params)`` (imported on first use)."""
+        return _load(self.checker)
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """The parameters a user may set (keyword-only parameters of the check)."""
+        sig = inspect.signature(self.check_function())
+        return tuple(n for n, p in sig.parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+
+def _load(target: str) -> Callable[..., Any]:
+    module, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+#: Registered methods, in the order the CLI lists them.
+METHODS: dict[str, MethodSpec] = {
+    "fbp": MethodSpec("nanoct.recon.fbp:fbp", "nanoct.recon.fbp:check_params", "filtered back projection (direct)"),
+    "kaczmarz": MethodSpec(
+        "nanoct.recon.kaczmarz:kaczmarz", "nanoct.recon.kaczmarz:check_params", "Kaczmarz (ART) sweeps"
+    ),
+    "dremel": MethodSpec(
+        "nanoct.recon.dremel:dremel",
+        "nanoct.recon.dremel:check_params",
+        "Kaczmarz with per-view shift estimation (Algorithm 1)",
+        estimates_motion=True,
+    ),
+    "resesop": MethodSpec(
+        "nanoct.recon.resesop:resesop",
+        "nanoct.recon.resesop:check_params",
+        "RESESOP-Kaczmarz with model error eta (Algorithm 2)",
+        needs_eta=True,
+        output_name=_eta_name,
+    ),
+}
+
+
+def method_names() -> tuple[str, ...]:
+    """Registered method names, in registry order."""
+    return tuple(METHODS)
+
+
+def methods_with_eta() -> tuple[str, ...]:
+    """Names of the methods that take the model error eta (and ``--eta-scale``)."""
+    return tuple(name for name, spec in METHODS.items() if spec.needs_eta)
+
+
+def method_help() -> str:
+    """One line per method, ``name: help``, for the CLI."""
+    return "; ".join(f"{name}: {spec.help}" for name, spec in METHODS.items())
+
+
+def method_spec(method: str) -> MethodSpec:
+    """The registry entry of ``method``.
+
+    Raises
+    ------
+    NanoctError
+        If no method of that name is registered; the message lists the registered ones.
+    """
+    if method not in METHODS:
+        raise NanoctError(f"--method {method!r} is unknown; use one of {', '.join(METHODS)}")
+    return METHODS[method]
+
+
+def output_name(method: str, params: dict[str, Any] | None = None) -> str:
+    """Default store name of a reconstruction by ``method`` with ``params``, e.g. ``resesop_eta0.8``."""
+    return method_spec(method).output_name(method, dict(params or {}))
+
+
+def _flag(param: str) -> str:
+    return "--eta-scale" if param == "eta_scale" else f"--param {param}"
+
+
+def check_method_params(method: str, params: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
+    """Check the user parameters of ``method`` for ``geometry`` before any work is done.
+
+    Returns
+    -------
+    dict
+        The parameters with defaults filled in and values normalised.
+
+    Raises
+    ------
+    NanoctError
+        For an unknown method or parameter name, or a bad value; the message names the CLI
+        flag (``--param NAME`` or ``--eta-scale``) and the accepted names or values.
+    """
+    spec = method_spec(method)
+    accepted = spec.parameter_names()
+    unknown = sorted(set(params) - set(accepted))
+    if unknown:
+        raise NanoctError(
+            f"{', '.join(_flag(u) for u in unknown)}: not a parameter of --method {method}; "
+            f"accepted: {', '.join(accepted)}"
+        )
+    try:
+        return spec.check_function()(geometry, **params)
+    except (TypeError, ValueError) as exc:
+        name = str(exc).partition("=")[0]
+        flag = _flag(name) if name in accepted else "a parameter"
+        raise NanoctError(f"{flag} of --method {method}: {exc}") from exc
+
+
+def reconstruct_command(path: str | os.PathLike[str], name: str) -> str:
+    """The ``nanoct reconstruct`` command that makes the reconstruction ``name`` (a hint for messages).
+
+    Default output names (``fbp``, ``resesop_eta0.8``) give the exact command; any other name
+    gives a template with ``--name``.
+    """
+    for method in METHODS:
+        if name == method:
+            return f"nanoct reconstruct {path} --method {method}"
+        if METHODS[method].needs_eta and name.startswith(f"{method}_eta"):
+            scale = name[len(method) + 4 :]
+            try:
+                if output_name(method, {"eta_scale": float(scale)}) == name:
+                    return f"nanoct reconstruct {path} --method {method} --eta-scale {scale}"
+            except ValueError:
+                pass
+    return f"nanoct reconstruct {path} --method <{'|'.join(METHODS)}> --name {name}"

@@ -1,0 +1,289 @@
+"""The row-action core shared by Kaczmarz, Dremel and RESESOP-Kaczmarz.
+
+The unperturbed ray transform is the float32 CSR matrix of :func:`nanoct.operators.system_matrix`
+(row ``k*L + l`` is ray ``(k, l)``); a *sweep* visits every view once in a chosen *view order*
+and, within a view, the rays in detector order ``l = 0 .. L-1``. This module holds what the
+three methods share: problem setup (:func:`prepare_problem`), view orders, the row product
+:func:`row_dot`, residuals, the projection onto ``x >= 0``, one per-matrix cache of derived
+arrays, and the checks of the common arguments (:func:`check_common`).
+
+View orders (:func:`view_order`)
+--------------------------------
+``"sequential"``
+    ``0, 1, ..., K-1`` every sweep, as in the paper's pseudo-code. Consecutive views are
+    nearly parallel, so their hyperplanes are nearly parallel and a sweep makes little
+    progress (see ``docs/choices.md``).
+``"random"``
+    A fresh random permutation of the views every sweep, drawn from ``seed``.
+``"golden"``
+    A fixed low-discrepancy order: position ``i`` visits view ``~ K * frac(i * g)`` with
+    ``g = (sqrt(5) - 1) / 2``, so consecutive views are far apart in angle (deterministic).
+
+Non-negativity
+--------------
+Densities are non-negative, so every iterative method can project onto ``{x >= 0}``.
+Kaczmarz and RESESOP apply the projection after each sweep (an alternating projection
+between "one sweep" and the closed convex orthant); Dremel applies it within each view step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from ..geometry import Geometry
+from ..operators import RayTransform, system_matrix
+from ..validation import check_array, check_bool, check_choice, check_float, check_int
+
+__all__ = [
+    "AUTO_RELAXATION",
+    "ORDERS",
+    "RESIDUALS",
+    "auto_relaxation",
+    "check_common",
+    "clip_nonneg",
+    "matrix_cache",
+    "prepare_problem",
+    "residual_norm",
+    "resolve_geometry",
+    "row_dot",
+    "row_dot_f64",
+    "row_norms_squared",
+    "unsigned_indices",
+    "view_order",
+]
+
+#: Names of the view orders understood by :func:`view_order`.
+ORDERS = ("sequential", "random", "golden")
+
+#: How a method records its residual history: ``"exact"`` ``||A x - y||`` after each sweep
+#: (one more pass over the matrix) or ``"running"`` (free: from the residuals met during it).
+RESIDUALS = ("exact", "running")
+
+#: The default relaxation of Kaczmarz and Dremel is ``min(1, AUTO_RELAXATION / K)`` for K views
+#: (the best relaxation on motion-perturbed data scales like ``1 / K``; see ``docs/choices.md``).
+AUTO_RELAXATION = 8.0
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+def auto_relaxation(n_views: int) -> float:
+    """``min(1, AUTO_RELAXATION / n_views)``: the default relaxation for ``n_views`` views."""
+    return min(1.0, AUTO_RELAXATION / n_views)
+
+
+def view_order(n_views: int, order: str, rng: np.random.Generator | None = None) -> np.ndarray:
+    """The order in which one sweep visits the views.
+
+    Parameters
+    ----------
+    n_views : int
+        Number of views K.
+    order : {"sequential", "random", "golden"}
+        See the module docstring.
+    rng : numpy.random.Generator, optional
+        Source of the permutation for ``"random"`` (required there).
+
+    Returns
+    -------
+    ndarray of shape (K,), int64
+        A permutation of ``0 .. K-1``.
+    """
+    order = check_choice(order, "order", ORDERS)
+    if order == "sequential":
+        return np.arange(n_views, dtype=np.int64)
+    if order == "random":
+        if rng is None:
+            raise ValueError("order='random' needs a random generator")
+        return rng.permutation(n_views).astype(np.int64)
+    keys = np.mod(np.arange(n_views) * _GOLDEN, 1.0)
+    # rank of key i = view visited at position i: a permutation close to K * frac(i g)
+    return np.argsort(np.argsort(keys, kind="stable"), kind="stable").astype(np.int64)
+
+
+def check_common(
+    geometry: Geometry,
+    *,
+    n_iter: Any,
+    relaxation: Any = None,
+    order: Any,
+    nonneg: Any,
+    seed: Any,
+    residual: Any,
+) -> dict[str, Any]:
+    """Check the arguments every row-action method shares; return them normalised.
+
+    ``relaxation=None`` becomes :func:`auto_relaxation` of the geometry's number of views;
+    pass ``relaxation=False`` for a method without one (it is then left out of the result).
+
+    Raises
+    ------
+    ValueError
+        Naming the first bad argument and its accepted values.
+    """
+    out: dict[str, Any] = {"n_iter": check_int(n_iter, "n_iter", 1)}
+    if relaxation is not False:
+        if relaxation is None:
+            relaxation = auto_relaxation(geometry.n_angles)
+        # Kaczmarz / SART converge for 0 < omega < 2
+        out["relaxation"] = check_float(relaxation, "relaxation", low=0.0, high=2.0, low_open=True, high_open=True)
+    out["order"] = check_choice(order, "order", ORDERS)
+    out["nonneg"] = check_bool(nonneg, "nonneg")
+    out["seed"] = check_int(seed, "seed", 0)
+    out["residual"] = check_choice(residual, "residual", RESIDUALS)
+    return out
+
+
+def resolve_geometry(op: Geometry | RayTransform) -> Geometry:
+    """Accept a :class:`Geometry` or an unperturbed :class:`RayTransform` with ``oversample=1``."""
+    if isinstance(op, Geometry):
+        return op
+    if isinstance(op, RayTransform):
+        if op.motion is not None:
+            raise ValueError(
+                "the reconstruction methods use the unperturbed (inexact) operator; "
+                "pass a RayTransform without motion, or its geometry"
+            )
+        if op.oversample != 1:
+            raise ValueError("pass a RayTransform with oversample=1 (the reconstruction grid)")
+        return op.geometry
+    raise ValueError(f"expected a Geometry or RayTransform, got {type(op).__name__}")
+
+
+def _check_matrix(matrix: Any, shape: tuple[int, int]) -> sp.csr_matrix:
+    if not sp.issparse(matrix) or matrix.format != "csr":
+        raise ValueError("matrix must be a scipy CSR matrix (see nanoct.operators.system_matrix)")
+    if matrix.shape != shape:
+        raise ValueError(f"matrix has shape {matrix.shape}, expected {shape} for this geometry")
+    if matrix.dtype != np.float32:
+        matrix = matrix.astype(np.float32)
+    if not matrix.has_sorted_indices:
+        matrix = matrix.sorted_indices()
+    return matrix
+
+
+def prepare_problem(
+    op: Geometry | RayTransform,
+    sino: Any,
+    matrix: sp.csr_matrix | None,
+    x0: Any,
+) -> tuple[Geometry, np.ndarray, sp.csr_matrix, np.ndarray]:
+    """Validate inputs; return geometry, flat float32 sinogram, CSR matrix and float32 start image."""
+    geometry = resolve_geometry(op)
+    y = check_array(sino, "sinogram", shape=geometry.sino_shape).ravel()
+    shape = (geometry.n_angles * geometry.n_det, geometry.n * geometry.n)
+    matrix = system_matrix(geometry) if matrix is None else _check_matrix(matrix, shape)
+    if x0 is None:
+        x = np.zeros(shape[1], dtype=np.float32)
+    else:
+        x = check_array(x0, "x0", shape=geometry.image_shape).ravel().copy()
+    return geometry, y, matrix, x
+
+
+# ------------------------------------------------------------------ one cache per matrix
+_CACHE: dict[int, tuple[sp.csr_matrix, dict[Any, Any]]] = {}
+_CACHE_SIZE = 4
+
+
+def matrix_cache(matrix: sp.csr_matrix, key: Any, compute: Callable[[sp.csr_matrix], Any]) -> Any:
+    """``compute(matrix)``, computed once per matrix object and ``key`` (the last few matrices kept).
+
+    Entries hold a reference to the matrix, so an ``id`` is never reused while its entry lives.
+    """
+    entry = _CACHE.get(id(matrix))
+    if entry is None or entry[0] is not matrix:
+        if len(_CACHE) >= _CACHE_SIZE:
+            _CACHE.pop(next(iter(_CACHE)))
+        entry = (matrix, {})
+        _CACHE[id(matrix)] = entry
+    if key not in entry[1]:
+        entry[1][key] = compute(matrix)
+    return entry[1][key]
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_norms2(indptr, data):  # pragma: no cover - compiled
+    m = indptr.shape[0] - 1
+    out = np.zeros(m, dtype=np.float64)
+    for r in range(m):
+        s = 0.0
+        for p in range(indptr[r], indptr[r + 1]):
+            d = data[p]
+            s += d * d
+        out[r] = s
+    return out
+
+
+def row_norms_squared(matrix: sp.csr_matrix) -> np.ndarray:
+    """Squared Euclidean norms of the rows of a CSR matrix (float64, cached per matrix)."""
+    return matrix_cache(matrix, "row_norms2", lambda m: _row_norms2(m.indptr, m.data))
+
+
+def unsigned_indices(matrix: sp.csr_matrix) -> np.ndarray:
+    """The column indices of a CSR matrix viewed as unsigned integers (no copy).
+
+    CSR column indices are non-negative, so the view is exact; numba then omits the
+    wrap-around handling of negative indices in the kernels' gathers and scatters.
+    """
+    ind = matrix.indices
+    return ind.view(np.uint32 if ind.dtype.itemsize == 4 else np.uint64)
+
+
+# ------------------------------------------------------------------ kernels
+#: LLVM flags of :func:`row_dot`: reassociation lets the reduction vectorise (AVX2/AVX-512
+#: gathers); no ``nnan``/``ninf`` assumptions.
+_DOT_FASTMATH = {"reassoc", "nsz", "contract"}
+
+
+def _make_row_dot(acc: type, fastmath: Any) -> Callable[..., float]:
+    """Compile the row product with accumulator type ``acc`` (one source, one kernel per dtype)."""
+
+    def row_dot(indices, data, x, p0, p1):  # pragma: no cover - compiled
+        idx = indices[p0:p1]
+        a = data[p0:p1]
+        s = acc(0.0)
+        for q in range(p1 - p0):
+            s += a[q] * x[idx[q]]
+        return np.float64(s)
+
+    return numba.njit(cache=True, nogil=True, fastmath=fastmath)(row_dot)
+
+
+#: ``sum(data[p] * x[indices[p]] for p in range(p0, p1))`` with float32 products and partial
+#: sums; the summation order is left to the compiler (vectorised gathers, faster than a
+#: sequential float64 sum: ``benchmarks/README.md``); the relative rounding error is a few float32 ulps, the order of
+#: storing ``x`` in float32. Pass ``indices`` unsigned (:func:`unsigned_indices`) to spare the
+#: negative-index checks. Used by Kaczmarz, Dremel and :func:`residual_norm`.
+row_dot = _make_row_dot(np.float32, _DOT_FASTMATH)
+
+#: The same row product with float32 products summed in float64 in sequential order (RESESOP,
+#: whose stripe tests compare residuals with small widths).
+row_dot_f64 = _make_row_dot(np.float64, False)
+
+
+@numba.njit(cache=True, nogil=True)
+def residual_norm(indptr, indices, data, y, x):  # pragma: no cover - compiled
+    """``||A x - y||_2`` for a CSR matrix given by its arrays (numba).
+
+    Row products ``<a, x>`` as in :func:`row_dot` (float32 accumulation), the sum of squares
+    in float64.
+    """
+    m = indptr.shape[0] - 1
+    tot = 0.0
+    for r in range(m):
+        d = row_dot(indices, data, x, indptr[r], indptr[r + 1]) - y[r]
+        tot += d * d
+    return math.sqrt(tot)
+
+
+@numba.njit(cache=True, nogil=True)
+def clip_nonneg(x):  # pragma: no cover - compiled
+    """In-place projection onto ``{x >= 0}``."""
+    for j in range(x.shape[0]):
+        if x[j] < 0.0:
+            x[j] = 0.0
