@@ -39,7 +39,7 @@ def test_reproduce_toy_study(tmp_path):
     inputs = ["fbp", "dremel", "resesop", "resesop_eta0.8", "resesop_eta1.2"]
     for i in inputs:
         assert i in results and f"{i}+unet" in results and f"{i}+cinn-res" in results
-        assert results[f"{i}+cinn-res"]["n"] == 3 and "calibration" in results[f"{i}+cinn-res"]
+        assert results[f"{i}+cinn-res"]["n"] == 3 and "uncertainty" in results[f"{i}+cinn-res"]
     assert "fbp+unet@resesop" in results and "fbp+cinn-res@resesop" not in results  # mixing for unet only
     assert "rows = trained on" in text and "uncertainty.png" in text
     for png in (
