@@ -187,25 +187,27 @@ def calibrate(
     store = store if isinstance(store, DataStore) else DataStore.open(store)
     run = Path(run_dir)
     ckpt_path = run / f"{checkpoint}.pt"
-    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
-    if not model_class(str(ckpt["model"])).has_uncertainty:
-        raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
-    kwargs = dict(reconstruct_kwargs or {})
+    entries = load_calibration(run)
     key = {
         "format": CALIBRATION_FORMAT,
         "checkpoint": checkpoint,
-        "checkpoint_sha256": _sha256(ckpt_path),
-        "epoch": int(ckpt["epoch"]),
+        "checkpoint_sha256": _sha256(ckpt_path) if ckpt_path.is_file() else None,
         "store": str(store.path.resolve()),
-        "input": str(ckpt["input"]),
-        "reconstruct": json.loads(json.dumps(kwargs)),
-        "n_samples": _n_samples(str(ckpt["model"]), kwargs),
+        "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
         "split": "val",
     }
-    entries = load_calibration(run)
     old = entries.get(checkpoint)
     if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
-        return old
+        return old  # the same checkpoint file (so the same model, input and epoch), data set and M
+    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
+    if not model_class(str(ckpt["model"])).has_uncertainty:
+        raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
+    kwargs = key["reconstruct"]
+    key |= {
+        "epoch": int(ckpt["epoch"]),
+        "input": str(ckpt["input"]),
+        "n_samples": _n_samples(str(ckpt["model"]), kwargs),
+    }
     val = store.indices("val")
     if val.size == 0:
         raise NanoctError(
