@@ -127,6 +127,10 @@ def test_predict_applies_the_factor(setup, tmp_path):
     recovered, cal = read_std(store, name, test)
     np.testing.assert_allclose(recovered, raw, rtol=1e-6)
     assert cal["edge_scale"] == entry["edge_scale"]
+    with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
+        predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")
+    predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", overwrite=True)
+    np.testing.assert_array_equal(store.read_uncertainty("raw", test), store.read_uncertainty(name, test))
 
 
 def test_bad_input(setup, tmp_path):

@@ -142,7 +142,7 @@ def predict(
         store.prepare_reconstruction(out, params, uncertainty=sampling)
     except StoreError as exc:
         raise NanoctError(
-            f"reconstructions/{out} in {store.path} was made with another network or checkpoint "
+            f"reconstructions/{out} in {store.path} was made with another network, checkpoint or std calibration "
             f"({store.reconstruction_params(out)}); use --overwrite to replace it"
         ) from exc
     todo = indices[~store.reconstruction_done(out, indices)]
