@@ -9,11 +9,12 @@ from nanoct.evaluate import (
     evaluate_store,
     format_mixing,
     format_table,
+    format_uncertainty_table,
     mixing_matrices,
     parse_name,
     write_report_tables,
 )
-from nanoct.metrics import psnr
+from nanoct.metrics import coverage, edge_std, psnr, support_mask
 from nanoct.store import DataStore
 
 
@@ -49,18 +50,34 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     store = DataStore.open(tiny_store.path, mode="r+")
     test = store.indices("test")
     gts = store.read_phantoms(test)
-    store.prepare_reconstruction("eval_truth+fake", {"t": 1}, uncertainty=True)
+    scale = 0.5  # as predict stores it: calibrated std = scale * raw, scale in the parameters
+    store.prepare_reconstruction(
+        "eval_truth+fake", {"calibration": {"scale": scale, "edge_scale": 3.0, "edge_sigma": 1.5}}, uncertainty=True
+    )
     rng = np.random.default_rng(0)
     for i, g in zip(test, gts):
-        std = np.full(g.shape, 0.05, np.float32)
-        store.write_reconstruction(
-            "eval_truth+fake", int(i), g + rng.normal(0, 0.05, g.shape).astype(np.float32), std=std
-        )
+        std = rng.uniform(0.02, 0.08, g.shape).astype(np.float32)  # errors drawn with this (raw) std
+        store.write_reconstruction("eval_truth+fake", int(i), g + rng.normal(0, 1, g.shape) * std, std=scale * std)
     results = evaluate_store(store, "test", names=["eval_truth+fake"])
     r = results["eval_truth+fake"]
-    expected = np.mean([psnr(store.read_reconstruction("eval_truth+fake", [i])[0], g) for i, g in zip(test, gts)])
+    recos = store.read_reconstruction("eval_truth+fake", test)
+    expected = np.mean([psnr(x, g) for x, g in zip(recos, gts)])
     assert r["psnr_mean"] == pytest.approx(expected) and r["n"] == len(test)
-    assert r["calibration"]["observed"]["1"] == pytest.approx(0.683, abs=0.05)
+    u = r["uncertainty"]
+    assert u["all"]["scale"] == scale and u["all"]["mean_std"] == pytest.approx(0.05, rel=0.01)  # raw = stored / scale
+    assert u["all"]["coverage"]["raw"]["1"] == pytest.approx(0.683, abs=0.05)
+    assert u["all"]["coverage"]["calibrated"]["1"] == pytest.approx(
+        coverage(recos - gts, store.read_uncertainty("eval_truth+fake", test))["1"]
+    )
+    mask = support_mask(gts)
+    assert u["support"]["n_pixels"] == mask.sum() < u["all"]["n_pixels"]
+    edge = r["edge_baseline"]
+    assert edge["sigma"] == 1.5 and edge["scale"] == 3.0
+    raw_edge = edge_std(recos, 1.5)
+    ref = coverage((recos - gts)[mask], 3.0 * raw_edge[mask])
+    assert edge["support"]["coverage"]["calibrated"] == pytest.approx(ref)
+    assert r["std_error_corr"] == u["all"]["std_error_corr"] > 0.3
+    assert u["all"]["ause_ratio"] < 0.8
     md, js = write_report_tables(store, results, tmp_path)
     payload = json.loads(js.read_text())
     assert set(payload["results"]["eval_truth+fake"]) >= {
@@ -70,8 +87,29 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
         "ssim_std",
         "n",
         "std_error_corr",
-        "calibration",
+        "uncertainty",
+        "edge_baseline",
     }
-    assert "within 1/2/3 std" in md.read_text()
+    text = md.read_text()
+    assert "within 1/2/3 std, raw [%]" in text and "| eval_truth+fake | support |" in text
     store.delete_reconstruction("eval_truth+fake")
     assert not store.has_uncertainty("eval_truth+fake")
+
+
+def test_uncertainty_table_without_calibration():
+    u = {
+        "std_error_corr": 0.5,
+        "coverage": {"raw": {"1": 0.9, "2": 0.95, "3": 1.0}, "calibrated": None},
+        "scale": None,
+        "ause": 0.1,
+        "ause_random": 0.4,
+        "ause_ratio": 0.25,
+    }
+    edge = {"sigma": 1.0, "scale": None, "all": u, "support": u}
+    results = {
+        "fbp": _scores(20),
+        "fbp+cinn": _scores(21) | {"uncertainty": {"all": u, "support": u}} | {"edge_baseline": edge},
+    }
+    table = format_uncertainty_table(results)
+    assert "| fbp+cinn | all | 0.500 | 90 / 95 / 100 | - | - | 0.100 / 0.400 (0.25) | 0.500 | - |" in table
+    assert "| fbp |" not in table and format_uncertainty_table({"fbp": _scores(20)}) == ""

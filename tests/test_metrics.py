@@ -2,7 +2,19 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from nanoct.metrics import psnr, ssim, summarize
+from nanoct.metrics import (
+    GAUSSIAN_COVERAGE,
+    coverage,
+    edge_std,
+    fit_std_scale,
+    psnr,
+    reliability,
+    sparsification,
+    ssim,
+    summarize,
+    support_mask,
+    uncertainty_summary,
+)
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.3])
@@ -44,18 +56,122 @@ def test_bad_input(rng):
 
 
 def test_uncertainty_summary_on_a_calibrated_gaussian(rng):
-    from nanoct.metrics import uncertainty_summary
-
     std = rng.uniform(0.01, 0.2, (4, 32, 32))
     gts = rng.random((4, 32, 32))
     recos = gts + rng.normal(0, 1, std.shape) * std  # errors drawn with exactly that std
     u = uncertainty_summary(std, recos, gts)
-    for k, expected in u["calibration"]["expected"].items():
-        assert u["calibration"]["observed"][k] == pytest.approx(expected, abs=0.02)
+    for k, expected in u["coverage"]["expected"].items():
+        assert u["coverage"]["raw"][k] == pytest.approx(expected, abs=0.02)
+    assert u["coverage"]["calibrated"] is None and u["n_pixels"] == std.size
     assert u["std_error_corr"] > 0.4  # larger std, larger errors
-    over = uncertainty_summary(std * 3, recos, gts)  # over-dispersed: covers too much
-    assert over["calibration"]["observed"]["1"] > 0.95
+    assert u["ause_ratio"] < 0.8  # ordering by std beats random order
+    over = uncertainty_summary(std * 3, recos, gts, scale=1 / 3)  # over-dispersed raw, calibrated by 1/3
+    assert over["coverage"]["raw"]["1"] > 0.95
+    assert over["coverage"]["calibrated"] == pytest.approx(u["coverage"]["raw"])
+    assert over["ause"] == pytest.approx(u["ause"])  # the ordering does not depend on the scale
     unrelated = uncertainty_summary(rng.permutation(std.ravel()).reshape(std.shape), recos, gts)
     assert abs(unrelated["std_error_corr"]) < 0.1
     with pytest.raises(ValueError, match="negative"):
         uncertainty_summary(-std, recos, gts)
+    with pytest.raises(ValueError, match="scale"):
+        uncertainty_summary(std, recos, gts, scale=0.0)
+
+
+def test_coverage_and_reliability_against_numpy(rng):
+    err = rng.normal(0, 1, 5000) * rng.uniform(0.5, 2, 5000)
+    std = rng.uniform(0.1, 2, 5000)
+    std[:10] = 0.0
+    err[:5] = 0.0  # 0 within 0 std counts as covered
+    cov = coverage(err, std, ks=(1, 2, 3, 0.5))
+    for k in (1, 2, 3, 0.5):
+        assert cov[f"{k:g}"] == np.mean(np.abs(err) <= k * std)
+    levels = np.array([0.1, 0.5, GAUSSIAN_COVERAGE["1"], 0.9, 0.99])
+    from scipy.stats import norm
+
+    ks = norm.ppf((1 + levels) / 2)
+    expected = [np.mean(np.abs(err) <= k * std) for k in ks]
+    np.testing.assert_allclose(reliability(err, std, levels), expected, atol=1e-12)
+    # errors drawn from N(0, std^2): observed = nominal
+    std = rng.uniform(0.1, 2, 200_000)
+    np.testing.assert_allclose(reliability(rng.normal(0, 1, std.size) * std, std, levels), levels, atol=0.005)
+    with pytest.raises(ValueError, match="strictly between"):
+        reliability(err, std[:5000], np.array([0.5, 1.0]))
+
+
+def test_fit_std_scale(rng):
+    std = rng.uniform(0.01, 0.2, 100_000)
+    err = rng.normal(0, 1, std.size) * std
+    s = fit_std_scale(err, 4 * std)  # four times too wide: the fitted factor undoes it
+    assert s == pytest.approx(0.25, rel=0.02)
+    assert coverage(err, s * 4 * std)["1"] == pytest.approx(GAUSSIAN_COVERAGE["1"], abs=1e-4)
+    assert coverage(err, s * 4 * std)["1"] >= GAUSSIAN_COVERAGE["1"]
+    assert fit_std_scale(err, std, level=0.9545) == pytest.approx(2.0, rel=0.02)
+    with pytest.raises(ValueError, match="no finite positive"):
+        fit_std_scale(err, np.where(np.arange(std.size) < 50_000, 0.0, std))  # zero std on half the pixels
+
+
+def _brute_force_mae_curve(err, key, fractions):
+    """Remove the pixels with the largest ``key`` one fraction at a time and average the rest."""
+    out = []
+    for f in fractions:
+        keep = np.argsort(-key, kind="stable")[int(np.floor(f * err.size + 1e-9)) :]
+        out.append(err[keep].mean() / err.mean())
+    return np.array(out)
+
+
+def test_sparsification(rng):
+    err = np.abs(rng.normal(0, 1, 20_000))
+    exact = sparsification(err, err)  # std = |error|: the oracle's order, AUSE 0
+    assert exact["ause"] == pytest.approx(0, abs=1e-12) and exact["curve"][0] == pytest.approx(1)
+    assert exact["ause_random"] > 0.3
+    random = sparsification(err, rng.random(err.size))  # an unrelated std: random order
+    assert random["ause"] == pytest.approx(random["ause_random"], rel=0.05)
+    assert random["ause_ratio"] == pytest.approx(1, abs=0.05)
+    flat = sparsification(err, np.full(err.size, 0.3))  # all tied: exactly the random curve
+    np.testing.assert_allclose(flat["curve"], 1.0)
+    assert flat["ause_ratio"] == pytest.approx(1, abs=1e-12)
+    inverse = sparsification(err, 1 / (err + 1e-3))  # the worst order: far above random
+    assert inverse["ause_ratio"] > 1.5
+    # against a brute-force implementation on a small case without ties
+    e, s = np.abs(rng.normal(0, 1, 300)), rng.random(300) + np.abs(rng.normal(0, 1, 300))
+    f = np.linspace(0, 0.9, 10)
+    sp = sparsification(e, s, f)
+    np.testing.assert_allclose(sp["curve"], _brute_force_mae_curve(e, s, f), rtol=1e-12)
+    np.testing.assert_allclose(sp["oracle"], _brute_force_mae_curve(e, e, f), rtol=1e-12)
+    assert sp["ause"] == pytest.approx(np.trapezoid(sp["curve"] - sp["oracle"], f))
+    assert np.isnan(sparsification(np.zeros(10), np.ones(10))["ause"])
+    with pytest.raises(ValueError, match="increasing"):
+        sparsification(e, s, np.array([0.0, 1.0]))
+
+
+def test_support_mask_and_restriction():
+    gts = np.zeros((2, 15, 15))
+    gts[0, 7, 7] = 1.0  # one object pixel in the middle of image 0, none in image 1
+    mask = support_mask(gts)
+    assert mask[0].sum() == 13  # a disk of radius 2: 1 + 4 + 4 + 4 pixels
+    assert mask[0, 7, 9] and mask[0, 8, 8] and not mask[0, 9, 9]
+    assert not mask[1].any()  # the dilation stays within its image
+    assert support_mask(gts[0], radius=0).sum() == 1
+    # background pixels: huge errors and std; support: error = std. Restricted, the std is exact.
+    std = np.full(gts.shape, 5.0)
+    recos = gts + np.where(mask, 0.0, 3.0)
+    recos[0, 7, 7] += 0.2
+    std[mask] = np.abs(recos - gts)[mask] + 0.01
+    u_all = uncertainty_summary(std, recos, gts)
+    u_in = uncertainty_summary(std, recos, gts, mask=mask)
+    assert u_in["n_pixels"] == 13 and u_all["n_pixels"] == gts.size
+    assert u_in["mean_abs_error"] == pytest.approx(0.2 / 13)
+    assert u_in["coverage"]["raw"]["1"] == 1.0 and u_in["ause"] == pytest.approx(0, abs=1e-12)
+    assert u_all["mean_abs_error"] > 2
+
+
+def test_edge_std():
+    img = np.zeros((20, 20))
+    img[:, 10:] = 1.0  # a vertical edge between columns 9 and 10
+    e = edge_std(img, sigma=0)
+    assert e[5, 9] == pytest.approx(0.5) and e[5, 10] == pytest.approx(0.5) and e[5, 3] == 0  # |grad| / px
+    smooth = edge_std(img)
+    assert smooth[5].argmax() in (9, 10) and smooth[5, 8] > 0 and smooth[5, 0] < 1e-6
+    stack = np.stack([img, img.T])
+    np.testing.assert_allclose(edge_std(stack), np.stack([smooth, edge_std(img.T)]))  # image by image
+    assert not edge_std(np.ones((8, 8))).any()

@@ -39,16 +39,26 @@ def test_reproduce_toy_study(tmp_path):
     inputs = ["fbp", "dremel", "resesop", "resesop_eta0.8", "resesop_eta1.2"]
     for i in inputs:
         assert i in results and f"{i}+unet" in results and f"{i}+cinn-res" in results
-        assert results[f"{i}+cinn-res"]["n"] == 3 and "calibration" in results[f"{i}+cinn-res"]
+        assert results[f"{i}+cinn-res"]["n"] == 3 and "uncertainty" in results[f"{i}+cinn-res"]
     assert "fbp+unet@resesop" in results and "fbp+cinn-res@resesop" not in results  # mixing for unet only
-    assert "rows = trained on" in text and "uncertainty.png" in text
+    assert "rows = trained on" in text and "| fbp+cinn-res | support |" in text
+    for i in inputs:  # predict calibrated each invertible run on its validation split
+        r = results[f"{i}+cinn-res"]
+        assert (
+            r["uncertainty"]["all"]["scale"]
+            == json.loads((out / "runs" / f"cinn-res-{i}" / "calibration.json").read_text())["best"]["scale"]
+        )
+        assert r["edge_baseline"]["all"]["coverage"]["calibrated"] is not None
     for png in (
         "reconstructions.png",
         "reconstructions_unet.png",
         "reconstructions_cinn-res.png",
-        "uncertainty.png",
+        "uncertainty_cinn-res.png",
+        "reliability.png",
+        "training_curves.png",
         "sample.png",
     ):
+        assert f"({png})" in text
         assert (out / "report" / png).read_bytes()[:4] == b"\x89PNG"
     # everything is cached: a second run redoes no training and no prediction
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}

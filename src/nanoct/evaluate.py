@@ -14,17 +14,22 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .errors import NanoctError
 from .fileio import atomic_write_text
-from .metrics import summarize, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
 from .store import DataStore
 
 __all__ = [
     "evaluate_store",
     "format_mixing",
     "format_table",
+    "format_uncertainty_table",
     "mixing_matrices",
     "parse_name",
+    "read_std",
+    "uncertainty_scores",
     "write_report_tables",
 ]
 
@@ -38,12 +43,70 @@ def parse_name(name: str) -> tuple[str, str | None, str]:
     return test_input, model, train_input or test_input
 
 
+def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """Raw (uncalibrated) std of reconstruction ``name`` and the calibration stored with it.
+
+    :func:`nanoct.learn.predict.predict` stores the calibrated std ``scale * raw`` and records
+    ``{"scale", "edge_scale", "edge_sigma", ...}`` under ``calibration`` in the parameters of the
+    result; the raw std is recovered as stored / scale. Without a calibration the stored std is
+    the raw one and the returned dict is empty.
+    """
+    cal = dict(store.reconstruction_params(name).get("calibration") or {})
+    std = store.read_uncertainty(name, indices)
+    return (std / cal["scale"] if cal.get("scale") else std), cal
+
+
+def uncertainty_scores(
+    stds: np.ndarray,
+    recos: np.ndarray,
+    gts: np.ndarray,
+    calibration: dict[str, Any] | None = None,
+    support: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """Uncertainty scores of one reconstruction and of the edge baseline, over all pixels and the support.
+
+    Parameters
+    ----------
+    stds, recos, gts : array (n, H, W)
+        Raw std, reconstructions (the network's mean) and ground truths.
+    calibration : dict, optional
+        ``scale`` of the std and ``edge_scale`` / ``edge_sigma`` of the edge baseline, fitted on
+        validation data (:mod:`nanoct.learn.calibration`); without them calibrated coverages are None.
+    support : bool array (n, H, W), optional
+        The object's support (default :func:`nanoct.metrics.support_mask` of ``gts``).
+
+    Returns
+    -------
+    dict
+        ``std_error_corr`` (all pixels), ``uncertainty`` = {``all``, ``support``} and
+        ``edge_baseline`` = {``sigma``, ``scale``, ``all``, ``support``}, each region a
+        :func:`nanoct.metrics.uncertainty_summary`.
+    """
+    cal = calibration or {}
+    support = support_mask(gts) if support is None else support
+    sigma = float(cal.get("edge_sigma", EDGE_SIGMA))
+    edges = edge_std(recos, sigma)
+
+    def both(std: np.ndarray, scale: float | None) -> dict[str, Any]:
+        return {
+            "all": uncertainty_summary(std, recos, gts, scale=scale),
+            "support": uncertainty_summary(std, recos, gts, scale=scale, mask=support),
+        }
+
+    own = both(stds, cal.get("scale"))
+    return {
+        "std_error_corr": own["all"]["std_error_corr"],
+        "uncertainty": own,
+        "edge_baseline": {"sigma": sigma, "scale": cal.get("edge_scale"), **both(edges, cal.get("edge_scale"))},
+    }
+
+
 def evaluate_store(store: DataStore, split: str = "test", names: list[str] | None = None) -> dict[str, dict[str, Any]]:
     """PSNR/SSIM (mean, std, n) of reconstructions over a split, plus uncertainty scores.
 
     ``names`` gives the reconstructions and their order (default: all present, sorted);
     those that do not cover the whole split are left out. Reconstructions with a pixel-wise
-    std also get ``std_error_corr`` and ``calibration`` (:func:`nanoct.metrics.uncertainty_summary`).
+    std also get :func:`uncertainty_scores` (the std's own scores and the edge baseline's).
 
     Raises
     ------
@@ -57,6 +120,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
             "the split fractions"
         )
     gts = store.read_phantoms(idx)
+    support = support_mask(gts)
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
         if not store.reconstruction_done(name, idx).all():
@@ -64,7 +128,8 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
         recos = store.read_reconstruction(name, idx)
         results[name] = summarize(recos, gts)
         if store.has_uncertainty(name):
-            results[name].update(uncertainty_summary(store.read_uncertainty(name, idx), recos, gts))
+            raw, cal = read_std(store, name, idx)
+            results[name].update(uncertainty_scores(raw, recos, gts, cal, support))
     return results
 
 
@@ -88,30 +153,67 @@ def _cell(r: dict[str, Any]) -> tuple[str, str]:
 def format_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
     """Markdown table like the paper's: first reconstructions, then one block per model."""
     lines = [f"### {title}", ""] if title else []
-    uq = any("std_error_corr" in r for r in results.values())
-    head = "| reconstruction | PSNR [dB] | SSIM | n |" + (
-        " std/error corr | within 1/2/3 std (68/95/99.7 %) |" if uq else ""
-    )
-    lines += [head, "|---" * (head.count("|") - 1) + "|"]
+    lines += ["| reconstruction | PSNR [dB] | SSIM | n |", "|---|---|---|---|"]
     groups: dict[str | None, list[str]] = {}
     for name in results:
         groups.setdefault(parse_name(name)[1], []).append(name)
     for model in sorted(groups, key=lambda m: (m is not None, m or "")):
         if len(groups) > 1:
             label = "no post-processing" if model is None else f"+ {model}"
-            lines.append(f"| **{label}** | | | |" + (" | |" if uq else ""))
+            lines.append(f"| **{label}** | | | |")
         for name in groups[model]:
             r = results[name]
             psnr_text, ssim_text = _cell(r)
-            row = f"| {name} | {psnr_text} | {ssim_text} | {r['n']} |"
-            if uq:
-                if "std_error_corr" in r:
-                    obs = r["calibration"]["observed"]
-                    within = " / ".join(f"{obs[k] * 100:.0f}" for k in ("1", "2", "3"))
-                    row += f" {r['std_error_corr']:.3f} | {within} % |"
-                else:
-                    row += " | |"
-            lines.append(row)
+            lines.append(f"| {name} | {psnr_text} | {ssim_text} | {r['n']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _percent(cov: dict[str, float] | None) -> str:
+    return "-" if cov is None else " / ".join(f"{cov[k] * 100:.0f}" for k in ("1", "2", "3"))
+
+
+def _num(x: float | None, fmt: str = ".3f") -> str:
+    return "-" if x is None or x != x else format(x, fmt)
+
+
+def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
+    """Markdown table of the uncertainty scores: two rows (all pixels, support) per reconstruction with a std.
+
+    Columns: std/error correlation; coverage within 1/2/3 std, raw and calibrated side by side,
+    with the calibration factor; AUSE next to the random order's; the same for the edge
+    baseline (coverage after its validation scaling). Empty string when no result has a std.
+    """
+    names = [n for n, r in results.items() if "uncertainty" in r]
+    if not names:
+        return ""
+    lines = [f"### {title}", ""] if title else []
+    lines += [
+        "| reconstruction | pixels | std/error corr | within 1/2/3 std, raw [%] | calibrated [%] | scale s "
+        "| AUSE / random (ratio) | edge: corr | edge: within 1/2/3 [%] | edge: AUSE / random (ratio) |",
+        "|---" * 10 + "|",
+    ]
+    for name in names:
+        r, edge = results[name]["uncertainty"], results[name]["edge_baseline"]
+        for region in ("all", "support"):
+            u, e = r[region], edge[region]
+            lines.append(
+                f"| {name} | {region} | {_num(u['std_error_corr'])} | {_percent(u['coverage']['raw'])} "
+                f"| {_percent(u['coverage']['calibrated'])} | {_num(u['scale'], '.3g')} "
+                f"| {_num(u['ause'])} / {_num(u['ause_random'])} ({_num(u['ause_ratio'], '.2f')}) "
+                f"| {_num(e['std_error_corr'])} | {_percent(e['coverage']['calibrated'])} "
+                f"| {_num(e['ause'])} / {_num(e['ause_random'])} ({_num(e['ause_ratio'], '.2f')}) |"
+            )
+    sigma = results[names[0]]["edge_baseline"]["sigma"]
+    lines += [
+        "",
+        "A calibrated Gaussian std has 68 / 95 / 100 % (68.3 / 95.4 / 99.7) of the pixels within 1 / 2 / 3 std. "
+        "Calibrated = raw std times s, fitted on the validation split. AUSE: area between the sparsification "
+        "curve (mean absolute error of the pixels left after removing those of largest std) and the oracle's, "
+        "normalised by the MAE of all pixels; random = the area of removing pixels in random order; ratio < 0.5 "
+        f"is 'below random by >= 50 %'. Edge: Gaussian(sigma = {sigma:g} px)-smoothed Sobel magnitude of the "
+        "mean, scaled on the validation split. Support: ground truth > 0 dilated by 2 px. Conventions: "
+        "docs/uncertainty.md.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -136,15 +238,16 @@ def write_report_tables(
     """Write ``evaluation.md`` and ``evaluation.json`` into ``out_dir``; returns their paths.
 
     The JSON has, per reconstruction name, ``psnr_mean``, ``psnr_std``, ``ssim_mean``,
-    ``ssim_std``, ``n`` (and ``std_error_corr``, ``calibration`` where a std exists), and
-    the input-mixing tables under ``"mixing"``.
+    ``ssim_std``, ``n`` (and where a std exists ``std_error_corr``, ``uncertainty`` and
+    ``edge_baseline``, see :func:`uncertainty_scores`), and the input-mixing tables under ``"mixing"``.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     g = store.geometry
     title = f"{g.kind} beam, N={g.n}, K={g.n_angles}, L={g.n_det}; split '{split}'"
     mixing = mixing_matrices(results)
-    text = format_table(results, title) + ("\n" + format_mixing(mixing) if mixing else "")
+    uq = format_uncertainty_table(results, f"Uncertainty, split '{split}'")
+    text = format_table(results, title) + ("\n" + uq if uq else "") + ("\n" + format_mixing(mixing) if mixing else "")
     md, js = out / "evaluation.md", out / "evaluation.json"
     payload = {
         "split": split,

@@ -1,19 +1,34 @@
-"""Figures of a data set (matplotlib, Agg backend, written to files)."""
+"""Figures of a data set and of its post-processing networks (matplotlib, Agg backend, written to files)."""
 
 from __future__ import annotations
 
+import csv
 import io
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from .evaluate import format_uncertainty_table, parse_name, read_std
 from .fileio import atomic_write_bytes
+from .metrics import reliability
 from .motion import plot_motion
 from .recon.fbp import fbp
 from .store import DataStore
 
-__all__ = ["compare_reconstructions", "show_sample", "uncertainty_maps"]
+__all__ = [
+    "RELIABILITY_LEVELS",
+    "compare_reconstructions",
+    "reliability_diagram",
+    "show_sample",
+    "training_curves",
+    "uncertainty_maps",
+    "uncertainty_report",
+]
+
+#: Nominal probabilities of the central Gaussian intervals in the reliability diagram.
+RELIABILITY_LEVELS = np.array([0.05, *np.arange(0.1, 0.95, 0.1), 0.95, 0.99])
 
 
 def _save(fig, out: str | os.PathLike[str], dpi: int) -> Path:
@@ -120,30 +135,154 @@ def compare_reconstructions(
 
 
 def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]) -> Path:
-    """Figure like the paper's figure 8: per model, reconstruction, absolute error and std.
+    """Figure like the paper's uncertainty figures: per (model, sample) the input, mean, absolute error and std.
 
-    One row per (model, sample); error and std share a colour scale per row so they can be
-    compared directly.
+    One row per (name, sample). The input is ``reconstructions/<input>`` of the name
+    (:func:`nanoct.evaluate.parse_name`; an empty panel if absent); the std is the stored one
+    (calibrated where predict calibrated it, the factor in the title). Error and std share a
+    colour scale per row so they can be compared directly.
     """
     from matplotlib.figure import Figure
 
     gts = store.read_phantoms(indices)
+    present = set(store.reconstruction_names())
     rows = [(name, i, gt) for name in names for i, gt in zip(indices, gts)]
-    fig = Figure(figsize=(8.4, 2.6 * len(rows)), layout="constrained")
-    axes = fig.subplots(len(rows), 3, squeeze=False)
+    fig = Figure(figsize=(10.4, 2.5 * len(rows)), layout="constrained")
+    axes = fig.subplots(len(rows), 4, squeeze=False)
     for ax_row, (name, index, gt) in zip(axes, rows):
+        input_name = str(store.reconstruction_params(name).get("input") or parse_name(name)[0])
         reco = store.read_reconstruction(name, [index])[0]
         std = store.read_uncertainty(name, [index])[0]
+        scale = (store.reconstruction_params(name).get("calibration") or {}).get("scale")
         err = np.abs(reco - gt)
         top = float(max(err.max(), std.max())) or 1.0
-        ax_row[0].imshow(reco, cmap="gray", vmin=0, vmax=1)
-        ax_row[0].set_title(f"{name} #{index}", fontsize=9)
-        ax_row[1].imshow(err, cmap="magma", vmin=0, vmax=top)
-        ax_row[1].set_title("|reco - gt|", fontsize=9)
-        im = ax_row[2].imshow(std, cmap="magma", vmin=0, vmax=top)
-        ax_row[2].set_title("pixel-wise std", fontsize=9)
-        fig.colorbar(im, ax=ax_row[2], shrink=0.8)
+        if input_name in present and input_name != name:
+            ax_row[0].imshow(store.read_reconstruction(input_name, [index])[0], cmap="gray", vmin=0, vmax=1)
+        ax_row[0].set_title(f"input {input_name} #{index}", fontsize=9)
+        ax_row[1].imshow(reco, cmap="gray", vmin=0, vmax=1)
+        ax_row[1].set_title(f"{name} (mean)", fontsize=9)
+        ax_row[2].imshow(err, cmap="magma", vmin=0, vmax=top)
+        ax_row[2].set_title("|mean - gt|", fontsize=9)
+        im = ax_row[3].imshow(std, cmap="magma", vmin=0, vmax=top)
+        ax_row[3].set_title("std" + ("" if scale is None else f" (calibrated, s = {scale:.3g})"), fontsize=9)
+        fig.colorbar(im, ax=ax_row[3], shrink=0.8)
         for ax in ax_row:
             ax.set_xticks([])
             ax.set_yticks([])
+    return _save(fig, out, dpi=80)
+
+
+def reliability_diagram(
+    store: DataStore,
+    panels: dict[str, list[str]],
+    indices: list[int] | np.ndarray,
+    out: str | os.PathLike[str],
+    levels: np.ndarray = RELIABILITY_LEVELS,
+) -> Path:
+    """Reliability diagram: observed vs nominal coverage of central Gaussian intervals, raw and calibrated.
+
+    One column per panel (e.g. per model), one line per reconstruction name; the top row uses
+    the raw std (stored / calibration factor), the bottom row the calibrated std (as stored).
+    Pixels of all ``indices`` are pooled; the interval of level p is ``|err| <= k_p std`` with
+    ``k_p`` the two-sided Gaussian quantile (:func:`nanoct.metrics.reliability`). A calibrated
+    Gaussian std lies on the diagonal; above it the std is too wide, below too narrow.
+    """
+    from matplotlib.figure import Figure
+
+    gts = store.read_phantoms(indices).astype(np.float64)
+    fig = Figure(figsize=(3.2 * len(panels), 6.2), layout="constrained")
+    axes = fig.subplots(2, len(panels), squeeze=False, sharex=True, sharey=True)
+    for col, (title, names) in enumerate(panels.items()):
+        for name in names:
+            err = store.read_reconstruction(name, indices) - gts
+            raw, cal = read_std(store, name, indices)
+            axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
+            if cal.get("scale"):
+                axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
+        for row, kind in enumerate(("raw std", "calibrated std")):
+            ax = axes[row, col]
+            ax.plot([0, 1], [0, 1], color="0.5", ls="--", lw=1)
+            ax.set_title(f"{title}: {kind}", fontsize=9)
+            ax.set_xlim(0, 1)
+            ax.set_ylim(0, 1.01)
+            ax.grid(alpha=0.3)
+            ax.set_xlabel("nominal coverage")
+        axes[0, col].legend(fontsize=7, loc="lower right")
+    axes[0, 0].set_ylabel("observed coverage")
+    axes[1, 0].set_ylabel("observed coverage")
     return _save(fig, out, dpi=90)
+
+
+def _read_log(path: Path, column: str) -> tuple[list[float], list[float]]:
+    """(epochs, values of ``column``) of a training log.csv; empty lists if absent or without that column."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError:
+        return [], []
+    pairs = [(float(r["epoch"]), float(r[column])) for r in rows if r.get(column) not in (None, "")]
+    return [e for e, _ in pairs], [v for _, v in pairs]
+
+
+def training_curves(
+    panels: dict[str, dict[str, str | os.PathLike[str]]],
+    out: str | os.PathLike[str],
+    column: str = "val_loss",
+) -> Path:
+    """Validation loss per epoch of training runs, from each run's ``log.csv``.
+
+    ``panels`` maps a panel title (e.g. the model) to ``{line label: run directory}``; runs
+    without a log (or without ``column``) are left out of their panel. For the invertible
+    networks ``val_loss`` is the validation negative log-likelihood.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3.4 * len(panels), 3.0), layout="constrained")
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    for ax, (title, runs) in zip(axes, panels.items()):
+        for label, run in runs.items():
+            epochs, values = _read_log(Path(run) / "log.csv", column)
+            if epochs:
+                ax.plot(epochs, values, marker=".", label=label)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("epoch")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    axes[0].set_ylabel(f"{column} (log.csv)")
+    return _save(fig, out, dpi=90)
+
+
+def uncertainty_report(
+    store: DataStore,
+    results: dict[str, dict[str, Any]],
+    models: list[str],
+    inputs: list[str],
+    runs_dir: str | os.PathLike[str],
+    report_dir: str | os.PathLike[str],
+    split: str = "test",
+) -> str:
+    """The uncertainty part of a study's report: its table and three figures; returns the Markdown.
+
+    For each sampling model in ``models`` (applied to ``inputs``, runs at
+    ``<runs_dir>/<model>-<input>``): ``uncertainty_<model>.png`` (:func:`uncertainty_maps` of
+    the first ``split`` sample, one row per input), one ``reliability.png`` (:func:`reliability_diagram`, all
+    ``split`` samples) and one ``training_curves.png`` (validation NLL per epoch). Names not in
+    ``results`` (incomplete) are left out; an empty string when no model has a std.
+    """
+    report = Path(report_dir)
+    names = {m: [f"{i}+{m}" for i in inputs if "uncertainty" in results.get(f"{i}+{m}", {})] for m in models}
+    names = {m: n for m, n in names.items() if n}
+    if not names:
+        return ""
+    idx = store.indices(split)
+    text = ["## Uncertainty", "", format_uncertainty_table(results, f"Pixel-wise std, split '{split}'")]
+    for m, ns in names.items():
+        uncertainty_maps(store, ns, [int(idx[0])], report / f"uncertainty_{m}.png")
+        text.append(f"### {m}: input, mean, |error|, std\n\n![{m}](uncertainty_{m}.png)\n")
+    reliability_diagram(store, names, idx, report / "reliability.png")
+    text.append("### Reliability diagram (raw and calibrated std)\n\n![reliability](reliability.png)\n")
+    runs = {m: {i: Path(runs_dir) / f"{m}-{i}" for i in inputs} for m in names}
+    training_curves(runs, report / "training_curves.png")
+    text.append("### Validation NLL per epoch\n\n![training curves](training_curves.png)\n")
+    return "\n".join(text)

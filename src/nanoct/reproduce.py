@@ -20,7 +20,7 @@ from typing import Any
 from .errors import NanoctError
 from .evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, write_report_tables
 from .fanout import run_tasks
-from .figures import compare_reconstructions, show_sample, uncertainty_maps
+from .figures import compare_reconstructions, show_sample, uncertainty_report
 from .fileio import atomic_write_text, remove_stale_temporaries
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
@@ -141,7 +141,6 @@ def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], 
 
 
 def _predict_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, str]], threads: int, index: int) -> int:
-    from .learn.models import model_class
     from .learn.predict import predict
 
     model, train_input, input_name = jobs[index]
@@ -256,11 +255,6 @@ def reproduce_study(
     for m in models:
         compare_reconstructions(store, [f"{i}+{m}" for i in inputs], test, report_dir / f"reconstructions_{m}.png")
         figures.append((f"reconstructions_{m}.png", f"Post-processed by {m}"))
-    uq = [m for m in models if model_class(m).has_uncertainty]
-    if uq:
-        best = "ciunet-res" if "ciunet-res" in uq else uq[-1]
-        uncertainty_maps(store, [f"{i}+{best}" for i in inputs], test, report_dir / "uncertainty.png")
-        figures.append(("uncertainty.png", f"Pixel-wise std of {best} next to its error"))
     show_sample(store, test[0], report_dir / "sample.png")
     figures.append(("sample.png", "A test sample: motion, sinograms, FBP"))
     mixing = mixing_matrices(results)
@@ -272,6 +266,7 @@ def reproduce_study(
         "",
         format_table(results, "Test split"),
         format_mixing(mixing) if mixing else "",
+        uncertainty_report(store, results, list(models), inputs, runs, report_dir),
     ]
     text += [f"## {title}\n\n![{title}]({png})\n" for png, title in figures]
     return atomic_write_text(report_dir / "report.md", "\n".join(text))

@@ -5,7 +5,8 @@ network was trained on, and to ``reconstructions/<input>+<model>@<train_input>``
 network trained on one method is applied to another (the paper's input-mixing tables).
 Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
 latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
-not depend on batching or on interruptions.
+not depend on batching or on interruptions; their std is stored calibrated, times the factor
+fitted on the validation split (:mod:`nanoct.learn.calibration`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
@@ -23,6 +24,7 @@ import torch
 
 from ..errors import NanoctError, StoreError
 from ..store import SPLITS, DataStore
+from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
@@ -50,6 +52,7 @@ def predict(
     overwrite: bool = False,
     name: str | None = None,
     reconstruct_kwargs: dict[str, Any] | None = None,
+    calibrate: bool = True,
 ) -> str:
     """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
 
@@ -78,6 +81,12 @@ def predict(
     reconstruct_kwargs : dict, optional
         Passed to the model's ``reconstruct`` (e.g. the number of samples of a CiNN); stored
         with the result.
+    calibrate : bool
+        For networks with a std: store ``s * std`` with the factor ``s`` of the run's
+        calibration on the validation split (:func:`nanoct.learn.calibration.calibrate`, fitted
+        first if the run has none for this checkpoint and these sampling arguments) and record
+        the calibration under ``calibration`` in the stored parameters (raw std = stored / s).
+        False stores the raw std.
 
     Returns
     -------
@@ -123,13 +132,17 @@ def predict(
         "reconstruct": kwargs,
     }
     sampling = model_class(str(ckpt["model"])).has_uncertainty
+    scale = 1.0
+    if sampling and calibrate:
+        cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
+        params["calibration"], scale = cal, float(cal["scale"])
     if overwrite and out in store.reconstruction_names() and store.reconstruction_params(out) != params:
         store.delete_reconstruction(out)
     try:
         store.prepare_reconstruction(out, params, uncertainty=sampling)
     except StoreError as exc:
         raise NanoctError(
-            f"reconstructions/{out} in {store.path} was made with another network or checkpoint "
+            f"reconstructions/{out} in {store.path} was made with another network, checkpoint or std calibration "
             f"({store.reconstruction_params(out)}); use --overwrite to replace it"
         ) from exc
     todo = indices[~store.reconstruction_done(out, indices)]
@@ -154,7 +167,7 @@ def predict(
             with torch.no_grad():
                 mean, std = model.reconstruct(x_tilde, **call)
             mean_np = mean.float().cpu().numpy()[:, 0]
-            std_np = None if std is None else std.float().cpu().numpy()[:, 0]
+            std_np = None if std is None else std.float().cpu().numpy()[:, 0] * np.float32(scale)
             for j, i in enumerate(idx):
                 # the progress flag is written last, after the mean and the std
                 store.write_reconstruction(out, int(i), mean_np[j], std=None if std_np is None else std_np[j])

@@ -1,0 +1,223 @@
+"""Calibration of a sampling network's std on the validation split, stored with its run.
+
+The std of a conditional invertible network (over M latent samples) is rarely calibrated: far
+more (or fewer) than 68 % of the pixels fall within one std of the mean. One factor ``s`` per
+run and checkpoint, fitted on the validation split of the data set and input the network was
+trained on, makes ``s * std`` cover 68.27 % of the validation pixels (temperature scaling for a
+regression std; the test split is never read). On the same validation outputs the factor of the
+edge baseline (:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its
+coverage can be compared at equal footing.
+
+The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
+An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
+input and sampling arguments (M); otherwise it is fitted again. Validation outputs are made as
+:func:`nanoct.learn.predict.predict` makes them: one image at a time, latent samples seeded
+with the sample index, so the fit sees exactly the std that ``predict --split val`` would store.
+Conventions and the metrics: ``docs/uncertainty.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import NanoctError
+from ..fileio import atomic_write_text
+from ..metrics import EDGE_SIGMA, GAUSSIAN_COVERAGE, coverage, edge_std, fit_std_scale
+from ..store import DataStore
+from .base import PostProcessor
+from .checkpoint import load_checkpoint, model_from_checkpoint
+from .data import check_input
+from .models import model_class
+from .train import resolve_device
+
+__all__ = ["CALIBRATION_FILE", "CALIBRATION_FORMAT", "calibrate", "fit_scales", "load_calibration", "sample_outputs"]
+
+CALIBRATION_FILE = "calibration.json"
+CALIBRATION_FORMAT = 1
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _n_samples(model_name: str, kwargs: dict[str, Any]) -> int | None:
+    """M: the ``n_samples`` passed, else the default of the model's ``reconstruct``."""
+    if "n_samples" in kwargs:
+        return int(kwargs["n_samples"])
+    param = inspect.signature(model_class(model_name).reconstruct).parameters.get("n_samples")
+    return None if param is None or param.default is inspect.Parameter.empty else int(param.default)
+
+
+def sample_outputs(
+    model: PostProcessor,
+    store: DataStore,
+    input_name: str,
+    indices: np.ndarray,
+    reconstruct_kwargs: dict[str, Any] | None = None,
+    device: str | torch.device | None = None,
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and raw std of a sampling network for ``reconstructions/<input_name>`` at ``indices``.
+
+    One image per call of ``model.reconstruct`` with ``seed`` = the sample index, on ``device``
+    (channels-last on CPU), as :func:`nanoct.learn.predict.predict` does.
+
+    Returns
+    -------
+    (means, stds) : float32 arrays (n, H, W)
+    """
+    from tqdm.auto import tqdm
+
+    dev = resolve_device(device)
+    use_cl = dev.type == "cpu"
+    model = model.to(dev, memory_format=torch.channels_last) if use_cl else model.to(dev)
+    model.eval()
+    n = store.geometry.n
+    means, stds = np.empty((len(indices), n, n), np.float32), np.empty((len(indices), n, n), np.float32)
+    for j, i in enumerate(tqdm(indices, desc="calibrate", unit="img", disable=not progress)):
+        x = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, [int(i)]), np.float32))[:, None]
+        x = x.to(dev)
+        if use_cl:
+            x = x.contiguous(memory_format=torch.channels_last)
+        with torch.no_grad():
+            mean, std = model.reconstruct(x, **{"seed": int(i), **(reconstruct_kwargs or {})})
+        if std is None:
+            raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
+        means[j], stds[j] = mean.float().cpu().numpy()[0, 0], std.float().cpu().numpy()[0, 0]
+    return means, stds
+
+
+def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma: float = EDGE_SIGMA) -> dict[str, Any]:
+    """Fit the std's factor and the edge baseline's on validation outputs.
+
+    Each factor is :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %)
+    over all pixels of all images.
+
+    Returns
+    -------
+    dict
+        ``level``, ``scale``, ``coverage_raw`` and ``coverage_calibrated`` (1/2/3 std) of the
+        network's std; ``edge_sigma``, ``edge_scale``, ``edge_coverage`` (after scaling).
+
+    Raises
+    ------
+    NanoctError
+        If no positive finite factor exists (e.g. a std that is zero where the error is not).
+    """
+    err = np.abs(np.asarray(means, np.float64) - np.asarray(gts, np.float64))
+    edges = edge_std(means, edge_sigma)
+    level = GAUSSIAN_COVERAGE["1"]
+    try:
+        scale, edge_scale = fit_std_scale(err, stds, level), fit_std_scale(err, edges, level)
+    except ValueError as exc:
+        raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
+    return {
+        "level": level,
+        "scale": scale,
+        "coverage_raw": coverage(err, stds),
+        "coverage_calibrated": coverage(err, scale * np.asarray(stds, np.float64)),
+        "edge_sigma": float(edge_sigma),
+        "edge_scale": edge_scale,
+        "edge_coverage": coverage(err, edge_scale * edges),
+    }
+
+
+def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
+    """The entries of ``<run>/calibration.json`` by checkpoint name (empty if absent or unreadable)."""
+    path = Path(run_dir) / CALIBRATION_FILE
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def calibrate(
+    store: DataStore | str | os.PathLike[str],
+    run_dir: str | os.PathLike[str],
+    checkpoint: str = "best",
+    *,
+    reconstruct_kwargs: dict[str, Any] | None = None,
+    device: str | torch.device | None = None,
+    progress: bool = False,
+    refit: bool = False,
+) -> dict[str, Any]:
+    """The calibration of a run's checkpoint: reused from ``calibration.json`` if valid, else fitted and stored.
+
+    Parameters
+    ----------
+    store : DataStore or path
+        Data set whose validation split (of the run's training input) is used.
+    run_dir : path
+        Training run of a sampling network.
+    checkpoint : {"best", "last"}
+        Checkpoint to calibrate.
+    reconstruct_kwargs : dict, optional
+        Passed to ``reconstruct`` (e.g. ``{"n_samples": M}``); part of the validity key.
+    device, progress
+        As for :func:`nanoct.learn.predict.predict`.
+    refit : bool
+        Fit again even if a valid entry exists.
+
+    Returns
+    -------
+    dict
+        The entry: what it was fitted for (``format``, ``checkpoint``, ``checkpoint_sha256``,
+        ``epoch``, ``store``, ``input``, ``reconstruct``, ``n_samples``, ``split`` = "val",
+        ``n_images``) and :func:`fit_scales`'s result.
+
+    Raises
+    ------
+    NanoctError
+        A missing or bad checkpoint, a network without std, an empty validation split or an
+        incomplete input, or validation outputs that admit no factor.
+    """
+    store = store if isinstance(store, DataStore) else DataStore.open(store)
+    run = Path(run_dir)
+    ckpt_path = run / f"{checkpoint}.pt"
+    entries = load_calibration(run)
+    key = {
+        "format": CALIBRATION_FORMAT,
+        "checkpoint": checkpoint,
+        "checkpoint_sha256": _sha256(ckpt_path) if ckpt_path.is_file() else None,
+        "store": str(store.path.resolve()),
+        "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
+        "split": "val",
+    }
+    old = entries.get(checkpoint)
+    if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
+        return old  # the same checkpoint file (so the same model, input and epoch), data set and M
+    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
+    if not model_class(str(ckpt["model"])).has_uncertainty:
+        raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
+    kwargs = key["reconstruct"]
+    key |= {
+        "epoch": int(ckpt["epoch"]),
+        "input": str(ckpt["input"]),
+        "n_samples": _n_samples(str(ckpt["model"]), kwargs),
+    }
+    val = store.indices("val")
+    if val.size == 0:
+        raise NanoctError(
+            f"{store.path} has no validation samples to calibrate the std of {run} on; "
+            "give the data set a validation split, or predict without calibration"
+        )
+    check_input(store, key["input"], val, "val")
+    model = model_from_checkpoint(ckpt, ckpt_path)
+    means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
+    entry = key | {"n_images": int(val.size)} | fit_scales(means, stds, store.read_phantoms(val))
+    entries[checkpoint] = entry
+    atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
+    return entry

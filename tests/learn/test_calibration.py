@@ -1,0 +1,143 @@
+"""Calibration of a sampling network's std: fitted on validation data only, cached, applied by predict."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+import nanoct.learn.calibration as cal_mod
+from nanoct.errors import NanoctError
+from nanoct.evaluate import read_std
+from nanoct.generate import generate_dataset
+from nanoct.geometry import get_preset
+from nanoct.learn.calibration import CALIBRATION_FILE, calibrate, load_calibration
+from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
+from nanoct.learn.predict import predict
+from nanoct.learn.train import train
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.store import DataStore
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+SMALL = dict(
+    n_scales=3,
+    blocks_per_scale=1,
+    fc_dim=8,
+    fc_blocks=1,
+    cond_channels=4,
+    cond_width=4,
+    fc_cond_dim=8,
+    hidden_ratio=1.0,
+)
+M = {"n_samples": 4}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calibration")
+    path = root / "tiny"
+    generate_dataset(
+        path, get_preset("tiny-parallel"), 12, seed=7, workers=0, progress=False, split_fractions=(0.5, 0.25, 0.25)
+    )
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        run = train(path, "cinn-res", "fbp", root / "run", epochs=1, batch_size=2, progress=False, model_kwargs=SMALL)
+    finally:
+        torch.set_num_threads(n)
+    return path, run
+
+
+def _copy(setup, tmp_path):
+    """A private copy of the data set (its arrays may be altered) and of the run."""
+    path, run = setup
+    shutil.copytree(path, tmp_path / "data")
+    shutil.copytree(run, tmp_path / "run")
+    return tmp_path / "data", tmp_path / "run"
+
+
+def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeypatch):
+    path, run = _copy(setup, tmp_path)
+    entry = calibrate(path, run, reconstruct_kwargs=M)
+    assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
+    assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
+    # independent recomputation: the network on each validation image, seeded with its index
+    store = DataStore.open(path)
+    val = store.indices("val")
+    model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
+    errs, stds = [], []
+    for i in val:
+        x = torch.from_numpy(store.read_reconstruction("fbp", [i]))[:, None]
+        mean, std = model.reconstruct(x, n_samples=4, seed=int(i))
+        errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
+        stds.append(std[0, 0].numpy().astype(np.float64))
+    ratio = np.concatenate([e.ravel() for e in errs]) / np.concatenate([s.ravel() for s in stds])
+    assert entry["scale"] == pytest.approx(np.quantile(ratio, 0.6827, method="inverted_cdf"), rel=1e-4)
+    assert entry["coverage_calibrated"]["1"] == pytest.approx(0.6827, abs=2e-3)
+    assert entry["coverage_raw"]["1"] == pytest.approx(np.mean(ratio <= 1), abs=2e-3)
+    # a second call reuses the stored fit; other sampling arguments or another checkpoint file refit
+    calls = []
+    real = cal_mod.sample_outputs
+    monkeypatch.setattr(cal_mod, "sample_outputs", lambda *a, **k: (calls.append(1), real(*a, **k))[1])
+    assert calibrate(path, run, reconstruct_kwargs=M) == entry and calls == []
+    other = calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
+    assert calls == [1] and other["n_samples"] == 5 and other["scale"] != entry["scale"]
+    ckpt = torch.load(run / "best.pt", weights_only=True)
+    ckpt["step"] += 1  # another checkpoint file
+    torch.save(ckpt, run / "best.pt")
+    calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
+    assert calls == [1, 1]
+
+
+def test_fit_reads_validation_data_only(setup, tmp_path):
+    path, run = _copy(setup, tmp_path)
+    before = calibrate(path, run, reconstruct_kwargs=M)
+    store = DataStore.open(path, mode="r+")
+    rng = np.random.default_rng(0)
+    for split in ("test", "train"):  # wreck the ground truth and the input of every non-validation sample
+        for i in store.indices(split):
+            store._group["phantoms"][int(i)] = rng.random((63, 63)).astype(np.float32)
+            store._group["reconstructions/fbp"][int(i)] = rng.random((63, 63)).astype(np.float32)
+    after = calibrate(path, run, reconstruct_kwargs=M, refit=True)
+    assert after["scale"] == before["scale"] and after["edge_scale"] == before["edge_scale"]
+    for i in store.indices("val"):  # alter the validation input: the factor changes
+        x = store.read_reconstruction("fbp", [int(i)])[0]
+        store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
+    changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
+    assert changed["scale"] != pytest.approx(before["scale"], rel=1e-3)
+
+
+def test_predict_applies_the_factor(setup, tmp_path):
+    path, run = _copy(setup, tmp_path)
+    name = predict(path, run, progress=False, reconstruct_kwargs=M)
+    predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", calibrate=False)
+    entry = load_calibration(run)["best"]
+    store = DataStore.open(path)
+    test = store.indices("test")
+    params = store.reconstruction_params(name)
+    assert params["calibration"]["scale"] == entry["scale"] and "calibration" not in store.reconstruction_params("raw")
+    raw = store.read_uncertainty("raw", test)
+    np.testing.assert_allclose(store.read_uncertainty(name, test), entry["scale"] * raw, rtol=1e-6)
+    np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
+    recovered, cal = read_std(store, name, test)
+    np.testing.assert_allclose(recovered, raw, rtol=1e-6)
+    assert cal["edge_scale"] == entry["edge_scale"]
+    with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
+        predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")
+    predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", overwrite=True)
+    np.testing.assert_array_equal(store.read_uncertainty("raw", test), store.read_uncertainty(name, test))
+
+
+def test_bad_input(setup, tmp_path):
+    path, run = setup
+    no_val = tmp_path / "noval"
+    generate_dataset(no_val, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(0.5, 0, 0.5))
+    with pytest.raises(NanoctError, match="no validation samples"):
+        calibrate(no_val, run, reconstruct_kwargs=M)
+    with pytest.raises(NanoctError, match="does not exist"):
+        calibrate(path, tmp_path, reconstruct_kwargs=M)
