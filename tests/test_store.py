@@ -114,7 +114,7 @@ def test_damaged_chunk_is_reported(tmp_path):
     while chunk.is_dir():
         chunk = next(chunk.iterdir())
     chunk.write_bytes(b"garbage")
-    with pytest.raises(StoreError, match="cannot be read"):
+    with pytest.raises(StoreError, match="unreadable chunk"):
         for i in range(2):
             store.read_sample(i)
 
