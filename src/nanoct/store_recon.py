@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import re
+import uuid
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -119,7 +120,9 @@ class ReconstructionArrays:
         if uncertainty:
             self._new(f"uncertainty/{name}", (self.n, *self.image_shape), "float32", np.nan)
         arr = self._new(key, (self.n, *self.image_shape), "float32", np.nan)
-        arr.attrs["params"] = params  # written last: marks the reconstruction as set up
+        # one metadata write; "params" marks the reconstruction as set up, "created" tells this array
+        # from an earlier one of the same name (a prediction made from it records it)
+        arr.attrs.update({"created": uuid.uuid4().hex, "params": params})
 
     def damaged(self, name: str) -> np.ndarray:
         """Samples flagged written whose image, shifts or std chunk is missing or unreadable (reads them all)."""
@@ -202,6 +205,15 @@ class ReconstructionArrays:
     def read_uncertainty(self, name: str, indices: Iterable[int]) -> np.ndarray:
         """Pixel-wise std of reconstruction ``name`` for the given (completed) samples."""
         return self._read(f"uncertainty/{name}", name, indices, self._repair_command(name))
+
+    def fingerprint(self, name: str) -> dict[str, Any]:
+        """What identifies the array ``name``: its parameters and the id made when it was created.
+
+        A reconstruction deleted and made again (``--overwrite``) gets a new id even with the
+        same parameters, so results derived from it can tell that their input changed.
+        """
+        attrs = self._group[f"reconstructions/{name}"].attrs
+        return {"params": attrs.get("params"), "created": attrs.get("created")}
 
     def params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
