@@ -405,12 +405,12 @@ def run(argv: list[str] | None = None) -> int:
     (status 1).
     """
     try:
-        app(args=argv, standalone_mode=False)
+        # typer turns Ctrl-C into exit status 130, returned (not raised) without standalone mode
+        code = app(args=argv, standalone_mode=False)
     except (KeyboardInterrupt, click.exceptions.Abort):
-        typer.secho("interrupted; run the same command again to resume", fg=typer.colors.YELLOW, err=True)
-        return 130
+        code = 130
     except click.exceptions.Exit as exc:
-        return int(exc.exit_code or 0)
+        code = exc.exit_code
     except click.ClickException as exc:
         exc.show()
         return int(exc.exit_code)
@@ -426,7 +426,9 @@ def run(argv: list[str] | None = None) -> int:
             return 1
         typer.secho(f"error: {_as_flags(' '.join(message.split()))}", fg=typer.colors.RED, err=True)
         return 2
-    return 0
+    if code == 130:
+        typer.secho("interrupted; run the same command again to resume", fg=typer.colors.YELLOW, err=True)
+    return code if isinstance(code, int) else 0
 
 
 def main() -> None:
