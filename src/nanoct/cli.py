@@ -39,6 +39,12 @@ def _parse_fractions(text: str) -> tuple[float, float, float]:
     return parts  # type: ignore[return-value]
 
 
+def _check_name(name: str | None) -> str | None:
+    from .store_recon import check_name
+
+    return None if name is None else check_name(name)
+
+
 # internal parameter names that appear in library messages -> the flag a user typed
 _FLAGS = {"max_shift": "--max-shift", "noise_std": "--noise-std", "oversample": "--oversample", "workers": "--workers"}
 
@@ -134,7 +140,9 @@ def reconstruct(
     split: str = typer.Option("all", "--split", help="test | val | train | all"),
     eta_scale: float = typer.Option(1.0, "--eta-scale", help="RESESOP: scale of eta (paper: 0.8, 1.0, 1.2)."),
     param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
-    name: str | None = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
+    name: str | None = typer.Option(
+        None, "--name", help="Output name (default: method, resesop_eta<F>).", callback=lambda v: _check_name(v)
+    ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
     workers: int = WORKERS,
     scheduler: str | None = SCHEDULER,
