@@ -219,6 +219,10 @@ def test_check_lists_damage_and_rerun_repairs(work, capsys):
     assert code == 2 and json.loads(out)["damaged"] == {"samples": [1], "reconstructions/fbp": [4]}
     code, _, err = _cli(capsys, ["show", store, "--index", 1, "--out", work / "x.png"])
     assert code == 2 and "run 'nanoct generate' again" in err
+    code, _, err = _cli(capsys, ["evaluate", store, "--split", "all"])  # names the undecodable chunk file
+    garbled = _chunk(store, "reconstructions/fbp", 4)
+    assert code == 2 and f"delete {garbled} and run 'nanoct reconstruct' again" in err
+    garbled.unlink()
     code, _, _ = _cli(
         capsys,
         [

@@ -3,8 +3,10 @@
 Float arrays of a store (format 2) are created with a NaN fill value, and every value nanoct
 writes is finite; so a sample whose chunk file was deleted reads as NaN, and one whose chunk
 file is truncated or garbled fails to decode. :func:`read_samples` turns both into a
-:class:`~nanoct.errors.StoreError` naming the samples and the command that repairs them, and
-:func:`damaged_samples` finds them without raising (for ``nanoct info --check`` and reruns).
+:class:`~nanoct.errors.StoreError` naming the samples (and an undecodable chunk's file) and the
+command that repairs them; :func:`damaged_samples` finds them by reading everything (``nanoct
+info --check``), :func:`missing_chunks` finds lost chunk files from their names alone (what a
+rerun does before it resumes, so that resuming a large store stays cheap).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import zarr
 
 from .errors import StoreError
 
-__all__ = ["damaged_samples", "read_flags", "read_samples", "remove_partial_writes"]
+__all__ = ["chunk_file", "damaged_samples", "missing_chunks", "read_flags", "read_samples", "remove_partial_writes"]
 
 # Zarr's LocalStore writes a chunk to path.with_suffix(".<uuid4 hex>.partial"), then renames it
 _PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
@@ -51,6 +53,24 @@ def remove_partial_writes(root: Path, keys: Iterable[str]) -> list[Path]:
                     p.unlink(missing_ok=True)
                     removed.append(p)
     return removed
+
+
+def chunk_file(folder: Path, index: int, ndim: int) -> Path:
+    """The file of sample ``index``'s chunk in the array folder ``folder`` (Zarr v3 default key encoding)."""
+    return Path(folder, "c", str(index), *["0"] * (ndim - 1))
+
+
+def missing_chunks(folder: Path, indices: np.ndarray, ndim: int) -> np.ndarray:
+    """Indices among ``indices`` whose chunk file in ``folder`` is absent or empty (one ``stat`` each)."""
+    idx = np.asarray(indices, dtype=int)
+
+    def lost(i: int) -> bool:
+        try:
+            return chunk_file(folder, i, ndim).stat().st_size == 0
+        except FileNotFoundError:
+            return True
+
+    return np.array([i for i in idx.tolist() if lost(i)], dtype=int)
 
 
 def read_flags(group: zarr.Group, key: str, idx: np.ndarray) -> np.ndarray:
@@ -106,7 +126,7 @@ def damaged_samples(array: zarr.Array, indices: np.ndarray, block: int = 64) -> 
     return np.array(sorted(bad), dtype=int)
 
 
-def read_samples(array: zarr.Array, indices: np.ndarray, *, what: str, repair: str) -> np.ndarray:
+def read_samples(array: zarr.Array, indices: np.ndarray, *, what: str, repair: str, folder: Path) -> np.ndarray:
     """Read ``array[indices]`` (first axis), refusing missing or damaged chunks.
 
     Parameters
@@ -119,6 +139,8 @@ def read_samples(array: zarr.Array, indices: np.ndarray, *, what: str, repair: s
         How to name the array in a message, e.g. ``"phantoms of runs/d"``.
     repair : str
         The command that rewrites damaged samples, e.g. ``"nanoct generate"``.
+    folder : Path
+        The array's folder (to name an undecodable chunk file, which must be deleted first).
 
     Raises
     ------
@@ -129,13 +151,14 @@ def read_samples(array: zarr.Array, indices: np.ndarray, *, what: str, repair: s
     try:
         data = _select(array, idx)
         bad = idx[_bad_rows(data)]
-        cause = "missing data (a chunk file is gone)"
+        cause = "missing data (a chunk file is gone);"
     except Exception as exc:
         bad, data = damaged_samples(array, idx), None
-        cause = f"an unreadable chunk ({type(exc).__name__}: {exc})"
+        files = [str(chunk_file(folder, i, array.ndim)) for i in bad[:3]]
+        cause = f"an unreadable chunk ({type(exc).__name__}: {exc}); delete {' '.join(files)} and"
     if bad.size or data is None:
         raise StoreError(
-            f"{what} is damaged: sample(s) {bad[:5].tolist()}{' ...' if bad.size > 5 else ''} have {cause}; "
+            f"{what} is damaged: sample(s) {bad[:5].tolist()}{' ...' if bad.size > 5 else ''} have {cause} "
             f"run '{repair}' again with the same arguments to rewrite them"
         )
     return data

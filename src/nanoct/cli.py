@@ -292,7 +292,10 @@ def _damage_message(damaged: dict[str, list[int]]) -> str:
     for key, idx in damaged.items():
         command = "generate" if key == "samples" else "predict" if "+" in key else "reconstruct"
         parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun 'nanoct {command}' to rewrite them)")
-    return "damaged data found: " + "; ".join(parts)
+    return (
+        "damaged data found: " + "; ".join(parts) + "; a chunk file that exists but cannot be read must be deleted "
+        "first (reading the sample names it)"
+    )
 
 
 def _print_info(data: dict[str, Any]) -> None:

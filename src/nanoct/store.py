@@ -41,7 +41,7 @@ import numpy as np
 import zarr
 
 from . import __version__
-from .chunks import damaged_samples, read_flags, read_samples, remove_partial_writes
+from .chunks import damaged_samples, missing_chunks, read_flags, read_samples, remove_partial_writes
 from .errors import StoreError
 from .geometry import Geometry
 from .store_recon import ReconstructionArrays
@@ -181,27 +181,8 @@ class DataStore:
         except Exception as exc:  # damaged metadata
             raise StoreError(f"the data set at {path} is damaged ({exc}); {_REGENERATE}") from exc
         store = cls(path, group)
-        store._check_arrays()
+        _check_arrays(store)
         return store
-
-    def _check_arrays(self) -> None:
-        for name, shape in _shapes(self.meta, self.geometry).items():
-            if name not in self._group:
-                raise StoreError(f"the data set at {self.path} is damaged: array '{name}' is missing; {_REGENERATE}")
-            actual = tuple(self._group[name].shape)  # type: ignore[union-attr]
-            if actual != shape:
-                raise StoreError(
-                    f"the data set at {self.path} is inconsistent: '{name}' has shape {actual} but its attributes "
-                    f"(n={self.n}, image {self.geometry.n}, sinogram {self.geometry.sino_shape}) say {shape}; "
-                    f"the attributes were edited by hand: restore them, or {_REGENERATE}"
-                )
-        self.recons.check_shapes()
-        try:
-            split = self._array("split")[:]
-        except Exception as exc:
-            raise StoreError(f"the split of {self.path} cannot be read ({exc}); {_REGENERATE}") from exc
-        if not np.isin(split, list(SPLITS.values())).all():
-            raise StoreError(f"the split of {self.path} is damaged (labels outside 0, 1, 2); {_REGENERATE}")
 
     @classmethod
     def create(
@@ -300,16 +281,22 @@ class DataStore:
         """Delete temporary chunk files of killed writes under ``keys``; see :mod:`nanoct.chunks`."""
         return remove_partial_writes(self.path, keys)
 
-    def damaged_samples(self) -> np.ndarray:
-        """Samples flagged done with a missing or unreadable chunk in any data array (reads them all)."""
+    def damaged_samples(self, full: bool = True) -> np.ndarray:
+        """Samples flagged done with a missing chunk file in any data array, or (``full``) one that cannot be read.
+
+        ``full`` reads every such chunk; without it only the chunk files' names are looked up.
+        """
         done = np.flatnonzero(self.done)
-        bad = [damaged_samples(self._array(name), done) for name in _DATA_ARRAYS]
+        if full:
+            bad = [damaged_samples(self._array(name), done) for name in _DATA_ARRAYS]
+        else:
+            bad = [missing_chunks(self.path / name, done, self._array(name).ndim) for name in _DATA_ARRAYS]
         return np.unique(np.concatenate(bad))
 
     def repair_samples(self) -> np.ndarray:
-        """Clear temporaries of killed writes and the ``done`` flags of damaged samples, so generation redoes them."""
+        """Clear temporaries of killed writes and the ``done`` flags of samples whose chunk files are lost."""
         self.remove_partial_writes(_SAMPLE_ARRAYS)
-        bad = self.damaged_samples()
+        bad = self.damaged_samples(full=False)
         if bad.size:
             self._array("done").set_coordinate_selection(bad, False)
         return bad
@@ -325,7 +312,8 @@ class DataStore:
         return sample.phantom, sample.sinogram, sample.sinogram_eta, sample.motion, sample.eta
 
     def _read_done(self, name: str, idx: np.ndarray) -> np.ndarray:
-        return read_samples(self._array(name), idx, what=f"'{name}' of {self.path}", repair="nanoct generate")
+        array, what = self._array(name), f"'{name}' of {self.path}"
+        return read_samples(array, idx, what=what, repair="nanoct generate", folder=self.path / name)
 
     def read_sample(self, index: int) -> Sample:
         """Read sample ``index``.
@@ -454,6 +442,27 @@ class DataStore:
             "version": self.meta.get("version"),
             "reconstructions": recons,
         }
+
+
+def _check_arrays(store: DataStore) -> None:
+    """Raise StoreError if an array is missing, its shape disagrees with the attributes, or the split is damaged."""
+    for name, shape in _shapes(store.meta, store.geometry).items():
+        if name not in store._group:
+            raise StoreError(f"the data set at {store.path} is damaged: array '{name}' is missing; {_REGENERATE}")
+        actual = tuple(store._group[name].shape)  # type: ignore[union-attr]
+        if actual != shape:
+            raise StoreError(
+                f"the data set at {store.path} is inconsistent: '{name}' has shape {actual} but its attributes "
+                f"(n={store.n}, image {store.geometry.n}, sinogram {store.geometry.sino_shape}) say {shape}; "
+                f"the attributes were edited by hand: restore them, or {_REGENERATE}"
+            )
+    store.recons.check_shapes()
+    try:
+        split = store._array("split")[:]
+    except Exception as exc:
+        raise StoreError(f"the split of {store.path} cannot be read ({exc}); {_REGENERATE}") from exc
+    if not np.isin(split, list(SPLITS.values())).all():
+        raise StoreError(f"the split of {store.path} is damaged (labels outside 0, 1, 2); {_REGENERATE}")
 
 
 @lru_cache(maxsize=8)

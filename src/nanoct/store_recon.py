@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import zarr
 
-from .chunks import damaged_samples, read_flags, read_samples, remove_partial_writes
+from .chunks import damaged_samples, missing_chunks, read_flags, read_samples, remove_partial_writes
 from .errors import NanoctError, StoreError
 
 __all__ = ["ReconstructionArrays", "check_name"]
@@ -124,17 +124,22 @@ class ReconstructionArrays:
         # from an earlier one of the same name (a prediction made from it records it)
         arr.attrs.update({"created": uuid.uuid4().hex, "params": params})
 
-    def damaged(self, name: str) -> np.ndarray:
-        """Samples flagged written whose image, shifts or std chunk is missing or unreadable (reads them all)."""
+    def damaged(self, name: str, full: bool = True) -> np.ndarray:
+        """Samples flagged written whose image, shifts or std chunk file is lost, or (``full``) unreadable.
+
+        ``full`` reads every such chunk; without it only the chunk files' names are looked up.
+        """
         done = np.flatnonzero(self.done(name))
-        keys = [k for k in _keys(name)[:3] if k in self._group]
-        bad = [damaged_samples(self._group[k], done) for k in keys]  # type: ignore[arg-type]
+        bad = []
+        for key in (k for k in _keys(name)[:3] if k in self._group):
+            array = self._group[key]
+            bad.append(damaged_samples(array, done) if full else missing_chunks(self.path / key, done, array.ndim))  # type: ignore[arg-type, union-attr]
         return np.unique(np.concatenate(bad)) if bad else np.zeros(0, int)
 
     def repair(self, name: str) -> np.ndarray:
-        """Clear the progress flags of damaged samples of ``name`` so that a rerun rewrites them."""
+        """Clear the progress flags of samples of ``name`` whose chunk files are lost, so that a rerun rewrites them."""
         remove_partial_writes(self.path, _keys(name))  # resuming: clear a killed run's temporaries
-        bad = self.damaged(name)
+        bad = self.damaged(name, full=False)
         self.invalidate(name, bad)
         return bad
 
@@ -185,7 +190,8 @@ class ReconstructionArrays:
                 f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. "
                 f"{missing[:5].tolist()}); run '{repair}' again"
             )
-        return read_samples(self._group[key], idx, what=f"{key} of {self.path}", repair=repair)  # type: ignore[arg-type]
+        array = self._group[key]
+        return read_samples(array, idx, what=f"{key} of {self.path}", repair=repair, folder=self.path / key)  # type: ignore[arg-type]
 
     def _repair_command(self, name: str) -> str:
         return "nanoct predict" if "+" in name else "nanoct reconstruct"
