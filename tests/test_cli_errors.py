@@ -78,7 +78,7 @@ BAD_ARGS = {
     "out is a file": (["generate", "-p", "tiny-parallel", "--n", 2, "--out", "{w}/afile"], "is a file"),
     "n zero": (["generate", "-p", "tiny-parallel", "--n", 0, "--out", "{w}/new"], "--n 0"),
     "n negative": (["generate", "-p", "tiny-parallel", "--n", -3, "--out", "{w}/new"], "--n -3"),
-    "n absurd": (["generate", "-p", "tiny-parallel", "--n", 10**12, "--out", "{w}/new"], "memory"),
+    "n absurd": (["generate", "-p", "tiny-parallel", "--n", 10**15, "--out", "{w}/new"], "memory"),
     "max shift negative": (
         ["generate", "-p", "tiny-parallel", "--n", 2, "--out", "{w}/new", "--max-shift", -1],
         "--max-shift",
