@@ -275,7 +275,7 @@ def test_train_after_divergence_accepts_a_corrected_rerun(work, capsys):
 
 def test_os_errors_name_the_file():
     assert _expected_error(PermissionError(13, "Permission denied", "/data/x")) == (
-        "Permission denied: /data/x; check its permissions or choose another --out"
+        "Permission denied: /data/x; check its permissions, or write somewhere else"
     )
     assert "No space" in _expected_error(OSError(28, "No space left on device", "/d"))
     assert _expected_error(RuntimeError("a bug")) is None

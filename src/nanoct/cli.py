@@ -401,7 +401,8 @@ def _expected_error(exc: BaseException) -> str | None:
     if isinstance(exc, OSError):
         where = " ".join(str(f) for f in (exc.filename, exc.filename2) if f)
         reason = exc.strerror or errno.errorcode.get(exc.errno or 0) or str(exc)
-        hints = {errno.EACCES: "check its permissions or choose another --out", errno.ENOSPC: "free some disk space"}
+        denied = "check its permissions, or write somewhere else"
+        hints = {errno.EACCES: denied, errno.EPERM: denied, errno.EROFS: denied, errno.ENOSPC: "free some disk space"}
         hint = hints.get(exc.errno or 0, "check the path")
         return f"{reason}: {where or '?'}; {hint}"
     return None
