@@ -445,18 +445,23 @@ class DataStore:
 
 
 def _check_arrays(store: DataStore) -> None:
-    """Raise StoreError if an array is missing, its shape disagrees with the attributes, or the split is damaged."""
+    """Raise StoreError if a data array is missing, its shape disagrees with the attributes, or the split is damaged.
+
+    The reconstruction arrays are checked when they are used (:class:`~nanoct.store_recon.ReconstructionArrays`).
+    """
     for name, shape in _shapes(store.meta, store.geometry).items():
-        if name not in store._group:
-            raise StoreError(f"the data set at {store.path} is damaged: array '{name}' is missing; {_REGENERATE}")
-        actual = tuple(store._group[name].shape)  # type: ignore[union-attr]
+        try:
+            actual = tuple(store._group[name].shape)  # type: ignore[union-attr]
+        except KeyError:
+            raise StoreError(
+                f"the data set at {store.path} is damaged: array '{name}' is missing; {_REGENERATE}"
+            ) from None
         if actual != shape:
             raise StoreError(
                 f"the data set at {store.path} is inconsistent: '{name}' has shape {actual} but its attributes "
                 f"(n={store.n}, image {store.geometry.n}, sinogram {store.geometry.sino_shape}) say {shape}; "
                 f"the attributes were edited by hand: restore them, or {_REGENERATE}"
             )
-    store.recons.check_shapes()
     try:
         split = store._array("split")[:]
     except Exception as exc:

@@ -79,21 +79,23 @@ class ReconstructionArrays:
         """Names of the reconstruction image arrays present (``<name>_shifts`` excluded)."""
         if "reconstructions" not in self._group:
             return []
-        group = self._group["reconstructions"]
-        return sorted(k for k in group.array_keys() if group[k].ndim == 3)  # type: ignore[union-attr]
+        keys = self._group["reconstructions"].array_keys()  # type: ignore[union-attr]
+        return sorted(k for k in keys if not k.endswith("_shifts"))  # names never end in _shifts (check_name)
 
-    def check_shapes(self) -> None:
-        """Raise :class:`StoreError` if an array's shape disagrees with the store's n, N and K."""
-        image, flags, shifts = (self.n, *self.image_shape), (self.n,), (self.n, self.n_angles)
-        for name in self.names():
-            keys = _keys(name)
-            for key, shape in zip(keys, (image, shifts, image, flags)):
-                if key in self._group and tuple(self._group[key].shape) != shape:  # type: ignore[union-attr]
-                    raise StoreError(
-                        f"{key} in {self.path} has shape {tuple(self._group[key].shape)}, the data set says "  # type: ignore[union-attr]
-                        f"{shape}; its attributes were edited or the arrays replaced: delete the reconstruction "
-                        "or generate the data set again"
-                    )
+    def _array(self, key: str) -> zarr.Array:
+        """``group[key]``, refused when its shape disagrees with the store's n, N and K."""
+        array = self._group[key]
+        if key.startswith("progress/"):
+            shape: tuple[int, ...] = (self.n,)
+        else:
+            shape = (self.n, self.n_angles) if key.endswith("_shifts") else (self.n, *self.image_shape)
+        if tuple(array.shape) != shape:  # type: ignore[union-attr]
+            raise StoreError(
+                f"{key} in {self.path} has shape {tuple(array.shape)}, the data set says {shape}; its "  # type: ignore[union-attr]
+                "attributes were edited or the arrays replaced: delete the reconstruction or generate the data "
+                "set again"
+            )
+        return array  # type: ignore[return-value]
 
     def _new(self, key: str, shape: tuple[int, ...], dtype: str, fill: Any) -> zarr.Array:
         return self._group.create_array(
@@ -166,12 +168,12 @@ class ReconstructionArrays:
     ) -> None:
         """Write one reconstruction (with estimated shifts or std); the progress flag is set last."""
         try:
-            self._group[f"reconstructions/{name}"][index] = image  # type: ignore[index]
+            self._array(f"reconstructions/{name}")[index] = image
             if shifts is not None:
-                self._group[f"reconstructions/{name}_shifts"][index] = shifts  # type: ignore[index]
+                self._array(f"reconstructions/{name}_shifts")[index] = shifts
             if std is not None:
-                self._group[f"uncertainty/{name}"][index] = std  # type: ignore[index]
-            self._group[f"progress/{name}"][index] = True  # type: ignore[index]
+                self._array(f"uncertainty/{name}")[index] = std
+            self._array(f"progress/{name}")[index] = True
         except KeyError as exc:
             raise StoreError(
                 f"reconstructions/{name} in {self.path} was deleted while this run was writing it (by another "
@@ -190,8 +192,8 @@ class ReconstructionArrays:
                 f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. "
                 f"{missing[:5].tolist()}); run '{repair}' again"
             )
-        array = self._group[key]
-        return read_samples(array, idx, what=f"{key} of {self.path}", repair=repair, folder=self.path / key)  # type: ignore[arg-type]
+        array = self._array(key)
+        return read_samples(array, idx, what=f"{key} of {self.path}", repair=repair, folder=self.path / key)
 
     def _repair_command(self, name: str) -> str:
         return "nanoct predict" if "+" in name else "nanoct reconstruct"
