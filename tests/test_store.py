@@ -1,9 +1,10 @@
 import json
+import os
 
 import numpy as np
 import pytest
 
-from nanoct.errors import StoreError
+from nanoct.errors import NanoctError, StoreError
 from nanoct.geometry import get_preset
 from nanoct.store import DataStore, split_assignment
 
@@ -114,7 +115,7 @@ def test_damaged_chunk_is_reported(tmp_path):
     while chunk.is_dir():
         chunk = next(chunk.iterdir())
     chunk.write_bytes(b"garbage")
-    with pytest.raises(StoreError, match="cannot be read"):
+    with pytest.raises(StoreError, match="unreadable chunk"):
         for i in range(2):
             store.read_sample(i)
 
@@ -179,3 +180,58 @@ def test_remove_partial_writes_matches_only_zarr_temporaries(tmp_path):
         p.write_bytes(b"x")
     assert store.remove_partial_writes(["phantoms", "missing"]) == [stale]
     assert all(p.exists() for p in keep) and not stale.exists()
+
+
+def test_stale_creation_of_a_killed_process_is_removed(tmp_path):
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / f".d.creating-{int(dead.stdout)}-0123abcd"  # the process that made it is gone
+    older = tmp_path / ".d.creating-89abcdef"  # the name of an earlier nanoct (no process id)
+    alive = tmp_path / f".d.creating-{os.getppid()}-deadbeef"  # a creation still under way
+    for p in (stale, older, alive):
+        (p / "phantoms").mkdir(parents=True)
+    DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 2, 0, {})
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "d"])
+
+
+def test_write_into_a_deleted_reconstruction_is_a_store_error(tmp_path):
+    store = DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 2, 0, {})
+    store.prepare_reconstruction("x", {"a": 1}, shifts=True)
+    DataStore.open(tmp_path / "d", mode="r+").delete_reconstruction("x")  # another run's --overwrite
+    with pytest.raises(StoreError, match="deleted while this run was writing"):
+        store.write_reconstruction("x", 0, np.zeros(store.geometry.image_shape, np.float32))
+
+
+def test_lost_chunks_read_as_nan_are_refused_and_repaired(tmp_path):
+    from nanoct.generate import generate_dataset
+
+    g = get_preset("tiny-parallel")
+    store = generate_dataset(tmp_path / "d", g, 3, seed=1, workers=0, progress=False)
+    phantom = store.read_phantoms([2])
+    store.prepare_reconstruction("x", {"a": 1}, shifts=True)
+    for i in range(3):
+        store.write_reconstruction("x", i, phantom[0] + i, shifts=np.full(g.n_angles, i, np.float32))
+    (store.path / "phantoms" / "c" / "2" / "0" / "0").unlink()
+    (store.path / "reconstructions" / "x_shifts" / "c" / "1" / "0").unlink()
+    with pytest.raises(StoreError, match=r"phantoms.*sample\(s\) \[2\] have missing data.*nanoct generate"):
+        store.read_phantoms([0, 2])
+    with pytest.raises(StoreError, match=r"x_shifts.*\[1\].*nanoct reconstruct"):
+        store.read_shifts("x", [0, 1])
+    np.testing.assert_array_equal(store.read_shifts("x", [2]), np.full((1, g.n_angles), 2, np.float32))
+    assert store.verify() == {"samples": [2], "reconstructions/x": [1]}
+    store.prepare_reconstruction("x", {"a": 1}, shifts=True)  # resuming marks the damaged sample for redoing
+    assert store.reconstruction_done("x").tolist() == [True, False, True]
+    generate_dataset(tmp_path / "d", g, 3, seed=1, workers=0, progress=False)
+    np.testing.assert_array_equal(store.read_phantoms([2]), phantom)
+
+
+@pytest.mark.parametrize("name", ["a/b", "..", ".x", "", " ", "a\\b", "x_shifts", "tab\there"])
+def test_bad_reconstruction_names(tmp_path, name):
+    store = DataStore.create(tmp_path / "d", get_preset("tiny-parallel"), 2, 0, {})
+    with pytest.raises(NanoctError, match="--name"):
+        store.prepare_reconstruction(name, {})
+    with pytest.raises(NanoctError, match="--name"):
+        store.delete_reconstruction(name)
+    assert "reconstructions" not in [p.name for p in store.path.iterdir()]

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import re
 import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
+import click
 import typer
 
 from .errors import NanoctError
@@ -29,9 +33,37 @@ def _parse_fractions(text: str) -> tuple[float, float, float]:
         parts = tuple(float(v) for v in text.split(","))
     except ValueError:
         parts = ()
-    if len(parts) != 3:
-        raise NanoctError(f"--split-fractions {text!r} must be three comma-separated numbers, e.g. 0.95,0.04,0.01")
+    if len(parts) != 3 or not all(0 <= p < float("inf") for p in parts) or abs(sum(parts) - 1) > 1e-6:
+        raise NanoctError(
+            f"--split-fractions {text!r} must be three comma-separated numbers >= 0 summing to 1, e.g. 0.95,0.04,0.01"
+        )
     return parts  # type: ignore[return-value]
+
+
+def _check_name(name: str | None) -> str | None:
+    from .store_recon import check_name
+
+    return None if name is None else check_name(name)
+
+
+# internal parameter names that appear in library messages -> the flag a user typed
+_FLAGS = {"max_shift": "--max-shift", "noise_std": "--noise-std", "oversample": "--oversample", "workers": "--workers"}
+
+
+def _as_flags(message: str) -> str:
+    """Rewrite ``max_shift=-1`` in a library message as ``--max-shift -1``."""
+    return re.sub(r"\b(" + "|".join(_FLAGS) + r")=", lambda m: _FLAGS[m.group(1)] + " ", message)
+
+
+def _check_device(device: str | None) -> None:
+    if device is None:
+        return
+    import torch
+
+    try:
+        torch.device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise NanoctError(f"--device {device!r} is not a device; use cpu, cuda or cuda:<index>") from exc
 
 
 def _parse_params(items: list[str]) -> dict[str, Any]:
@@ -78,12 +110,15 @@ def generate(
 
     geometry = get_preset(preset)
     overrides = {} if max_shift is None else {"max_shift": max_shift}
-    config = SimulationConfig(
-        motion=MotionParams.for_kind(geometry.kind, **overrides),
-        perturbed=not no_motion,
-        oversample=oversample,
-        noise_std=noise_std,
-    )
+    try:
+        config = SimulationConfig(
+            motion=MotionParams.for_kind(geometry.kind, **overrides),
+            perturbed=not no_motion,
+            oversample=oversample,
+            noise_std=noise_std,
+        )
+    except ValueError as exc:
+        raise NanoctError(_as_flags(str(exc))) from exc
     store = generate_dataset(
         out,
         geometry,
@@ -110,7 +145,9 @@ def reconstruct(
         help=f"Methods that use eta ({', '.join(methods_with_eta())}): its scale (default 1; paper: 0.8, 1.0, 1.2).",
     ),
     param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
-    name: str | None = typer.Option(None, "--name", help="Output name (default: method, resesop_eta<F>)."),
+    name: str | None = typer.Option(
+        None, "--name", help="Output name (default: method, resesop_eta<F>).", callback=lambda v: _check_name(v)
+    ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
     workers: int = WORKERS,
     scheduler: str | None = SCHEDULER,
@@ -168,6 +205,7 @@ def train(
     """
     from .learn.train import train as train_model
 
+    _check_device(device)
     run = out or Path(directory).resolve().parent / "runs" / f"{model}-{input_name}"
     path = train_model(
         directory,
@@ -210,6 +248,7 @@ def predict(
     """
     from .learn.predict import predict as predict_model
 
+    _check_device(device)
     if samples is not None and samples <= 0:
         raise NanoctError(f"--samples {samples} must be a positive number of latent samples")
     kwargs = None if samples is None else {"n_samples": samples}
@@ -231,14 +270,41 @@ def predict(
 def info(
     directory: Path = typer.Argument(..., help="Data-set store."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+    check: bool = typer.Option(
+        False, "--check", help="Read every written sample and list damaged ones (exit status 2 if any)."
+    ),
 ) -> None:
-    """Sizes, splits, geometry, completeness and reconstructions of a data set."""
+    """Sizes, splits, geometry, completeness and reconstructions of a data set.
+
+    With --check, every sample and reconstruction that claims to be written is read; damaged
+    ones (a lost or unreadable chunk) are listed with the command that rewrites them.
+    """
     from .store import DataStore
 
-    data = DataStore.open(directory).info()
+    store = DataStore.open(directory)
+    data = store.info()
+    if check:
+        data["damaged"] = store.verify()
     if as_json:
         typer.echo(json.dumps(data, indent=2))
-        return
+    else:
+        _print_info(data)
+    if data.get("damaged"):
+        raise NanoctError(_damage_message(data["damaged"]))
+
+
+def _damage_message(damaged: dict[str, list[int]]) -> str:
+    parts = []
+    for key, idx in damaged.items():
+        command = "generate" if key == "samples" else "predict" if "+" in key else "reconstruct"
+        parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun 'nanoct {command}' to rewrite them)")
+    return (
+        "damaged data found: " + "; ".join(parts) + "; a chunk file that exists but cannot be read must be deleted "
+        "first (reading the sample names it)"
+    )
+
+
+def _print_info(data: dict[str, Any]) -> None:
     g = data["geometry"]
     typer.echo(f"data set   {data['path']}  (nanoct {data['version']}, seed {data['seed']})")
     typer.echo(f"geometry   {g['kind']} beam, image {g['n']}x{g['n']}, sinogram {g['n_angles']}x{g['n_det']}")
@@ -251,6 +317,8 @@ def info(
     )
     recons = data["reconstructions"]
     typer.echo("reconstructions " + (", ".join(f"{k} ({v['done']}/{data['n']})" for k, v in recons.items()) or "none"))
+    if "damaged" in data:
+        typer.echo("check      " + ("no damaged samples" if not data["damaged"] else "DAMAGED (see below)"))
 
 
 @app.command()
@@ -330,13 +398,57 @@ def reproduce(
     typer.echo(f"report: {report}", err=True)
 
 
-def main() -> None:
-    """Entry point: run the app, turning user errors into one line and exit status 2."""
+def _expected_error(exc: BaseException) -> str | None:
+    """The one-line message for an expected failure, or None for a bug."""
+    if isinstance(exc, (NanoctError, ValueError)):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return "not enough memory for this request; use a smaller --n or preset"
+    if isinstance(exc, OSError):
+        where = " ".join(str(f) for f in (exc.filename, exc.filename2) if f)
+        reason = exc.strerror or errno.errorcode.get(exc.errno or 0) or str(exc)
+        denied = "check its permissions, or write somewhere else"
+        hints = {errno.EACCES: denied, errno.EPERM: denied, errno.EROFS: denied, errno.ENOSPC: "free some disk space"}
+        hint = hints.get(exc.errno or 0, "check the path")
+        return f"{reason}: {where or '?'}; {hint}"
+    return None
+
+
+def run(argv: list[str] | None = None) -> int:
+    """Run the CLI on ``argv`` (default ``sys.argv[1:]``) and return the exit status.
+
+    Every expected failure (a :class:`NanoctError`, bad numbers, a file-system error, not
+    enough memory) becomes one ``error:`` line and status 2; Ctrl-C prints how to resume and
+    gives 130; anything else is a bug: its traceback is printed with a request to report it
+    (status 1).
+    """
     try:
-        app()
-    except (NanoctError, ValueError) as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        sys.exit(2)
-    except KeyboardInterrupt:
+        # typer turns Ctrl-C into exit status 130, returned (not raised) without standalone mode
+        code = app(args=argv, standalone_mode=False)
+    except (KeyboardInterrupt, click.exceptions.Abort):
+        code = 130
+    except click.exceptions.Exit as exc:
+        code = exc.exit_code
+    except click.ClickException as exc:
+        exc.show()
+        return int(exc.exit_code)
+    except Exception as exc:  # the one error boundary of the CLI
+        message = _expected_error(exc)
+        if message is None:
+            traceback.print_exc()
+            typer.secho(
+                "this is a bug in nanoct; please report it with the command and the traceback above",
+                fg=typer.colors.RED,
+                err=True,
+            )
+            return 1
+        typer.secho(f"error: {_as_flags(' '.join(message.split()))}", fg=typer.colors.RED, err=True)
+        return 2
+    if code == 130:
         typer.secho("interrupted; run the same command again to resume", fg=typer.colors.YELLOW, err=True)
-        sys.exit(130)
+    return code if isinstance(code, int) else 0
+
+
+def main() -> None:
+    """Entry point: :func:`run` on the command line, exit with its status."""
+    sys.exit(run())

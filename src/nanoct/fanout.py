@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
@@ -52,15 +54,34 @@ def _client(workers: int, scheduler: str | None) -> Iterator[object]:
         finally:
             client.close()
         return
-    cluster = LocalCluster(
-        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR
-    )
+    with _sigint_ignored():  # inherited by the worker processes: Ctrl-C stops only this one, which cleans up
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"},  # its HTTP server on a free port: runs side by side
+            silence_logs=logging.CRITICAL,
+        )
     client = Client(cluster)
     try:
         yield client
     finally:
         client.close()
         cluster.close()
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT while worker processes are started (they inherit it), in the main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def run_tasks(
@@ -105,7 +126,7 @@ def run_tasks(
     """
     indices = [int(i) for i in indices]
     if workers < 0:
-        raise ValueError(f"workers={workers} must be >= 0")
+        raise ValueError(f"--workers {workers} must be >= 0")
     if not indices:
         return 0
     bar = tqdm(total=len(indices), desc=desc, unit=unit, disable=not progress)

@@ -64,6 +64,8 @@ def generate_dataset(
         raise NanoctError(f"--n {n} must be a positive number of samples")
     if seed < 0:
         raise NanoctError(f"--seed {seed} must be >= 0")
+    if workers < 0:
+        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
     pending = [int(i) for i in (~store.done).nonzero()[0]]

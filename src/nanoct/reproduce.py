@@ -209,7 +209,7 @@ def reproduce_study(
     # 1. data and first reconstructions
     config = SimulationConfig.for_geometry(geometry, perturbed=perturbed)
     store = generate_dataset(
-        data, geometry, n or study.n, seed=0, config=config, split_fractions=study.split_fractions, **fan
+        data, geometry, study.n if n is None else n, seed=0, config=config, split_fractions=study.split_fractions, **fan
     )
     recons = _recons(perturbed)
     for name, (method, params) in recons.items():

@@ -10,23 +10,25 @@ Layout (n samples, image N x N, sinogram K x L)::
       eta             (n, K)     float32   per-view model error max_l |y - y_eta|
       split           (n,)       int8      0 = train, 1 = val, 2 = test
       done            (n,)       bool      sample i is completely written
-      reconstructions/<name>  (n, N, N) float32, attrs["params"]: parameters used
-      reconstructions/<name>_shifts (n, K) float32: estimated motion of methods that have one
-      uncertainty/<name>      (n, N, N) float32: pixel-wise std of sampling post-processors
-      progress/<name>         (n,) bool: which samples of reconstructions/<name> are written
+      reconstructions/<name>, uncertainty/<name>, progress/<name>: see :mod:`nanoct.store_recon`
+
+Float arrays are created with a NaN fill value (store format 2), so a chunk file that is lost
+reads as NaN and is reported instead of passing as zeros; a chunk that cannot be decoded is
+reported too (:mod:`nanoct.chunks`). Re-running the command that wrote a damaged sample
+rewrites it, and ``nanoct info DIR --check`` lists damaged samples. On open, the attributes
+(n, geometry) are checked against the arrays' shapes.
 
 Every chunk is written atomically by Zarr's local store, and a sample's ``done`` flag (or
 ``progress`` flag) is written last, so a run killed at any moment leaves no sample that
 claims to be complete but is not; re-running the same command fills in the rest. A kill
 in the middle of a chunk write leaves Zarr's temporary ``<chunk>.<hex>.partial`` next to it;
-the rerun removes those of the arrays it writes (:meth:`DataStore.remove_partial_writes`).
+the rerun removes those of the arrays it writes (:func:`nanoct.chunks.remove_partial_writes`).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import uuid
 from collections.abc import Iterable
@@ -39,16 +41,18 @@ import numpy as np
 import zarr
 
 from . import __version__
+from .chunks import damaged_samples, missing_chunks, read_flags, read_samples, remove_partial_writes
 from .errors import StoreError
 from .geometry import Geometry
+from .store_recon import ReconstructionArrays
 
 __all__ = ["SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
-FORMAT = 1
-_SAMPLE_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "done")
-# Zarr's LocalStore writes a chunk to path.with_suffix(".<uuid4 hex>.partial"), then renames it
-_PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
+FORMAT = 2  # 1: fill value 0 (a lost chunk read as zeros); 2: NaN fill for float arrays
+_DATA_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta")
+_SAMPLE_ARRAYS = (*_DATA_ARRAYS, "done")
+_REGENERATE = "delete it and generate it again"
 
 
 @dataclass
@@ -89,26 +93,72 @@ def _json_roundtrip(value: Any) -> Any:
     return json.loads(json.dumps(value))
 
 
+def _shapes(meta: dict[str, Any], geometry: Geometry) -> dict[str, tuple[int, ...]]:
+    n, size, (k, det) = int(meta["n"]), geometry.n, geometry.sino_shape
+    return {
+        "phantoms": (n, size, size),
+        "sinograms": (n, k, det),
+        "sinograms_eta": (n, k, det),
+        "motion": (n, k, 3),
+        "eta": (n, k),
+        "done": (n,),
+        "split": (n,),
+    }
+
+
+def _parse_meta(path: Path, meta: Any) -> tuple[Geometry, int, int]:
+    """Geometry, n and seed of a store's attributes, or a StoreError saying what is wrong."""
+    if not isinstance(meta, dict) or meta.get("format") not in (1, FORMAT):
+        raise StoreError(
+            f"{path} is a Zarr group but not a nanoct data set (format {FORMAT}); generate one with 'nanoct generate'"
+        )
+    if meta["format"] != FORMAT:
+        raise StoreError(
+            f"{path} was written by an older nanoct (store format {meta['format']}), in which a lost chunk reads "
+            f"as zeros and cannot be detected; generate it again into a new directory (format {FORMAT})"
+        )
+    try:
+        geometry = Geometry.from_dict(meta["geometry"])
+        n, seed = int(meta["n"]), int(meta["seed"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StoreError(f"the attributes of the data set at {path} are damaged ({exc}); {_REGENERATE}") from exc
+    return geometry, n, seed
+
+
+def _remove_stale_creations(path: Path) -> None:
+    """Remove ``.NAME.creating-<pid>-<hex>`` directories of killed creations (their process is gone)."""
+    for tmp in path.parent.glob(f".{path.name}.creating-*"):
+        pid = tmp.name.rsplit(".creating-", 1)[1].split("-")[0]
+        alive = pid.isdigit() and int(pid) != os.getpid() and _pid_alive(int(pid))
+        if tmp.is_dir() and not alive:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
 class DataStore:
     """A nanoct data set on disk.
 
     Use :meth:`create` to make (or re-open, when the description matches) a data set and
-    :meth:`open` to open an existing one.
+    :meth:`open` to open an existing one. The reconstruction arrays live in
+    :attr:`recons` (:class:`~nanoct.store_recon.ReconstructionArrays`); the
+    ``*reconstruction*`` methods here forward to it.
     """
 
     def __init__(self, path: Path, group: zarr.Group) -> None:
         self.path = Path(path)
         self._group = group
-        meta = group.attrs.get("nanoct")
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-            raise StoreError(
-                f"{path} is a Zarr group but not a nanoct data set (format {FORMAT}); generate one "
-                "with 'nanoct generate'"
-            )
-        self.meta: dict[str, Any] = meta
-        self.geometry = Geometry.from_dict(meta["geometry"])
-        self.n: int = int(meta["n"])
-        self.seed: int = int(meta["seed"])
+        self.meta: dict[str, Any] = group.attrs.get("nanoct")  # type: ignore[assignment]
+        self.geometry, self.n, self.seed = _parse_meta(self.path, self.meta)
+        self.recons = ReconstructionArrays(group, self.path, self.n, self.geometry.image_shape, self.geometry.n_angles)
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -118,7 +168,8 @@ class DataStore:
         Raises
         ------
         StoreError
-            If ``path`` does not exist or is not a readable nanoct data set.
+            If ``path`` does not exist or is not a readable nanoct data set, or if its
+            attributes (n, geometry) disagree with the shapes of its arrays.
         """
         path = Path(path)
         if not (path / "zarr.json").is_file():
@@ -128,13 +179,9 @@ class DataStore:
         try:
             group = zarr.open_group(str(path), mode=mode)
         except Exception as exc:  # damaged metadata
-            raise StoreError(f"the data set at {path} is damaged ({exc}); delete it and generate it again") from exc
+            raise StoreError(f"the data set at {path} is damaged ({exc}); {_REGENERATE}") from exc
         store = cls(path, group)
-        for name in ("phantoms", "sinograms", "sinograms_eta", "motion", "eta", "split", "done"):
-            if name not in group:
-                raise StoreError(
-                    f"the data set at {path} is damaged: array '{name}' is missing; delete it and generate it again"
-                )
+        _check_arrays(store)
         return store
 
     @classmethod
@@ -149,9 +196,11 @@ class DataStore:
     ) -> DataStore:
         """Create a data set at ``path``, or re-open it if it holds the same description.
 
-        The group is built in a temporary sibling directory and renamed into place, so an
-        interrupted creation leaves nothing behind. Re-opening is resuming: the temporary
-        chunk files of a killed earlier run are removed (:meth:`remove_partial_writes`).
+        The group is built in a temporary sibling ``.NAME.creating-<pid>-<hex>`` and renamed
+        into place, so an interrupted creation leaves no half-made data set; the next creation
+        removes such siblings whose process is gone. Re-opening is resuming: the temporary chunk
+        files of a killed earlier run are removed and damaged samples are marked for rewriting
+        (:meth:`repair_samples`).
 
         Raises
         ------
@@ -171,6 +220,8 @@ class DataStore:
                 "split_fractions": list(split_fractions),
             }
         )
+        if path.exists() and not path.is_dir():
+            raise StoreError(f"--out {path} is a file, not a directory; choose another --out")
         if path.exists():
             if not (path / "zarr.json").is_file() and any(path.iterdir()):
                 raise StoreError(f"{path} exists and is not a nanoct data set; choose another --out or remove it")
@@ -184,27 +235,18 @@ class DataStore:
                         f"{path} holds a different data set (differs in: {', '.join(diff)}); "
                         "use another --out, or repeat the original command to resume it"
                     )
-                existing.remove_partial_writes(_SAMPLE_ARRAYS)
+                existing.repair_samples()
                 return existing
-        n_angles, n_det = geometry.sino_shape
-        size = geometry.n
-        tmp = path.parent / f".{path.name}.creating-{uuid.uuid4().hex[:8]}"
+        _remove_stale_creations(path)
+        tmp = path.parent / f".{path.name}.creating-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:
             group = zarr.open_group(str(tmp), mode="w")
             group.attrs["nanoct"] = meta
-            specs = {
-                "phantoms": ((n, size, size), "float32"),
-                "sinograms": ((n, n_angles, n_det), "float32"),
-                "sinograms_eta": ((n, n_angles, n_det), "float32"),
-                "motion": ((n, n_angles, 3), "float32"),
-                "eta": ((n, n_angles), "float32"),
-                "done": ((n,), "bool"),
-            }
-            for name in _SAMPLE_ARRAYS:
-                shape, dtype = specs[name]
-                group.create_array(name, shape=shape, chunks=(1, *shape[1:]), dtype=dtype, fill_value=0)
-            split = group.create_array("split", shape=(n,), chunks=(n,), dtype="int8", fill_value=0)
-            split[:] = split_assignment(n, seed, split_fractions)
+            for name, shape in _shapes(meta, geometry).items():
+                dtype, fill = {"done": ("bool", False), "split": ("int8", -1)}.get(name, ("float32", np.nan))
+                chunks = (n,) if name == "split" else (1, *shape[1:])
+                group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill)
+            group["split"][:] = split_assignment(n, seed, split_fractions)  # type: ignore[index]
             if path.exists():
                 path.rmdir()  # an empty directory the user created
             os.replace(tmp, path)
@@ -217,14 +259,6 @@ class DataStore:
     def _array(self, name: str) -> zarr.Array:
         return self._group[name]  # type: ignore[return-value]
 
-    def _flags(self, key: str, idx: np.ndarray) -> np.ndarray:
-        """Completion flags of the given samples only (reads just their chunks)."""
-        if key not in self._group:
-            return np.zeros(len(idx), dtype=bool)
-        if len(idx) == 0:
-            return np.zeros(0, dtype=bool)
-        return np.asarray(self._group[key].get_coordinate_selection(idx), dtype=bool)
-
     @property
     def split(self) -> np.ndarray:
         """Split label per sample (0 train, 1 val, 2 test)."""
@@ -233,7 +267,7 @@ class DataStore:
     @property
     def done(self) -> np.ndarray:
         """Boolean mask of completely written samples."""
-        return np.asarray(self._array("done")[:], dtype=bool)
+        return read_flags(self._group, "done", np.arange(self.n))
 
     def indices(self, split: str = "all") -> np.ndarray:
         """Sample indices of a split (``train``, ``val``, ``test`` or ``all``)."""
@@ -244,39 +278,42 @@ class DataStore:
         return np.flatnonzero(self.split == SPLITS[split])
 
     def remove_partial_writes(self, keys: Iterable[str]) -> list[Path]:
-        """Delete the temporary chunk files that a killed write left under the arrays ``keys``.
+        """Delete temporary chunk files of killed writes under ``keys``; see :mod:`nanoct.chunks`."""
+        return remove_partial_writes(self.path, keys)
 
-        Call it only from the process that is about to (re)write these arrays, before it fans
-        out: a write in progress elsewhere in the same arrays would lose its temporary.
+    def damaged_samples(self, full: bool = True) -> np.ndarray:
+        """Samples flagged done with a missing chunk file in any data array, or (``full``) one that cannot be read.
 
-        Parameters
-        ----------
-        keys : iterable of str
-            Array paths in the group, e.g. ``"phantoms"`` or ``"reconstructions/fbp"``.
-
-        Returns
-        -------
-        list of Path
-            The files removed.
+        ``full`` reads every such chunk; without it only the chunk files' names are looked up.
         """
-        removed = []
-        for key in keys:
-            root = self.path / key
-            if root.is_dir():
-                for p in root.rglob("*.partial"):
-                    if _PARTIAL.search(p.name) and p.is_file():
-                        p.unlink(missing_ok=True)
-                        removed.append(p)
-        return removed
+        done = np.flatnonzero(self.done)
+        if full:
+            bad = [damaged_samples(self._array(name), done) for name in _DATA_ARRAYS]
+        else:
+            bad = [missing_chunks(self.path / name, done, self._array(name).ndim) for name in _DATA_ARRAYS]
+        return np.unique(np.concatenate(bad))
+
+    def repair_samples(self) -> np.ndarray:
+        """Clear temporaries of killed writes and the ``done`` flags of samples whose chunk files are lost."""
+        self.remove_partial_writes(_SAMPLE_ARRAYS)
+        bad = self.damaged_samples(full=False)
+        if bad.size:
+            self._array("done").set_coordinate_selection(bad, False)
+        return bad
 
     def write_sample(self, index: int, sample: Sample) -> None:
         """Write sample ``index``; its ``done`` flag is set last."""
-        self._array("phantoms")[index] = sample.phantom
-        self._array("sinograms")[index] = sample.sinogram
-        self._array("sinograms_eta")[index] = sample.sinogram_eta
-        self._array("motion")[index] = sample.motion
-        self._array("eta")[index] = sample.eta
+        for name, value in zip(_DATA_ARRAYS, self._fields(sample)):
+            self._array(name)[index] = value
         self._array("done")[index] = True
+
+    @staticmethod
+    def _fields(sample: Sample) -> tuple[np.ndarray, ...]:
+        return sample.phantom, sample.sinogram, sample.sinogram_eta, sample.motion, sample.eta
+
+    def _read_done(self, name: str, idx: np.ndarray) -> np.ndarray:
+        array, what = self._array(name), f"'{name}' of {self.path}"
+        return read_samples(array, idx, what=what, repair="nanoct generate", folder=self.path / name)
 
     def read_sample(self, index: int) -> Sample:
         """Read sample ``index``.
@@ -284,41 +321,30 @@ class DataStore:
         Raises
         ------
         StoreError
-            If the sample is not written yet or a chunk cannot be read.
+            If the sample is not written yet, or a chunk is missing or cannot be read.
         """
         if not 0 <= index < self.n:
             raise IndexError(f"sample index {index} is out of range 0..{self.n - 1}")
-        if not self._array("done")[index]:
+        idx = np.array([index])
+        if not read_flags(self._group, "done", idx)[0]:
             raise StoreError(
                 f"sample {index} of {self.path} is not generated yet; run 'nanoct generate' again to finish it"
             )
-        try:
-            return Sample(
-                phantom=self._array("phantoms")[index],
-                sinogram=self._array("sinograms")[index],
-                sinogram_eta=self._array("sinograms_eta")[index],
-                motion=self._array("motion")[index],
-                eta=self._array("eta")[index],
-            )
-        except Exception as exc:
-            raise StoreError(f"sample {index} of {self.path} cannot be read ({exc}); the store is damaged") from exc
+        return Sample(*(self._read_done(name, idx)[0] for name in _DATA_ARRAYS))
 
     def read_phantoms(self, indices: Iterable[int]) -> np.ndarray:
         """Ground-truth phantoms of the given samples, shape (len(indices), N, N)."""
         idx = np.asarray(list(indices), dtype=int)
-        if not self._flags("done", idx).all():
+        if not read_flags(self._group, "done", idx).all():
             raise StoreError(
                 f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again"
             )
-        return self._array("phantoms").get_orthogonal_selection((idx, slice(None), slice(None)))
+        return self._read_done("phantoms", idx)
 
-    # ------------------------------------------------------------------ reconstructions
+    # ------------------------------------------------------------------ reconstructions (see store_recon)
     def reconstruction_names(self) -> list[str]:
         """Names of the reconstruction image arrays present (``<name>_shifts`` excluded)."""
-        if "reconstructions" not in self._group:
-            return []
-        group = self._group["reconstructions"]
-        return sorted(k for k in group.array_keys() if group[k].ndim == 3)
+        return self.recons.names()
 
     def prepare_reconstruction(
         self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False
@@ -326,80 +352,36 @@ class DataStore:
         """Create ``reconstructions/<name>`` (and its progress flags) if missing.
 
         ``shifts`` adds ``reconstructions/<name>_shifts`` (n, K) for estimated motion,
-        ``uncertainty`` adds ``uncertainty/<name>`` (n, N, N) for a pixel-wise std.
+        ``uncertainty`` adds ``uncertainty/<name>`` (n, N, N) for a pixel-wise std. When it
+        exists with the same parameters, this is resuming: temporaries of a killed run are
+        removed and samples whose chunks are missing or damaged are marked for rewriting.
 
         Raises
         ------
         StoreError
             If it exists with other parameters (use another name or delete it).
+        NanoctError
+            If ``name`` is not a valid name (:func:`nanoct.store_recon.check_name`).
         """
-        params = _json_roundtrip(params)
-        key = f"reconstructions/{name}"
-        if key in self._group:
-            old = self._group[key].attrs.get("params")
-            if old != params:
-                raise StoreError(
-                    f"{key} in {self.path} was made with other parameters ({old}); "
-                    f"delete it (nanoct reconstruct ... --overwrite) or choose other parameters"
-                )
-            self.remove_partial_writes(self._reconstruction_keys(name))  # resuming: clear a killed run's temporaries
-            return
-        size = self.geometry.n
-        self._group.create_array(
-            f"progress/{name}", shape=(self.n,), chunks=(1,), dtype="bool", fill_value=False, overwrite=True
-        )
-        if shifts:
-            self._group.create_array(
-                f"reconstructions/{name}_shifts",
-                shape=(self.n, self.geometry.n_angles),
-                chunks=(1, self.geometry.n_angles),
-                dtype="float32",
-                fill_value=0,
-                overwrite=True,
-            )
-        if uncertainty:
-            self._group.create_array(
-                f"uncertainty/{name}",
-                shape=(self.n, size, size),
-                chunks=(1, size, size),
-                dtype="float32",
-                fill_value=0,
-                overwrite=True,
-            )
-        arr = self._group.create_array(
-            key, shape=(self.n, size, size), chunks=(1, size, size), dtype="float32", fill_value=0, overwrite=True
-        )
-        arr.attrs["params"] = params  # written last: marks the reconstruction as set up
+        self.recons.prepare(name, params, shifts=shifts, uncertainty=uncertainty)
 
     def delete_reconstruction(self, name: str) -> None:
         """Remove ``reconstructions/<name>`` with its shifts, uncertainty and progress flags."""
-        for key in self._reconstruction_keys(name):
-            if key in self._group:
-                del self._group[key]
-
-    @staticmethod
-    def _reconstruction_keys(name: str) -> tuple[str, ...]:
-        return (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"uncertainty/{name}", f"progress/{name}")
+        self.recons.delete(name)
 
     def reconstruction_done(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
         """Which samples (all, or only ``indices``, reading just their flags) have ``name`` written."""
-        if indices is not None:
-            return self._flags(f"progress/{name}", np.asarray(list(indices), dtype=int))
-        key = f"progress/{name}"
-        if key not in self._group:
-            return np.zeros(self.n, dtype=bool)
-        return np.asarray(self._group[key][:], dtype=bool)
+        return self.recons.done(name, indices)
+
+    def invalidate_reconstruction(self, name: str, indices: Iterable[int]) -> None:
+        """Mark samples of ``name`` as not written, so that the next run of its command redoes them."""
+        self.recons.invalidate(name, indices)
 
     def write_reconstruction(
         self, name: str, index: int, image: np.ndarray, shifts: np.ndarray | None = None, std: np.ndarray | None = None
     ) -> None:
         """Write one reconstruction (with estimated shifts or std); the progress flag is set last."""
-        self._group[f"reconstructions/{name}"][index] = image
-        if shifts is not None:
-            self._group[f"reconstructions/{name}_shifts"][index] = shifts
-        if std is not None:
-            self._group[f"uncertainty/{name}"][index] = std
-        self._group[f"progress/{name}"][index] = True
+        self.recons.write(name, index, image, shifts=shifts, std=std)
 
     def read_reconstruction(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
         """Read reconstructions ``name`` for the given samples (all by default).
@@ -407,44 +389,37 @@ class DataStore:
         Raises
         ------
         StoreError
-            If the reconstruction is absent or incomplete for the requested samples.
+            If the reconstruction is absent, incomplete or damaged for the requested samples.
         """
-        if f"reconstructions/{name}" not in self._group:
-            raise StoreError(
-                f"{self.path} has no reconstruction '{name}'; present: {self.reconstruction_names() or 'none'}"
-            )
-        idx = np.arange(self.n) if indices is None else np.asarray(list(indices), dtype=int)
-        missing = idx[~self._flags(f"progress/{name}", idx)]
-        if missing.size:
-            raise StoreError(
-                f"reconstruction '{name}' is missing {missing.size} requested sample(s) (e.g. "
-                f"{missing[:5].tolist()}); run 'nanoct reconstruct' again"
-            )
-        if idx.size == 0:
-            return np.zeros((0, *self.geometry.image_shape), np.float32)
-        return self._group[f"reconstructions/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
+        return self.recons.read(name, indices)
+
+    def read_shifts(self, name: str, indices: Iterable[int] | None = None) -> np.ndarray:
+        """Estimated per-view shifts (len(indices), K) of reconstruction ``name`` (e.g. ``dremel``)."""
+        return self.recons.read_shifts(name, indices)
 
     def has_uncertainty(self, name: str) -> bool:
         """Whether reconstruction ``name`` comes with a pixel-wise std (``uncertainty/<name>``)."""
-        return f"uncertainty/{name}" in self._group
+        return self.recons.has_uncertainty(name)
 
     def read_uncertainty(self, name: str, indices: Iterable[int]) -> np.ndarray:
         """Pixel-wise std of reconstruction ``name`` for the given (completed) samples."""
-        if not self.has_uncertainty(name):
-            raise StoreError(f"reconstruction '{name}' in {self.path} has no uncertainty map")
-        idx = np.asarray(list(indices), dtype=int)
-        missing = idx[~self._flags(f"progress/{name}", idx)]
-        if missing.size:
-            raise StoreError(
-                f"uncertainty of '{name}' is missing {missing.size} requested sample(s); run 'nanoct predict' again"
-            )
-        return self._group[f"uncertainty/{name}"].get_orthogonal_selection((idx, slice(None), slice(None)))
+        return self.recons.read_uncertainty(name, indices)
 
     def reconstruction_params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
-        return dict(self._group[f"reconstructions/{name}"].attrs.get("params", {}))
+        return self.recons.params(name)
 
     # ------------------------------------------------------------------ summary
+    def verify(self) -> dict[str, list[int]]:
+        """Read every written sample and reconstruction; ``{array: damaged indices}`` for those with damage.
+
+        The key ``"samples"`` holds damaged data samples, ``"reconstructions/<name>"`` damaged
+        samples of a reconstruction (image, shifts or std).
+        """
+        found = {"samples": self.damaged_samples().tolist()}
+        found.update({f"reconstructions/{k}": self.recons.damaged(k).tolist() for k in self.reconstruction_names()})
+        return {k: v for k, v in found.items() if v}
+
     def info(self) -> dict[str, Any]:
         """Summary: sizes, splits, geometry, completeness and reconstructions present."""
         split = self.split
@@ -467,6 +442,32 @@ class DataStore:
             "version": self.meta.get("version"),
             "reconstructions": recons,
         }
+
+
+def _check_arrays(store: DataStore) -> None:
+    """Raise StoreError if a data array is missing, its shape disagrees with the attributes, or the split is damaged.
+
+    The reconstruction arrays are checked when they are used (:class:`~nanoct.store_recon.ReconstructionArrays`).
+    """
+    for name, shape in _shapes(store.meta, store.geometry).items():
+        try:
+            actual = tuple(store._group[name].shape)  # type: ignore[union-attr]
+        except KeyError:
+            raise StoreError(
+                f"the data set at {store.path} is damaged: array '{name}' is missing; {_REGENERATE}"
+            ) from None
+        if actual != shape:
+            raise StoreError(
+                f"the data set at {store.path} is inconsistent: '{name}' has shape {actual} but its attributes "
+                f"(n={store.n}, image {store.geometry.n}, sinogram {store.geometry.sino_shape}) say {shape}; "
+                f"the attributes were edited by hand: restore them, or {_REGENERATE}"
+            )
+    try:
+        split = store._array("split")[:]
+    except Exception as exc:
+        raise StoreError(f"the split of {store.path} cannot be read ({exc}); {_REGENERATE}") from exc
+    if not np.isin(split, list(SPLITS.values())).all():
+        raise StoreError(f"the split of {store.path} is damaged (labels outside 0, 1, 2); {_REGENERATE}")
 
 
 @lru_cache(maxsize=8)

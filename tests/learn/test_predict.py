@@ -70,7 +70,7 @@ def test_predict_is_resumable_and_noop_when_complete(setup, monkeypatch):
     predict(path, run, progress=False)
     assert seen == []  # complete: nothing recomputed
     store = DataStore.open(path, mode="r+")
-    store._group["progress/fbp+unet"][int(store.indices("test")[1])] = False
+    store.invalidate_reconstruction("fbp+unet", [int(store.indices("test")[1])])
     predict(path, run, progress=False)
     assert seen == [1]
     assert store.reconstruction_done("fbp+unet")[store.indices("test")].all()

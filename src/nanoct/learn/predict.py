@@ -15,6 +15,7 @@ and a different checkpoint under the same name is refused unless ``overwrite``.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,29 @@ def output_name(input_name: str, model_name: str, train_input: str) -> str:
     """``<input>+<model>``, or ``<input>+<model>@<train_input>`` when the inputs differ."""
     name = f"{input_name}+{model_name}"
     return name if input_name == train_input else f"{name}@{train_input}"
+
+
+def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[str, Any], overwrite: bool) -> dict:
+    """``params`` plus what the prediction is made from (geometry, input fingerprint).
+
+    Refuses a run trained on another geometry; deletes an earlier ``out`` made with other
+    settings (with ``overwrite``) or with the same settings from an input that has changed since.
+    """
+    trained = (ckpt.get("config") or {}).get("data", {}).get("geometry")
+    here = json.loads(json.dumps(store.geometry.to_dict()))
+    if trained is not None and trained != here:
+        raise NanoctError(
+            f"the run {params['run']} was trained on another geometry ({trained}) than the data set {store.path} "
+            f"({here}); train a network on this data set"
+        )
+    made_from = {"geometry": here, "input_fingerprint": store.recons.fingerprint(params["input"])}
+    new = json.loads(json.dumps({**params, **made_from}))
+    if out in store.reconstruction_names():
+        old = store.reconstruction_params(out)
+        same_request = {k: v for k, v in old.items() if k not in made_from} == params
+        if old != new and (overwrite or same_request):
+            store.delete_reconstruction(out)
+    return new
 
 
 def predict(
@@ -136,8 +160,7 @@ def predict(
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
         params["calibration"], scale = cal, float(cal["scale"])
-    if overwrite and out in store.reconstruction_names() and store.reconstruction_params(out) != params:
-        store.delete_reconstruction(out)
+    params = _provenance(store, out, json.loads(json.dumps(params)), ckpt, overwrite)
     try:
         store.prepare_reconstruction(out, params, uncertainty=sampling)
     except StoreError as exc:

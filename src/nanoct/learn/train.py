@@ -347,15 +347,8 @@ def _train(
             last_path, model_name=model_name, image_size=train_ds.image_size, hparams=config["hparams"]
         )
         old = ckpt.get("config") or {}
-    elif cfg_path.exists():
-        try:
-            old = json.loads(cfg_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise NanoctError(
-                f"{cfg_path} is unreadable ({exc}); delete the run directory or choose another --out"
-            ) from exc
     else:
-        old = None
+        old = None  # a config.json without last.pt holds no training state (e.g. a run that diverged): redo it
     if old is not None and _diff(config, old):
         raise NanoctError(
             f"{out} holds a run made with other settings (differs in: {', '.join(_diff(config, old))}); "
