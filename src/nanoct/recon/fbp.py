@@ -62,9 +62,9 @@ def ramp_filter(sino: np.ndarray, spacing: float, filter: str = "ram-lak") -> np
 
 
 @numba.njit(cache=True, fastmath=False)
-def _backproject_kernel(filtered, phis, n, kind_fan, source_radius, spacing):  # pragma: no cover - jit
+def _backproject_kernel(filtered, phis, n, kind_fan, source_radius, spacing, offset):  # pragma: no cover - jit
     n_det = filtered.shape[1]
-    centre = (n_det - 1) / 2.0
+    centre = (n_det - 1) / 2.0 + offset  # where the rotation axis is seen
     half = (n - 1) / 2.0
     image = np.zeros((n, n))
     for k in range(phis.shape[0]):
@@ -100,6 +100,7 @@ def _backproject(geometry: Geometry, filtered: np.ndarray, spacing: float) -> np
         geometry.kind == "fan",
         float(geometry.source_radius),
         float(spacing),
+        float(geometry.center_offset),
     )
 
 
@@ -123,8 +124,10 @@ def fbp(op: Geometry | RayTransform, sino: Any, *, filter: str = "ram-lak") -> R
     Parameters
     ----------
     op : Geometry or RayTransform
-        Scan geometry (parallel over [0, pi) or fan over [0, 2 pi)), or an unperturbed ray
-        transform with ``oversample=1``, as for the iterative methods.
+        Scan geometry (parallel over [0, pi) or fan over [0, 2 pi); explicit view angles are
+        weighted by :attr:`~nanoct.geometry.Geometry.angle_weights`, the rotation-axis offset
+        moves the back projection), or an unperturbed ray transform with ``oversample=1``, as
+        for the iterative methods.
     sino : array_like of shape (K, L)
         Sinogram of line integrals in pixel units; must be finite.
     filter : {"ram-lak", "hann"}
@@ -138,17 +141,20 @@ def fbp(op: Geometry | RayTransform, sino: Any, *, filter: str = "ram-lak") -> R
     params = check_params(op, filter=filter)
     geometry = resolve_geometry(op)
     sino = check_array(sino, "sinogram", shape=geometry.sino_shape).astype(np.float64)
-    d_phi = geometry.angle_range / geometry.n_angles
     if geometry.kind == "parallel":
         spacing = geometry.det_spacing
         filtered = ramp_filter(sino, spacing, filter)
-        scale = d_phi
+        scale = 1.0
     else:
         # virtual detector through the rotation axis
         spacing = geometry.det_spacing / geometry.magnification
-        u = (np.arange(geometry.n_det) - (geometry.n_det - 1) / 2) * spacing
+        u = (np.arange(geometry.n_det) - (geometry.n_det - 1) / 2 - geometry.center_offset) * spacing
         src = geometry.source_radius
         filtered = ramp_filter(sino * (src / np.sqrt(src**2 + u**2)), spacing, filter)
-        scale = d_phi / 2  # every ray is measured twice over a full turn
+        scale = 0.5  # every ray is measured twice over a full turn
+    if geometry.view_angles is None:  # uniform views: one quadrature weight
+        scale *= geometry.angle_range / geometry.n_angles
+    else:  # explicit angles: each view weighted by its share of the circle
+        filtered *= geometry.angle_weights[:, None]
     image = _backproject(geometry, filtered, spacing) * scale
     return ReconResult(image=image.astype(np.float32), params={"method": "fbp", **params})
