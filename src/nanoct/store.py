@@ -12,6 +12,11 @@ Layout (n samples, image N x N, sinogram K x L)::
       done            (n,)       bool      sample i is completely written
       reconstructions/<name>, uncertainty/<name>, progress/<name>: see :mod:`nanoct.store_recon`
 
+A measured scan imported with ``nanoct import`` (:func:`create_scan`) has ``attrs["nanoct"]["scan"]``
+(where it came from, how it was corrected) instead of ``simulation``, one sample per detector
+row (slice), all in the test split, and only ``sinograms``, ``split`` and ``done``: there is no
+ground truth, true motion or eta.
+
 Float arrays are created with a NaN fill value (store format 2), so a chunk file that is lost
 reads as NaN and is reported instead of passing as zeros; a chunk that cannot be decoded is
 reported too (:mod:`nanoct.chunks`). Re-running the command that wrote a damaged sample
@@ -46,24 +51,24 @@ from .errors import StoreError
 from .geometry import Geometry
 from .store_recon import ReconstructionArrays
 
-__all__ = ["SPLITS", "DataStore", "Sample", "open_cached", "split_assignment"]
+__all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 2  # 1: fill value 0 (a lost chunk read as zeros); 2: NaN fill for float arrays
 _DATA_ARRAYS = ("phantoms", "sinograms", "sinograms_eta", "motion", "eta")
-_SAMPLE_ARRAYS = (*_DATA_ARRAYS, "done")
+_SCAN_ARRAYS = ("sinograms",)  # an imported scan: measured data only
 _REGENERATE = "delete it and generate it again"
 
 
 @dataclass
 class Sample:
-    """One simulated sample (all arrays float32)."""
+    """One sample (all arrays float32); an imported scan has only the sinogram (the rest None)."""
 
-    phantom: np.ndarray
+    phantom: np.ndarray | None
     sinogram: np.ndarray
-    sinogram_eta: np.ndarray
-    motion: np.ndarray
-    eta: np.ndarray
+    sinogram_eta: np.ndarray | None
+    motion: np.ndarray | None
+    eta: np.ndarray | None
 
 
 def split_assignment(n: int, seed: int, fractions: tuple[float, float, float] = (0.95, 0.04, 0.01)) -> np.ndarray:
@@ -93,17 +98,50 @@ def _json_roundtrip(value: Any) -> Any:
     return json.loads(json.dumps(value))
 
 
+def _data_arrays(meta: dict[str, Any]) -> tuple[str, ...]:
+    return _SCAN_ARRAYS if "scan" in meta else _DATA_ARRAYS
+
+
 def _shapes(meta: dict[str, Any], geometry: Geometry) -> dict[str, tuple[int, ...]]:
     n, size, (k, det) = int(meta["n"]), geometry.n, geometry.sino_shape
-    return {
+    shapes = {
         "phantoms": (n, size, size),
         "sinograms": (n, k, det),
         "sinograms_eta": (n, k, det),
         "motion": (n, k, 3),
         "eta": (n, k),
-        "done": (n,),
-        "split": (n,),
     }
+    return {name: shapes[name] for name in _data_arrays(meta)} | {"done": (n,), "split": (n,)}
+
+
+def _build_group(path: Path, meta: dict[str, Any], geometry: Geometry, split: np.ndarray) -> None:
+    """Create the group's arrays in a temporary sibling and rename it to ``path`` (atomic creation)."""
+    _remove_stale_creations(path)
+    tmp = path.parent / f".{path.name}.creating-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    n = int(meta["n"])
+    try:
+        group = zarr.open_group(str(tmp), mode="w")
+        group.attrs["nanoct"] = meta
+        for name, shape in _shapes(meta, geometry).items():
+            dtype, fill = {"done": ("bool", False), "split": ("int8", -1)}.get(name, ("float32", np.nan))
+            chunks = (n,) if name == "split" else (1, *shape[1:])
+            group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill)
+        group["split"][:] = split  # type: ignore[index]
+        if path.exists():
+            path.rmdir()  # an empty directory the user created
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _check_target(path: Path) -> bool:
+    """Whether ``path`` already holds a data set; StoreError if it is a file or another non-empty folder."""
+    if path.exists() and not path.is_dir():
+        raise StoreError(f"--out {path} is a file, not a directory; choose another --out")
+    if path.exists() and not (path / "zarr.json").is_file() and any(path.iterdir()):
+        raise StoreError(f"{path} exists and is not a nanoct data set; choose another --out or remove it")
+    return (path / "zarr.json").is_file()
 
 
 def _parse_meta(path: Path, meta: Any) -> tuple[Geometry, int, int]:
@@ -220,39 +258,19 @@ class DataStore:
                 "split_fractions": list(split_fractions),
             }
         )
-        if path.exists() and not path.is_dir():
-            raise StoreError(f"--out {path} is a file, not a directory; choose another --out")
-        if path.exists():
-            if not (path / "zarr.json").is_file() and any(path.iterdir()):
-                raise StoreError(f"{path} exists and is not a nanoct data set; choose another --out or remove it")
-            if (path / "zarr.json").is_file():
-                existing = cls.open(path, mode="r+")
-                mine = {k: v for k, v in meta.items() if k != "version"}
-                theirs = {k: v for k, v in existing.meta.items() if k != "version"}
-                if mine != theirs:
-                    diff = sorted(k for k in mine if mine.get(k) != theirs.get(k))
-                    raise StoreError(
-                        f"{path} holds a different data set (differs in: {', '.join(diff)}); "
-                        "use another --out, or repeat the original command to resume it"
-                    )
-                existing.repair_samples()
-                return existing
-        _remove_stale_creations(path)
-        tmp = path.parent / f".{path.name}.creating-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        try:
-            group = zarr.open_group(str(tmp), mode="w")
-            group.attrs["nanoct"] = meta
-            for name, shape in _shapes(meta, geometry).items():
-                dtype, fill = {"done": ("bool", False), "split": ("int8", -1)}.get(name, ("float32", np.nan))
-                chunks = (n,) if name == "split" else (1, *shape[1:])
-                group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill)
-            group["split"][:] = split_assignment(n, seed, split_fractions)  # type: ignore[index]
-            if path.exists():
-                path.rmdir()  # an empty directory the user created
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+        if _check_target(path):
+            existing = cls.open(path, mode="r+")
+            mine = {k: v for k, v in meta.items() if k != "version"}
+            theirs = {k: v for k, v in existing.meta.items() if k != "version"}
+            if mine != theirs:
+                diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+                raise StoreError(
+                    f"{path} holds a different data set (differs in: {', '.join(diff)}); "
+                    "use another --out, or repeat the original command to resume it"
+                )
+            existing.repair_samples()
+            return existing
+        _build_group(path, meta, geometry, split_assignment(n, seed, split_fractions))
         return cls.open(path, mode="r+")
 
     # ------------------------------------------------------------------ samples
@@ -287,15 +305,16 @@ class DataStore:
         ``full`` reads every such chunk; without it only the chunk files' names are looked up.
         """
         done = np.flatnonzero(self.done)
+        names = _data_arrays(self.meta)
         if full:
-            bad = [damaged_samples(self._array(name), done) for name in _DATA_ARRAYS]
+            bad = [damaged_samples(self._array(name), done) for name in names]
         else:
-            bad = [missing_chunks(self.path / name, done, self._array(name).ndim) for name in _DATA_ARRAYS]
+            bad = [missing_chunks(self.path / name, done, self._array(name).ndim) for name in names]
         return np.unique(np.concatenate(bad))
 
     def repair_samples(self) -> np.ndarray:
         """Clear temporaries of killed writes and the ``done`` flags of samples whose chunk files are lost."""
-        self.remove_partial_writes(_SAMPLE_ARRAYS)
+        self.remove_partial_writes((*_data_arrays(self.meta), "done"))
         bad = self.damaged_samples(full=False)
         if bad.size:
             self._array("done").set_coordinate_selection(bad, False)
@@ -330,10 +349,27 @@ class DataStore:
             raise StoreError(
                 f"sample {index} of {self.path} is not generated yet; run 'nanoct generate' again to finish it"
             )
-        return Sample(*(self._read_done(name, idx)[0] for name in _DATA_ARRAYS))
+        names = _data_arrays(self.meta)
+        return Sample(*(self._read_done(name, idx)[0] if name in names else None for name in _DATA_ARRAYS))
+
+    @property
+    def is_scan(self) -> bool:
+        """Whether the data set is an imported measured scan (no ground truth, motion or eta)."""
+        return "scan" in self.meta
 
     def read_phantoms(self, indices: Iterable[int]) -> np.ndarray:
-        """Ground-truth phantoms of the given samples, shape (len(indices), N, N)."""
+        """Ground-truth phantoms of the given samples, shape (len(indices), N, N).
+
+        Raises
+        ------
+        StoreError
+            For an imported scan (it has no ground truth) or samples not generated yet.
+        """
+        if self.is_scan:
+            raise StoreError(
+                f"{self.path} is an imported scan without ground truth; PSNR/SSIM need a simulated data set "
+                "('nanoct generate') — look at the images with 'nanoct export' instead"
+            )
         idx = np.asarray(list(indices), dtype=int)
         if not read_flags(self._group, "done", idx).all():
             raise StoreError(
@@ -439,6 +475,7 @@ class DataStore:
             "image_shape": list(self.geometry.image_shape),
             "sinogram_shape": list(self.geometry.sino_shape),
             "simulation": self.meta.get("simulation", {}),
+            "scan": self.meta.get("scan"),
             "version": self.meta.get("version"),
             "reconstructions": recons,
         }
@@ -474,3 +511,47 @@ def _check_arrays(store: DataStore) -> None:
 def open_cached(path: str) -> DataStore:
     """One writable handle per store and process, for tasks that each write one sample."""
     return DataStore.open(path, mode="r+")
+
+
+def create_scan(
+    path: str | os.PathLike[str], geometry: Geometry, sinograms: np.ndarray, scan: dict[str, Any]
+) -> DataStore:
+    """Create a data set holding measured sinograms, one sample per slice, all in the test split.
+
+    Parameters
+    ----------
+    path : path
+        New store directory (an empty or missing folder).
+    geometry : Geometry
+        The scan's geometry (explicit angles, rotation-axis offset).
+    sinograms : ndarray of shape (S, K, L)
+        Line integrals of S slices.
+    scan : dict
+        Where the data came from and how they were corrected (JSON-able); stored as
+        ``attrs["nanoct"]["scan"]``.
+
+    Raises
+    ------
+    StoreError
+        If ``path`` already holds a data set (import into a new folder), is a file, or the
+        sinograms do not match the geometry or are not finite.
+    """
+    path = Path(path)
+    if _check_target(path):
+        raise StoreError(f"{path} already holds a data set; import into a new --out (or delete it first)")
+    stack = np.asarray(sinograms, dtype=np.float32)
+    if stack.ndim != 3 or stack.shape[1:] != geometry.sino_shape or stack.shape[0] == 0:
+        raise StoreError(
+            f"sinograms have shape {stack.shape}; expected (slices, {geometry.n_angles}, {geometry.n_det})"
+        )
+    if not np.isfinite(stack).all():
+        raise StoreError("the sinograms contain NaN or infinite values; nothing was written")
+    n = stack.shape[0]
+    meta = _json_roundtrip(
+        {"format": FORMAT, "version": __version__, "geometry": geometry.to_dict(), "n": n, "seed": 0, "scan": scan}
+    )
+    _build_group(path, meta, geometry, np.full(n, SPLITS["test"], dtype=np.int8))
+    store = DataStore.open(path, mode="r+")
+    store._array("sinograms")[:] = stack
+    store._array("done")[:] = True
+    return store

@@ -199,6 +199,11 @@ def calibrate(
     old = entries.get(checkpoint)
     if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
         return old  # the same checkpoint file (so the same model, input and epoch), data set and M
+    if isinstance(old, dict) and store.indices("val").size == 0:
+        # a data set without validation samples (an imported scan): the fit on the run's own
+        # validation data holds for the same checkpoint file and M
+        if all(old.get(k) == v for k, v in key.items() if k != "store"):
+            return old
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:
         raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
@@ -211,8 +216,8 @@ def calibrate(
     val = store.indices("val")
     if val.size == 0:
         raise NanoctError(
-            f"{store.path} has no validation samples to calibrate the std of {run} on; "
-            "give the data set a validation split, or predict without calibration"
+            f"{store.path} has no validation samples to calibrate the std of {run} on; predict on the data "
+            "set the run was trained on first (it fits the calibration), or predict with --no-calibrate"
         )
     check_input(store, key["input"], val, "val")
     model = model_from_checkpoint(ckpt, ckpt_path)
