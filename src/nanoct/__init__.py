@@ -1,10 +1,34 @@
-"""nanoct: CT reconstruction with inexact (motion-perturbed) forward operators."""
+"""nanoct: CT reconstruction with inexact (motion-perturbed) forward operators.
+
+The reconstruction methods work on plain arrays from the top level (imported on first use,
+so ``import nanoct`` stays cheap)::
+
+    import nanoct
+    result = nanoct.dremel(sinogram, angles=angles_rad, center_offset=1.5)
+    result.image, result.motion
+"""
 
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
 try:
     __version__ = version("nanoct")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
-__all__ = ["__version__"]
+_API = ("fbp", "kaczmarz", "dremel", "resesop", "make_geometry")
+
+__all__ = ["__version__", *_API, "Geometry"]
+
+
+def __getattr__(name: str) -> Any:
+    """Import the array API (:mod:`nanoct.api`) and :class:`~nanoct.geometry.Geometry` lazily."""
+    if name in _API:
+        from . import api
+
+        return getattr(api, name)
+    if name == "Geometry":
+        from .geometry import Geometry
+
+        return Geometry
+    raise AttributeError(f"module 'nanoct' has no attribute {name!r}")

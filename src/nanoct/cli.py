@@ -14,7 +14,7 @@ import click
 import typer
 
 from .errors import NanoctError
-from .recon.registry import method_help, method_spec, methods_with_eta
+from .recon.registry import method_help, method_spec, methods_with_eta, methods_with_motion
 
 app = typer.Typer(
     help="nanoct: CT reconstruction with inexact (motion-perturbed) forward operators.",
@@ -316,11 +316,17 @@ def _print_info(data: dict[str, Any]) -> None:
     typer.echo(f"geometry   {g['kind']} beam, image {g['n']}x{g['n']}, sinogram {g['n_angles']}x{g['n_det']}")
     typer.echo(f"samples    {data['done']}/{data['n']} generated ({'complete' if data['complete'] else 'INCOMPLETE'})")
     typer.echo("splits     " + ", ".join(f"{k} {v}" for k, v in data["splits"].items()))
-    sim = data["simulation"]
-    typer.echo(
-        f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
-        f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}"
-    )
+    scan, sim = data.get("scan"), data["simulation"]
+    if scan:
+        typer.echo(
+            f"scan       imported from {scan.get('file')} ({scan.get('format')}); one sample per slice, motion shared; "
+            "no ground truth (evaluate needs a simulated data set)"
+        )
+    else:
+        typer.echo(
+            f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
+            f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}"
+        )
     recons = data["reconstructions"]
     typer.echo("reconstructions " + (", ".join(f"{k} ({v['done']}/{data['n']})" for k, v in recons.items()) or "none"))
     if "damaged" in data:
@@ -402,6 +408,114 @@ def reproduce(
     )
     typer.echo(report.read_text())
     typer.echo(f"report: {report}", err=True)
+
+
+def _parse_range(text: str | None, flag: str, sep: str) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        first, stop = (int(v) for v in text.split(sep))
+    except ValueError:
+        raise NanoctError(f"{flag} {text!r} must be two integers FIRST{sep}STOP, e.g. 10{sep}20") from None
+    if not 0 <= first < stop:
+        raise NanoctError(f"{flag} {text!r} must satisfy 0 <= FIRST < STOP")
+    return first, stop
+
+
+@app.command("import")
+def import_(
+    src: Path = typer.Argument(..., help="Scan: NXtomo/Data Exchange .h5/.nxs, .tif stack or folder, or .npy."),
+    out: Path = typer.Option(..., "--out", "-o", help="New data-set directory."),
+    fmt: str | None = typer.Option(None, "--format", help="nxtomo | dxchange | tiff | npy (default: from the file)."),
+    angles: Path | None = typer.Option(None, "--angles", help="Text file, one angle per view (TIFF and .npy)."),
+    radians: bool = typer.Option(False, "--radians", help="The --angles file is in radians (default degrees)."),
+    flats: Path | None = typer.Option(None, "--flats", help="Flat fields (TIFF or .npy) for TIFF and .npy scans."),
+    darks: Path | None = typer.Option(None, "--darks", help="Dark fields (TIFF or .npy) for TIFF and .npy scans."),
+    line_integrals: bool = typer.Option(
+        False, "--line-integrals", help="The data are already -log normalised (no flat/dark correction)."
+    ),
+    rows: str | None = typer.Option(None, "--rows", help="Detector rows (slices) FIRST:STOP (default all)."),
+    crop: str | None = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep."),
+    binning: int = typer.Option(1, "--binning", help="Average this many detector columns (and rows)."),
+    center_offset: float = typer.Option(
+        0.0,
+        "--center-offset",
+        help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2).",
+    ),
+    size: int | None = typer.Option(
+        None, "--size", help="Image size N (default: detector columns after crop/binning)."
+    ),
+    tolerance: float = typer.Option(
+        1e-3, "--tolerance", help="Fraction of non-positive flat/dark-corrected values raised to a floor."
+    ),
+) -> None:
+    """Import a measured parallel-beam scan: one sample per detector row, all sharing one motion.
+
+    Flat/dark correction and -log, slice selection, cropping and binning; the view angles come
+    from the file (NXtomo rotation_angle, Data Exchange theta: degrees) or --angles. The data
+    set has no ground truth: reconstruct it (Dremel estimates one shift per view for the whole
+    stack), post-process it with a trained network of the same image size, and export the images.
+    """
+    from .scanio import import_scan
+
+    if binning < 1:
+        raise NanoctError(f"--binning {binning} must be >= 1")
+    if size is not None and size < 1:
+        raise NanoctError(f"--size {size} must be >= 1")
+    if not 0 <= tolerance < 1:
+        raise NanoctError(f"--tolerance {tolerance} must lie in [0, 1)")
+    row_range = _parse_range(rows, "--rows", ":")
+    store = import_scan(
+        src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
+        is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
+        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=center_offset, size=size,
+        tolerance=tolerance,
+    )  # fmt: skip
+    g = store.geometry
+    typer.echo(
+        f"{store.path}: {store.n} slice(s), {g.n_angles} views x {g.n_det} detector pixels, image {g.n}x{g.n}, "
+        f"axis offset {g.center_offset:+.2f} px"
+    )
+
+
+@app.command()
+def export(
+    directory: Path = typer.Argument(..., help="Data-set store."),
+    name: str = typer.Option(..., "--name", "-n", help="Reconstruction to export, e.g. dremel or dremel+ciunet-res."),
+    out: Path = typer.Option(..., "--out", "-o", help="FILE.tif | .npy | .h5 (images or std) or FILE.txt (shifts)."),
+    std: bool = typer.Option(False, "--std", help="Export the pixel-wise std instead of the images."),
+    split: str = typer.Option("all", "--split", help="test | val | train | all"),
+) -> None:
+    """Export a reconstruction: float32 images (one TIFF page / .npy or HDF5 slice per sample) or shifts as text.
+
+    A .txt output writes the per-view shifts of a motion-estimating reconstruction (Dremel) as
+    two columns "view shift_px" (nabu-style; read back with --param shifts_from=FILE).
+    """
+    from .scanio import write_images, write_shifts
+    from .store import DataStore
+
+    store = DataStore.open(directory)
+    if name not in store.reconstruction_names():
+        known = ", ".join(store.reconstruction_names()) or "none"
+        raise NanoctError(f"--name {name!r}: no such reconstruction in {directory} (present: {known})")
+    idx = store.indices(split)
+    idx = idx[store.reconstruction_done(name, idx)]
+    if idx.size == 0:
+        raise NanoctError(f"reconstructions/{name} has no finished sample in split '{split}'; reconstruct it first")
+    if out.suffix.lower() == ".txt":
+        method = store.reconstruction_params(name).get("method")
+        if method not in methods_with_motion():
+            raise NanoctError(f"reconstructions/{name} ({method}) has no estimated shifts; export a Dremel result")
+        shifts = store.read_shifts(name, idx[:1])[0]
+        path = write_shifts(out, shifts, angles=store.geometry.angles)
+        typer.echo(f"wrote the shifts of reconstructions/{name} (sample {int(idx[0])}) to {path}")
+        return
+    if std and not store.has_uncertainty(name):
+        raise NanoctError(f"reconstructions/{name} has no std (only invertible networks give one)")
+    images = store.read_uncertainty(name, idx) if std else store.read_reconstruction(name, idx)
+    attrs = {"store": str(store.path), "name": name, "content": "std" if std else "image", "samples": str(idx.tolist())}
+    path = write_images(out, images, attrs=attrs)
+    typer.echo(f"wrote {idx.size} {'std map' if std else 'image'}(s) of reconstructions/{name} to {path}")
 
 
 def _expected_error(exc: BaseException) -> str | None:

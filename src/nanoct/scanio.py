@@ -14,6 +14,7 @@ and CIL use them); angle files are text with one angle per view, degrees unless 
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,6 +29,7 @@ __all__ = [
     "FORMATS",
     "RawScan",
     "detect_format",
+    "import_scan",
     "line_integrals",
     "read_angles",
     "read_scan",
@@ -306,6 +308,104 @@ def sinograms(
             kept = r // binning * binning
             stack = stack[:, :kept].reshape(k, kept // binning, binning, -1).mean(axis=2)
     return np.ascontiguousarray(stack.transpose(1, 0, 2))
+
+
+def _axis_after(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
+    """The rotation-axis offset (from the detector centre) after cropping and binning, in new pixels."""
+    axis = (n_cols - 1) / 2 + offset  # raw column where the axis is seen
+    first, stop = crop if crop is not None else (0, n_cols)
+    width = (stop - first) // binning
+    return ((axis - first + 0.5) / binning - 0.5) - (width - 1) / 2
+
+
+def import_scan(
+    src: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    fmt: str | None = None,
+    angles_file: str | os.PathLike[str] | None = None,
+    degrees: bool = True,
+    flats: str | os.PathLike[str] | None = None,
+    darks: str | os.PathLike[str] | None = None,
+    is_line_integral: bool = False,
+    rows: slice | None = None,
+    crop: tuple[int, int] | None = None,
+    binning: int = 1,
+    center_offset: float = 0.0,
+    size: int | None = None,
+    tolerance: float = 1e-3,
+) -> Any:
+    """Import a measured parallel-beam scan into a new data set, one sample per detector row.
+
+    Reads the file (:func:`read_scan`), corrects flats and darks and takes ``-log``
+    (:func:`line_integrals`), selects rows and crops and bins the detector (:func:`sinograms`),
+    and stores the sinograms with a :class:`~nanoct.geometry.Geometry` built from the file's
+    angles and the rotation-axis offset (:func:`nanoct.store.create_scan`). All slices share
+    one motion (a stack is scanned at once), which Dremel then estimates jointly.
+
+    Parameters
+    ----------
+    src, out : path
+        Scan file (or TIFF folder) and the new data set's directory.
+    fmt, angles_file, degrees, flats, darks, is_line_integral
+        See :func:`read_scan`.
+    rows : slice, optional
+        Detector rows (slices) to import (default all).
+    crop : (int, int), optional
+        Detector columns ``[first, stop)`` to keep.
+    binning : int
+        Detector binning (columns, and rows where there are enough).
+    center_offset : float
+        Rotation axis relative to the centre of the raw detector row, in raw detector pixels
+        (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
+        detector.
+    size : int, optional
+        Reconstructed image size N (default: the number of detector columns after cropping
+        and binning; one image pixel = one binned detector pixel).
+    tolerance : float
+        Fraction of non-positive flat/dark-corrected values tolerated (see :func:`line_integrals`).
+
+    Returns
+    -------
+    DataStore
+        The new data set (re-running the same import on it is a no-op).
+
+    Raises
+    ------
+    NanoctError
+        Any problem with the file, the options or the output directory; nothing is written.
+    """
+    from .geometry import Geometry
+    from .store import DataStore, create_scan
+
+    raw = read_scan(
+        src, fmt=fmt, angles_file=angles_file, degrees=degrees, flats=flats, darks=darks,
+        is_line_integral=is_line_integral,
+    )  # fmt: skip
+    stack = sinograms(line_integrals(raw, tolerance=tolerance), rows=rows, crop=crop, binning=binning)
+    n_det = stack.shape[2]
+    offset = _axis_after(center_offset, raw.projections.shape[2], crop, binning)
+    try:
+        geometry = Geometry.from_angles(raw.angles, size or n_det, n_det, center_offset=offset)
+    except ValueError as exc:
+        raise NanoctError(f"cannot build the scan geometry: {exc}") from exc
+    scan = {
+        **raw.source,
+        "rows": None if rows is None else [rows.start, rows.stop],
+        "crop": None if crop is None else list(crop),
+        "binning": binning,
+        "center_offset_raw": center_offset,
+        "line_integrals": raw.is_line_integral,
+        "flats": 0 if raw.flats is None else int(raw.flats.shape[0]),
+        "darks": 0 if raw.darks is None else int(raw.darks.shape[0]),
+        "shared_motion": True,
+    }
+    existing = Path(out) / "zarr.json"
+    if existing.is_file():
+        store = DataStore.open(out)
+        if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
+            return store  # the same import again
+    return create_scan(out, geometry, stack, scan)
 
 
 # ---------------------------------------------------------------------------------- readers

@@ -33,6 +33,7 @@ __all__ = [
     "method_names",
     "method_spec",
     "methods_with_eta",
+    "methods_with_motion",
     "output_name",
     "reconstruct_command",
 ]
@@ -126,6 +127,11 @@ def method_names() -> tuple[str, ...]:
 def methods_with_eta() -> tuple[str, ...]:
     """Names of the methods that take the model error eta (and ``--eta-scale``)."""
     return tuple(name for name, spec in METHODS.items() if spec.needs_eta)
+
+
+def methods_with_motion() -> tuple[str, ...]:
+    """Names of the methods that estimate per-view motion (their results carry shifts)."""
+    return tuple(name for name, spec in METHODS.items() if spec.estimates_motion)
 
 
 def method_help() -> str:
