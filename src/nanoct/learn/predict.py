@@ -123,7 +123,6 @@ def predict(
         Missing run or checkpoint, a corrupt checkpoint or one for another image size, an
         empty split, or a missing or incomplete input reconstruction.
     """
-    from tqdm.auto import tqdm
 
     if checkpoint not in ("best", "last"):
         raise NanoctError(f"checkpoint {checkpoint!r} must be 'best' or 'last'")
@@ -173,26 +172,49 @@ def predict(
         return out
 
     model = model_from_checkpoint(ckpt, ckpt_path)
-    dev = resolve_device(device)
-    use_cl = dev.type == "cpu"
-    model = model.to(dev, memory_format=torch.channels_last) if use_cl else model.to(dev)
-    model.eval()
+    infer = _Inference(model, kwargs, sampling, scale, device)
+    _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
+    return out
+
+
+class _Inference:
+    """A model on its device, called on a batch of inputs: (mean, scaled std or None) as numpy arrays.
+
+    A sampling model is called one image at a time with ``seed`` = the sample's index, so a
+    prediction does not depend on batching or resumption; its std is multiplied by ``scale``.
+    """
+
+    def __init__(
+        self, model: Any, kwargs: dict[str, Any], sampling: bool, scale: float, device: str | torch.device | None
+    ) -> None:
+        self.dev = resolve_device(device)
+        self.channels_last = self.dev.type == "cpu"
+        model = model.to(self.dev, memory_format=torch.channels_last) if self.channels_last else model.to(self.dev)
+        model.eval()
+        self.model, self.kwargs, self.sampling, self.scale = model, kwargs, sampling, np.float32(scale)
+
+    def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
+        if self.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
+        call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
+        with torch.no_grad():
+            mean, std = self.model.reconstruct(x, **call)
+        std_np = None if std is None else std.float().cpu().numpy()[:, 0] * self.scale
+        return mean.float().cpu().numpy()[:, 0], std_np
+
+
+def _write_outputs(
+    store: DataStore, infer: _Inference, input_name: str, out: str, todo: np.ndarray, step: int, progress: bool
+) -> None:
+    """Post-process ``reconstructions/<input_name>`` of the samples ``todo``, ``step`` at a time, into ``<out>``."""
+    from tqdm.auto import tqdm
+
     with tqdm(total=int(todo.size), desc=out, unit="img", disable=not progress) as bar:
-        for start in range(0, todo.size, 1 if sampling else batch_size):
-            idx = todo[start : start + (1 if sampling else batch_size)]
-            x_tilde = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, idx), np.float32))[
-                :, None
-            ]
-            x_tilde = x_tilde.to(dev)
-            if use_cl:
-                x_tilde = x_tilde.contiguous(memory_format=torch.channels_last)
-            call = {"seed": int(idx[0]), **kwargs} if sampling else kwargs
-            with torch.no_grad():
-                mean, std = model.reconstruct(x_tilde, **call)
-            mean_np = mean.float().cpu().numpy()[:, 0]
-            std_np = None if std is None else std.float().cpu().numpy()[:, 0] * np.float32(scale)
+        for start in range(0, todo.size, step):
+            idx = todo[start : start + step]
+            mean_np, std_np = infer(store.read_reconstruction(input_name, idx), int(idx[0]))
             for j, i in enumerate(idx):
                 # the progress flag is written last, after the mean and the std
                 store.write_reconstruction(out, int(i), mean_np[j], std=None if std_np is None else std_np[j])
             bar.update(len(idx))
-    return out
