@@ -221,3 +221,19 @@ def test_export_refuses_unknown_extension_and_nan(tmp_path):
     with pytest.raises(NanoctError, match="NaN"):
         write_shifts(tmp_path / "s.txt", [0.0, np.nan])
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("layout", ["column", "two-column", "one-line"])
+def test_angle_file_layouts(tmp_path, layout):
+    from nanoct.scanio import read_angles
+
+    deg = np.array([0.0, 1.5, 3.0, 4.5])
+    path = tmp_path / "angles.txt"
+    if layout == "column":
+        np.savetxt(path, deg)
+    elif layout == "two-column":
+        np.savetxt(path, np.c_[np.arange(4), deg], header="view angle")
+    else:
+        path.write_text(" ".join(map(str, deg)) + "\n")
+    np.testing.assert_allclose(read_angles(path), np.deg2rad(deg))
+    np.testing.assert_allclose(read_angles(path, degrees=False), deg)

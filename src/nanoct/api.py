@@ -11,6 +11,7 @@ Dremel, ``residuals``, ``params``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -56,76 +57,70 @@ def make_geometry(
     return geometry
 
 
-def _run(method: str, sinogram: Any, geometry: Geometry, eta: Any, params: dict[str, Any]) -> ReconResult:
-    spec = method_spec(method)
-    check_method_params(method, params, geometry)
-    data = (sinogram, eta) if spec.needs_eta else (sinogram,)
-    return spec.solver()(geometry, *data, **params)
+_COMMON = """
+
+Parameters
+----------
+sinogram : array_like of shape (K, L)
+    Line integrals, one row per view.
+geometry : Geometry, optional
+    The scan geometry; or give ``angles`` instead.
+angles : array_like of shape (K,), optional
+    View angles (radians unless ``degrees``), for parallel beam.
+center_offset : float
+    Rotation axis relative to the detector centre, in detector pixels (with ``angles``).
+size : int, optional
+    Image size N (with ``angles``; default L).
+degrees : bool
+    ``angles`` are in degrees.
+**params
+    The method's parameters (see its solver).
+
+Returns
+-------
+ReconResult
+"""
 
 
-def fbp(
-    sinogram: Any,
-    geometry: Geometry | None = None,
-    *,
-    angles: Any = None,
-    center_offset: float = 0.0,
-    size: int | None = None,
-    degrees: bool = False,
-    **params: Any,
-) -> ReconResult:
-    """Filtered back projection of a sinogram (:func:`nanoct.recon.fbp.fbp`; ``filter=``)."""
-    g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-    return _run("fbp", sinogram, g, None, params)
+def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
+    """The array-API function of a registered method (``eta=`` for methods that need it)."""
+    needs_eta = method_spec(method).needs_eta
+
+    def run(
+        sinogram: Any,
+        geometry: Geometry | None = None,
+        *,
+        angles: Any = None,
+        center_offset: float = 0.0,
+        size: int | None = None,
+        degrees: bool = False,
+        eta: Any = None,
+        **params: Any,
+    ) -> ReconResult:
+        if needs_eta and eta is None:
+            raise ValueError(f"{method} needs the per-view model error eta=; estimate it with nanoct.eta")
+        if not needs_eta and eta is not None:
+            raise ValueError(f"{method} takes no eta")
+        g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
+        check_method_params(method, params, g)
+        data = (sinogram, eta) if needs_eta else (sinogram,)
+        return method_spec(method).solver()(g, *data, **params)
+
+    run.__name__ = run.__qualname__ = method
+    run.__doc__ = summary + _COMMON
+    return run
 
 
-def kaczmarz(
-    sinogram: Any,
-    geometry: Geometry | None = None,
-    *,
-    angles: Any = None,
-    center_offset: float = 0.0,
-    size: int | None = None,
-    degrees: bool = False,
-    **params: Any,
-) -> ReconResult:
-    """Kaczmarz sweeps (:func:`nanoct.recon.kaczmarz.kaczmarz`; ``n_iter=``, ``relaxation=``, ...)."""
-    g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-    return _run("kaczmarz", sinogram, g, None, params)
-
-
-def dremel(
-    sinogram: Any,
-    geometry: Geometry | None = None,
-    *,
-    angles: Any = None,
-    center_offset: float = 0.0,
-    size: int | None = None,
-    degrees: bool = False,
-    **params: Any,
-) -> ReconResult:
-    """Dremel: Kaczmarz with per-view shift estimation (:func:`nanoct.recon.dremel.dremel`).
-
-    The estimated object shift per view (detector pixels) is ``result.motion``.
-    """
-    g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-    return _run("dremel", sinogram, g, None, params)
-
-
-def resesop(
-    sinogram: Any,
-    geometry: Geometry | None = None,
-    *,
-    eta: Any,
-    angles: Any = None,
-    center_offset: float = 0.0,
-    size: int | None = None,
-    degrees: bool = False,
-    **params: Any,
-) -> ReconResult:
-    """RESESOP-Kaczmarz with the per-view model error ``eta`` (:func:`nanoct.recon.resesop.resesop`).
-
-    Without ground truth, estimate ``eta`` with :mod:`nanoct.eta` (e.g.
-    ``eta_from_residual(geometry, sinogram, dremel(...).image)``).
-    """
-    g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-    return _run("resesop", sinogram, g, eta, params)
+fbp = _array_method("fbp", "Filtered back projection (:func:`nanoct.recon.fbp.fbp`; ``filter=``).")
+kaczmarz = _array_method("kaczmarz", "Kaczmarz sweeps (:func:`nanoct.recon.kaczmarz.kaczmarz`; ``n_iter=``, ...).")
+dremel = _array_method(
+    "dremel",
+    "Dremel: Kaczmarz with per-view shift estimation (:func:`nanoct.recon.dremel.dremel`); "
+    "the estimated object shift per view (detector pixels) is ``result.motion``.",
+)
+resesop = _array_method(
+    "resesop",
+    "RESESOP-Kaczmarz with the per-view model error ``eta=`` (:func:`nanoct.recon.resesop.resesop`); "
+    "without ground truth estimate it with :mod:`nanoct.eta`, e.g. "
+    "``eta_from_residual(geometry, sinogram, dremel(...).image)``.",
+)

@@ -147,13 +147,9 @@ def read_angles(path: str | os.PathLike[str], *, degrees: bool = True) -> np.nda
     NanoctError
         If the file is missing or not numeric.
     """
-    try:
-        values = np.loadtxt(path, dtype=np.float64, ndmin=1)
-    except OSError as exc:
-        raise NanoctError(f"cannot read the angles file {path}: {exc}") from exc
-    except ValueError as exc:
-        raise NanoctError(f"the angles file {path} is not a list of numbers ({exc})") from exc
-    values = values.ravel() if values.ndim == 1 else values[:, -1]  # "view angle" two-column files too
+    table = _load_table(path, "angles")
+    # one angle per line, "view angle" lines, or all angles on one line
+    values = table[0] if table.shape[0] == 1 else table[:, -1]
     return np.deg2rad(values) if degrees else values
 
 
@@ -409,6 +405,16 @@ def import_scan(
 
 
 # ---------------------------------------------------------------------------------- readers
+def _load_table(path: str | os.PathLike[str], what: str) -> np.ndarray:
+    """A text table of numbers (``#`` comments), one row per line, as a 2-D float64 array."""
+    try:
+        return np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
+    except OSError as exc:
+        raise NanoctError(f"cannot read the {what} file {path}: {exc}") from exc
+    except ValueError as exc:
+        raise NanoctError(f"the {what} file {path} is not a table of numbers ({exc})") from exc
+
+
 def _open_h5(path: Path) -> Any:
     import h5py
 
@@ -570,12 +576,7 @@ def read_shifts(path: str | os.PathLike[str], n_views: int) -> np.ndarray:
     NanoctError
         If the file is missing, not numeric, or has another number of views.
     """
-    try:
-        table = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
-    except OSError as exc:
-        raise NanoctError(f"cannot read the shifts file {path}: {exc}") from exc
-    except ValueError as exc:
-        raise NanoctError(f"the shifts file {path} is not a table of numbers ({exc})") from exc
+    table = _load_table(path, "shifts")
     if table.shape[1] == 1:
         shifts = table[:, 0]
     else:
