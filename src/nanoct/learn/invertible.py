@@ -46,6 +46,10 @@ __all__ = [
     "OrthogonalDownsampling",
     "OrthogonalUpsampling",
     "ConditionalNICECoupling",
+    "ConditionalAffineCoupling",
+    "ConditionalScale",
+    "COUPLINGS",
+    "coupling_block",
     "ActNorm",
     "conv_subnet",
     "fc_subnet",
@@ -251,6 +255,101 @@ class ConditionalNICECoupling(Fm.NICECouplingBlock):
     def forward(self, x, c=None, rev: bool = False, jac: bool = True):
         (out,), _ = super().forward(x, c or [], rev=rev, jac=jac)
         return (out,), torch.zeros(out.shape[0], dtype=out.dtype, device=out.device)
+
+
+class ConditionalAffineCoupling(Fm.GLOWCouplingBlock):
+    """Affine (GLOW / RealNVP) coupling ``y1 = x1 * exp(s1) + t1`` with ``(s1, t1) = F([x2, c])``,
+    then the same for ``x2`` given ``[y1, c]``; log|det J| = sum of the s.
+
+    The log-scales are soft-clamped to ``(-clamp, clamp)`` (``clamp * 0.636 * atan(u)``, FrEIA),
+    so no step can blow a value up or down by more than ``exp(clamp)``. Unlike the additive
+    coupling, the Jacobian depends on the condition and on the position: the model can put a
+    small spread on a flat background and a large one on an uncertain edge. The subnets' last
+    layers start at zero (s = t = 0), so the block is the identity at initialisation.
+
+    Args:
+        dims_in, dims_c: FrEIA shapes.
+        kernel_size, hidden_ratio, min_hidden: subnet (see :class:`ConditionalNICECoupling`).
+        clamp: bound of the log-scales.
+    """
+
+    def __init__(
+        self,
+        dims_in,
+        dims_c=None,
+        kernel_size: int = 3,
+        hidden_ratio: float = 2.0,
+        min_hidden: int = 8,
+        clamp: float = 2.0,
+    ) -> None:
+        dims_c = [] if dims_c is None else dims_c
+        if len(dims_in[0]) == 1:
+            ctor = fc_subnet(hidden_ratio, min_hidden)
+        else:
+            ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
+        super().__init__(dims_in, dims_c, subnet_constructor=ctor, clamp=float(clamp))
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        return super().forward(x, c or [], rev=rev, jac=jac)
+
+
+#: Coupling kinds selectable by the networks' ``coupling`` argument.
+COUPLINGS: dict[str, type[Fm.InvertibleModule]] = {
+    "additive": ConditionalNICECoupling,
+    "affine": ConditionalAffineCoupling,
+}
+
+
+def coupling_block(kind: str, clamp: float) -> tuple[type[Fm.InvertibleModule], dict[str, Any]]:
+    """The coupling class for ``kind`` (see :data:`COUPLINGS`) and its extra keyword arguments.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not a known coupling.
+    """
+    if kind not in COUPLINGS:
+        raise ValueError(f"coupling must be one of {', '.join(COUPLINGS)}, got {kind!r}")
+    return COUPLINGS[kind], ({"clamp": float(clamp)} if kind == "affine" else {})
+
+
+class ConditionalScale(Fm.InvertibleModule):
+    """Pixel-wise conditional affine map ``y = x * exp(s(c)) + t(c)`` (a conditional ActNorm).
+
+    ``(s, t)`` come from a small convolutional subnet of the condition alone (not of ``x``), so
+    the map is elementwise and its inverse is ``(y - t) * exp(-s)``; log|det J| = sum of s.
+    Placed at the data end of a flow, ``exp(-s(c))`` is the pixel-wise spread of the modelled
+    distribution around ``t(c)`` before the rest of the flow acts: one layer that lets a flow with
+    volume-preserving (additive) couplings make its std depend on the input and the position.
+    The log-scale is soft-clamped to ``(-clamp, clamp)`` like the affine couplings'. The last
+    subnet layer starts at zero, so the map is the identity at initialisation.
+
+    Args:
+        dims_in: ``[(C, H, W)]``.
+        dims_c: one condition ``[(C_c, H, W)]`` of the same spatial size.
+        hidden_ratio, min_hidden: subnet width (see :func:`conv_subnet`).
+        clamp: bound of the log-scale.
+    """
+
+    def __init__(self, dims_in, dims_c=None, hidden_ratio: float = 1.0, min_hidden: int = 8, clamp: float = 3.0):
+        super().__init__(dims_in, dims_c)
+        if not dims_c or len(dims_c) != 1 or tuple(dims_c[0][1:]) != tuple(dims_in[0][1:]):
+            raise ValueError(f"ConditionalScale needs one condition of the input's spatial size, got {dims_c}")
+        self.channels = dims_in[0][0]
+        self.clamp = float(clamp)
+        self.subnet = conv_subnet(3, hidden_ratio, min_hidden)(dims_c[0][0], 2 * self.channels)
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        a = self.subnet(c[0])
+        s = self.clamp * 0.636 * torch.atan(a[:, : self.channels])
+        t = a[:, self.channels :]
+        log_det = s.sum(dim=(1, 2, 3))
+        if not rev:
+            return (x[0] * torch.exp(s) + t,), log_det
+        return ((x[0] - t) * torch.exp(-s),), -log_det
+
+    def output_dims(self, input_dims):
+        return input_dims
 
 
 class ActNorm(Fm.ActNorm):
