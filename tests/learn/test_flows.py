@@ -19,7 +19,7 @@ from torch.autograd.functional import jacobian
 
 from nanoct.learn.cinn import CiNN, CiNNRes
 from nanoct.learn.ciunet import CiUNet, CiUNetRes
-from nanoct.learn.invertible import CheckpointMismatchError
+from nanoct.learn.flow import CheckpointMismatchError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -32,13 +32,14 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalFlow,
     ConditionalScale,
     OrthogonalDownsampling,
     coupling_block,
     preserve_numpy_rng,
+    scale_head,
 )
 
 __all__ = ["CiNN", "CiNNRes", "ResNetConditioner"]
@@ -127,7 +128,7 @@ class CiNN(ConditionalFlow):
         Bound of the affine couplings' log-scales (unused for additive couplings).
     conditional_scale: False
         A pixel-wise conditional affine layer
-        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from the
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
         conditioner's full-resolution stem features) after the input ActNorm.
     """
 
@@ -197,6 +198,7 @@ class CiNN(ConditionalFlow):
                 f"2^(n_scales+1) values), got {fc_dim}"
             )
         self.cond_net = ResNetConditioner(cond_channels, int(cond_width), int(fc_cond_dim))
+        self.scale_head = scale_head(int(cond_width)) if conditional_scale else None
         # FrEIA needs concrete sizes to build a graph; the convolutional graph is built for the
         # smallest valid size and runs at any multiple of it (its layers are size-agnostic), and
         # the fully-connected graph has the fixed size fc_dim. Flattening, the split of the
@@ -218,7 +220,7 @@ class CiNN(ConditionalFlow):
             nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
         cond_full = []
         if hp["conditional_scale"]:
-            cond_full = [Ff.ConditionNode(hp["cond_width"], h, w, name="cond_full")]
+            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
             nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
         nodes.append(
             Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name="down_0")
@@ -280,7 +282,10 @@ class CiNN(ConditionalFlow):
         return Ff.GraphINN(nodes + [out, cond_fc])
 
     def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
-        return self.cond_net(x_tilde_padded, with_stem=self.hparams["conditional_scale"])
+        conds = self.cond_net(x_tilde_padded, with_stem=self.scale_head is not None)
+        if self.scale_head is not None:
+            conds[0] = self.scale_head(conds[0])
+        return conds
 
     def _latent_shapes(self, size: tuple[int, int]) -> list[tuple[int, int, int]]:
         """Shapes of the conv graph's outputs (split-off parts, then the coarsest signal)."""

@@ -31,14 +31,15 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalFlow,
     ConditionalScale,
     OrthogonalDownsampling,
     OrthogonalUpsampling,
     coupling_block,
     preserve_numpy_rng,
+    scale_head,
 )
 from nanoct.learn.unet import PAPER_CHANNELS, UNet
 
@@ -83,8 +84,8 @@ class CiUNet(ConditionalFlow):
         Bound of the affine couplings' log-scales (unused for additive couplings).
     conditional_scale: False
         A pixel-wise conditional affine layer
-        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from the UNet's
-        full-resolution decoder features) after the input ActNorm.
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
+        UNet's full-resolution decoder features) after the input ActNorm.
     """
 
     name = "ciunet"
@@ -139,6 +140,7 @@ class CiUNet(ConditionalFlow):
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)
         self.cond_net.outc = nn.Identity()
+        self.scale_head = scale_head(cond_channels[0]) if conditional_scale else None
         with preserve_numpy_rng():
             self.flow = self._build(self.multiple, self.multiple)
 
@@ -162,7 +164,7 @@ class CiUNet(ConditionalFlow):
         nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
         cond_full = []
         if hp["conditional_scale"]:
-            cond_full = [Ff.ConditionNode(cch[0], h, w, name="cond_full")]
+            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
             nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
         nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name="pre_down"))
         couplings(hp["pre_blocks"], cond_dec[1], "pre")
@@ -189,7 +191,7 @@ class CiUNet(ConditionalFlow):
     def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
         n = self.hparams["n_scales"]
         _, enc, dec = self.cond_net.forward_features(x_tilde_padded)
-        full = [dec[0]] if self.hparams["conditional_scale"] else []
+        full = [] if self.scale_head is None else [self.scale_head(dec[0])]
         return full + [dec[l] for l in range(1, n)] + [enc[l] for l in range(1, n - 1)]
 
     def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:

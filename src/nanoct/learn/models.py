@@ -36,7 +36,7 @@ MODELS: dict[str, ModelSpec] = {
     # default (cosine annealing to 1e-4); dival is by two of the paper's authors
     "unet": ModelSpec("nanoct.learn.unet:UNetPost", lr=1e-3, batch_size=16, epochs=500, scheduler="cosine"),
     # the paper: Adam lr 1e-5, batch 16, 500 epochs; gradient clipping at 1.0 and a plateau
-    # schedule as in cinn_for_imaging (documented options, see nanoct.learn.invertible)
+    # schedule as in cinn_for_imaging (see docs/learn.md)
     "cinn": ModelSpec("nanoct.learn.cinn:CiNN", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
     "cinn-res": ModelSpec(
         "nanoct.learn.cinn:CiNNRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"
