@@ -80,7 +80,7 @@ STUDIES: dict[str, Study] = {
     "tiny": Study(
         n=200,
         split_fractions=(0.8, 0.1, 0.1),
-        epochs={"unet": 70, "cinn": 24, "cinn-res": 28, "ciunet": 18, "ciunet-res": 22},
+        epochs={"unet": 70, "cinn": 24, "cinn-res": 24, "ciunet": 18, "ciunet-res": 18},
         lr={"cinn": 1e-3, "cinn-res": 1e-3, "ciunet": 1e-3, "ciunet-res": 1e-3},
         model_kwargs={"unet": {"out_bias": -7.0, "skip_channels": 32}}
         | {m: {"blocks_per_scale": 2, "conditional_scale": True} for m in ("cinn", "cinn-res")}

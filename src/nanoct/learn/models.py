@@ -4,7 +4,7 @@ A model is registered by name with the import path of its :class:`~nanoct.learn.
 subclass (imported only when used, so the registry costs nothing) and the paper's training
 settings for it. To add a model::
 
-    MODELS["cinn"] = ModelSpec("nanoct.learn.cinn:CiNNPost", lr=1e-5, batch_size=16, clip_grad=1.0)
+    MODELS["mynet"] = ModelSpec("nanoct.learn.mynet:MyNet", lr=1e-4, batch_size=16, clip_grad=1.0)
 """
 
 from __future__ import annotations
