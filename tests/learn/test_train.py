@@ -88,6 +88,28 @@ def test_training_lowers_loss_and_writes_run(store, tmp_path):
     assert isinstance(model_from_checkpoint(best), torch.nn.Module)
 
 
+def test_flow_run_logs_the_validation_nll_per_epoch(store, tmp_path):
+    tiny = dict(n_scales=3, blocks_per_scale=1, fc_dim=8, fc_blocks=1, cond_channels=4, cond_width=4, fc_cond_dim=8)
+    kwargs = {**tiny, "conditional_scale": True}
+    run = train(
+        store,
+        "cinn-res",
+        "fbp",
+        tmp_path / "flow",
+        epochs=2,
+        lr=1e-3,
+        batch_size=2,
+        progress=False,
+        model_kwargs=kwargs,
+    )
+    rows = _log(run)
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    for r in rows:
+        assert float(r["val_loss"]) == pytest.approx(float(r["val_nll_bpd"]))  # the flows' loss is the NLL
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["hparams"]["conditional_scale"] is True and cfg["hparams"]["coupling"] == "additive"
+
+
 @pytest.mark.parametrize("sched", ["plateau", "cosine"])
 def test_resume_after_kill_matches_uninterrupted(store, tmp_path, sched):
     ref = train(store, "unet", "fbp", tmp_path / "ref", epochs=3, scheduler=sched, **FAST)

@@ -32,12 +32,14 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalFlow,
-    ConditionalNICECoupling,
+    ConditionalScale,
     OrthogonalDownsampling,
+    coupling_block,
     preserve_numpy_rng,
+    scale_head,
 )
 
 __all__ = ["CiNN", "CiNNRes", "ResNetConditioner"]
@@ -72,9 +74,10 @@ class ResNetConditioner(nn.Module):
             nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(prev, fc_dim), nn.LeakyReLU(), nn.Linear(fc_dim, fc_dim)
         )
 
-    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+    def forward(self, x: torch.Tensor, with_stem: bool = False) -> list[torch.Tensor]:
+        """The pyramid; with ``with_stem`` the full-resolution stem features come first."""
         h = self.stem(x)
-        out = []
+        out = [h] if with_stem else []
         for level in self.levels:
             h = level(h)
             out.append(h)
@@ -118,6 +121,15 @@ class CiNN(ConditionalFlow):
         Parametrisation of the orthogonal resampling kernels.
     seed: 0
         Seed of the fixed random permutations.
+    coupling: "additive"
+        ``"additive"`` (NICE, the paper's) or ``"affine"`` (GLOW, soft-clamped log-scales,
+        :class:`~nanoct.learn.invertible.ConditionalAffineCoupling`) for every coupling.
+    clamp: 2.0
+        Bound of the affine couplings' log-scales (unused for additive couplings).
+    conditional_scale: False
+        A pixel-wise conditional affine layer
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
+        conditioner's full-resolution stem features) after the input ActNorm.
     """
 
     name = "cinn"
@@ -137,6 +149,9 @@ class CiNN(ConditionalFlow):
         target_noise: float = 0.005,
         orthogonal_map: str = "cayley",
         seed: int = 0,
+        coupling: str = "additive",
+        clamp: float = 2.0,
+        conditional_scale: bool = False,
     ) -> None:
         if int(n_scales) < 1:
             raise ValueError(f"n_scales must be >= 1, got {n_scales}")
@@ -157,6 +172,7 @@ class CiNN(ConditionalFlow):
                 raise ValueError(f"{label} must be >= {lo}, got {val}")
         if any(c < 1 for c in cond_channels):
             raise ValueError(f"cond_channels must be positive, got {cond_channels}")
+        coupling_block(str(coupling), float(clamp))  # checks the kind
         super().__init__(
             n_scales=int(n_scales),
             blocks_per_scale=int(blocks_per_scale),
@@ -170,6 +186,9 @@ class CiNN(ConditionalFlow):
             target_noise=float(target_noise),
             orthogonal_map=str(orthogonal_map),
             seed=int(seed),
+            coupling=str(coupling),
+            clamp=float(clamp),
+            conditional_scale=bool(conditional_scale),
         )
         self.multiple = 2 ** int(n_scales)
         coarse_channels = 2 ** (int(n_scales) + 1)
@@ -179,6 +198,7 @@ class CiNN(ConditionalFlow):
                 f"2^(n_scales+1) values), got {fc_dim}"
             )
         self.cond_net = ResNetConditioner(cond_channels, int(cond_width), int(fc_cond_dim))
+        self.scale_head = scale_head(int(cond_width)) if conditional_scale else None
         # FrEIA needs concrete sizes to build a graph; the convolutional graph is built for the
         # smallest valid size and runs at any multiple of it (its layers are size-agnostic), and
         # the fully-connected graph has the fixed size fc_dim. Flattening, the split of the
@@ -190,6 +210,7 @@ class CiNN(ConditionalFlow):
     def _build_conv(self, h: int, w: int) -> Ff.GraphINN:
         hp = self.hparams
         n, ratio, seed = hp["n_scales"], hp["hidden_ratio"], hp["seed"]
+        block, extra = coupling_block(hp["coupling"], hp["clamp"])
         conds = [
             Ff.ConditionNode(c, h // 2 ** (s + 1), w // 2 ** (s + 1), name=f"cond_{s}")
             for s, c in enumerate(hp["cond_channels"])
@@ -197,6 +218,10 @@ class CiNN(ConditionalFlow):
         nodes: list[Ff.Node] = [Ff.InputNode(1, h, w, name="input")]
         if hp["actnorm"]:
             nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
+        cond_full = []
+        if hp["conditional_scale"]:
+            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
+            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
         nodes.append(
             Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name="down_0")
         )
@@ -206,8 +231,8 @@ class CiNN(ConditionalFlow):
                 nodes.append(
                     Ff.Node(
                         nodes[-1],
-                        ConditionalNICECoupling,
-                        {"kernel_size": 1 if k % 2 == 0 else 3, "hidden_ratio": ratio},
+                        block,
+                        {"kernel_size": 1 if k % 2 == 0 else 3, "hidden_ratio": ratio, **extra},
                         conditions=conds[s],
                         name=f"coupling_{s}_{k}",
                     )
@@ -227,12 +252,13 @@ class CiNN(ConditionalFlow):
             nodes.append(Ff.Node(nodes[-1], Fm.Split, {"n_sections": 2, "dim": 0}, name=f"split_{s + 1}"))
             outs.append(Ff.OutputNode(nodes[-1].out1, name=f"z_{s + 1}"))
         outs.append(Ff.OutputNode(nodes[-1].out0 if n > 1 else nodes[-1], name="z_coarse"))
-        return Ff.GraphINN(nodes + outs + conds, force_tuple_output=True)
+        return Ff.GraphINN(nodes + outs + cond_full + conds, force_tuple_output=True)
 
     def _build_fc(self) -> Ff.GraphINN | None:
         hp = self.hparams
         if hp["fc_blocks"] == 0:
             return None
+        block, extra = coupling_block(hp["coupling"], hp["clamp"])
         cond_fc = Ff.ConditionNode(hp["fc_cond_dim"], name="cond_fc")
         nodes: list[Ff.Node] = [Ff.InputNode(hp["fc_dim"], name="fc_in")]
         for k in range(hp["fc_blocks"]):
@@ -244,8 +270,8 @@ class CiNN(ConditionalFlow):
             nodes.append(
                 Ff.Node(
                     nodes[-1],
-                    ConditionalNICECoupling,
-                    {"hidden_ratio": hp["hidden_ratio"]},
+                    block,
+                    {"hidden_ratio": hp["hidden_ratio"], **extra},
                     conditions=cond_fc,
                     name=f"coupling_fc_{k}",
                 )
@@ -256,7 +282,10 @@ class CiNN(ConditionalFlow):
         return Ff.GraphINN(nodes + [out, cond_fc])
 
     def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
-        return self.cond_net(x_tilde_padded)
+        conds = self.cond_net(x_tilde_padded, with_stem=self.scale_head is not None)
+        if self.scale_head is not None:
+            conds[0] = self.scale_head(conds[0])
+        return conds
 
     def _latent_shapes(self, size: tuple[int, int]) -> list[tuple[int, int, int]]:
         """Shapes of the conv graph's outputs (split-off parts, then the coarsest signal)."""

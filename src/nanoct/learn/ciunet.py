@@ -31,13 +31,15 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalFlow,
-    ConditionalNICECoupling,
+    ConditionalScale,
     OrthogonalDownsampling,
     OrthogonalUpsampling,
+    coupling_block,
     preserve_numpy_rng,
+    scale_head,
 )
 from nanoct.learn.unet import PAPER_CHANNELS, UNet
 
@@ -75,6 +77,15 @@ class CiUNet(ConditionalFlow):
         Std of the Gaussian noise added to the target in ``loss`` during training.
     orthogonal_map: "cayley"
         Parametrisation of the orthogonal resampling kernels.
+    coupling: "additive"
+        ``"additive"`` (NICE, the paper's) or ``"affine"`` (GLOW, soft-clamped log-scales,
+        :class:`~nanoct.learn.invertible.ConditionalAffineCoupling`) for every coupling.
+    clamp: 2.0
+        Bound of the affine couplings' log-scales (unused for additive couplings).
+    conditional_scale: False
+        A pixel-wise conditional affine layer
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
+        UNet's full-resolution decoder features) after the input ActNorm.
     """
 
     name = "ciunet"
@@ -92,6 +103,9 @@ class CiUNet(ConditionalFlow):
         actnorm: bool = True,
         target_noise: float = 0.005,
         orthogonal_map: str = "cayley",
+        coupling: str = "additive",
+        clamp: float = 2.0,
+        conditional_scale: bool = False,
     ) -> None:
         n_scales = int(n_scales)
         if n_scales < 2:
@@ -103,6 +117,7 @@ class CiUNet(ConditionalFlow):
             raise ValueError(f"blocks_per_scale must be >= 1 and pre_blocks >= 0, got {blocks_per_scale}, {pre_blocks}")
         if int(kernel_size) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
+        coupling_block(str(coupling), float(clamp))  # checks the kind
         super().__init__(
             n_scales=n_scales,
             blocks_per_scale=int(blocks_per_scale),
@@ -114,6 +129,9 @@ class CiUNet(ConditionalFlow):
             actnorm=bool(actnorm),
             target_noise=float(target_noise),
             orthogonal_map=str(orthogonal_map),
+            coupling=str(coupling),
+            clamp=float(clamp),
+            conditional_scale=bool(conditional_scale),
         )
         self.multiple = 2 ** (n_scales - 1)
         self.cond_net = UNet(
@@ -122,13 +140,15 @@ class CiUNet(ConditionalFlow):
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)
         self.cond_net.outc = nn.Identity()
+        self.scale_head = scale_head(cond_channels[0]) if conditional_scale else None
         with preserve_numpy_rng():
             self.flow = self._build(self.multiple, self.multiple)
 
     def _build(self, h: int, w: int) -> Ff.GraphINN:
         hp = self.hparams
         n, cch = hp["n_scales"], hp["cond_channels"]
-        coupling_args = {"kernel_size": hp["kernel_size"], "hidden_ratio": hp["hidden_ratio"]}
+        block, extra = coupling_block(hp["coupling"], hp["clamp"])
+        coupling_args = {"kernel_size": hp["kernel_size"], "hidden_ratio": hp["hidden_ratio"], **extra}
         res = {"orthogonal_map": hp["orthogonal_map"]}
         # conditions: UNet decoder features at levels 1..L-1 (L-1: bottleneck), encoder features 1..L-2
         cond_dec = {l: Ff.ConditionNode(cch[l], h >> l, w >> l, name=f"cond_dec_{l}") for l in range(1, n)}
@@ -137,15 +157,15 @@ class CiUNet(ConditionalFlow):
 
         def couplings(count: int, cond: Ff.ConditionNode, tag: str) -> None:
             for k in range(count):
-                nodes.append(
-                    Ff.Node(
-                        nodes[-1], ConditionalNICECoupling, coupling_args, conditions=cond, name=f"coupling_{tag}_{k}"
-                    )
-                )
+                nodes.append(Ff.Node(nodes[-1], block, coupling_args, conditions=cond, name=f"coupling_{tag}_{k}"))
                 if hp["actnorm"]:
                     nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_{tag}_{k}"))
 
         nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
+        cond_full = []
+        if hp["conditional_scale"]:
+            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
+            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
         nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name="pre_down"))
         couplings(hp["pre_blocks"], cond_dec[1], "pre")
         nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="pre_up"))
@@ -166,12 +186,13 @@ class CiUNet(ConditionalFlow):
             couplings(hp["blocks_per_scale"], cond_enc[l], f"dec{l}")
         nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="up_0"))
         nodes.append(Ff.OutputNode(nodes[-1], name="output"))
-        return Ff.GraphINN(nodes + list(cond_dec.values()) + list(cond_enc.values()))
+        return Ff.GraphINN(nodes + cond_full + list(cond_dec.values()) + list(cond_enc.values()))
 
     def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
         n = self.hparams["n_scales"]
         _, enc, dec = self.cond_net.forward_features(x_tilde_padded)
-        return [dec[l] for l in range(1, n)] + [enc[l] for l in range(1, n - 1)]
+        full = [] if self.scale_head is None else [self.scale_head(dec[0])]
+        return full + [dec[l] for l in range(1, n)] + [enc[l] for l in range(1, n - 1)]
 
     def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         out, log_jac = self.flow(vp, c=conds, jac=True)

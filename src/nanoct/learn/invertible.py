@@ -12,6 +12,10 @@ plain FrEIA graphs (``GraphINN`` of ``Node``/``ConditionNode``):
 * :class:`ConditionalNICECoupling` -- FrEIA's additive (NICE) coupling with the condition
   concatenated to the subnet input and the last subnet layer initialised to zero, so every
   coupling is the identity at initialisation.
+* :class:`ConditionalAffineCoupling` -- the same with FrEIA's affine (GLOW) coupling and
+  soft-clamped log-scales; :data:`COUPLINGS` / :func:`coupling_block` select the kind.
+* :class:`ConditionalScale` -- a pixel-wise affine map whose scale and shift come from the
+  condition (a conditional ActNorm).
 * :class:`ActNorm` -- FrEIA's activation normalisation (data-dependent initialisation on the
   first forward batch) made safe for constant channels and for a first call in reverse.
 * :func:`pad_to_multiple` / :func:`crop` -- the padding convention of the networks.
@@ -35,17 +39,16 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils import parametrizations
 
-from nanoct.learn.base import PostProcessor
-
 __all__ = [
-    "CheckpointMismatchError",
-    "ConditionalFlow",
-    "parametrize_cached",
-    "TRAINING_DEFAULTS",
     "haar_matrix",
     "OrthogonalDownsampling",
     "OrthogonalUpsampling",
     "ConditionalNICECoupling",
+    "ConditionalAffineCoupling",
+    "ConditionalScale",
+    "scale_head",
+    "COUPLINGS",
+    "coupling_block",
     "ActNorm",
     "conv_subnet",
     "fc_subnet",
@@ -56,28 +59,6 @@ __all__ = [
     "preserve_numpy_rng",
     "finish_actnorm_init",
 ]
-
-#: Training settings of the paper (Adam, lr 1e-5, batch 16, best validation checkpoint) and
-#: the stabilisers of ``jleuschn/cinn_for_imaging`` (target noise N(0, 0.005^2) -- applied by
-#: the models' ``loss`` in training mode --, gradient-norm clipping at 1.0, ReduceLROnPlateau on
-#: the validation loss). The trainer reads these; none of them is applied by the models
-#: except the target noise.
-TRAINING_DEFAULTS: dict[str, Any] = {
-    "optimizer": "adam",
-    "lr": 1e-5,
-    "batch_size": 16,
-    "epochs": 500,
-    "select": "min_val_loss",
-    "grad_clip_norm": 1.0,
-    "lr_scheduler": {
-        "name": "ReduceLROnPlateau",
-        "factor": 0.8,
-        "patience": 2,
-        "threshold": 0.005,
-        "cooldown": 1,
-        "min_lr": 1e-10,
-    },
-}
 
 
 # ----------------------------------------------------------------------------- resampling
@@ -253,6 +234,108 @@ class ConditionalNICECoupling(Fm.NICECouplingBlock):
         return (out,), torch.zeros(out.shape[0], dtype=out.dtype, device=out.device)
 
 
+class ConditionalAffineCoupling(Fm.GLOWCouplingBlock):
+    """Affine (GLOW / RealNVP) coupling ``y1 = x1 * exp(s1) + t1`` with ``(s1, t1) = F([x2, c])``,
+    then the same for ``x2`` given ``[y1, c]``; log|det J| = sum of the s.
+
+    The log-scales are soft-clamped to ``(-clamp, clamp)`` (``clamp * 0.636 * atan(u)``, FrEIA),
+    so no step can blow a value up or down by more than ``exp(clamp)``. Unlike the additive
+    coupling, the Jacobian depends on the condition and on the position: the model can put a
+    small spread on a flat background and a large one on an uncertain edge. The subnets' last
+    layers start at zero (s = t = 0), so the block is the identity at initialisation.
+
+    Args:
+        dims_in, dims_c: FrEIA shapes.
+        kernel_size, hidden_ratio, min_hidden: subnet (see :class:`ConditionalNICECoupling`).
+        clamp: bound of the log-scales.
+    """
+
+    def __init__(
+        self,
+        dims_in,
+        dims_c=None,
+        kernel_size: int = 3,
+        hidden_ratio: float = 2.0,
+        min_hidden: int = 8,
+        clamp: float = 2.0,
+    ) -> None:
+        dims_c = [] if dims_c is None else dims_c
+        if len(dims_in[0]) == 1:
+            ctor = fc_subnet(hidden_ratio, min_hidden)
+        else:
+            ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
+        super().__init__(dims_in, dims_c, subnet_constructor=ctor, clamp=float(clamp))
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        return super().forward(x, c or [], rev=rev, jac=jac)
+
+
+#: Coupling kinds selectable by the networks' ``coupling`` argument.
+COUPLINGS: dict[str, type[Fm.InvertibleModule]] = {
+    "additive": ConditionalNICECoupling,
+    "affine": ConditionalAffineCoupling,
+}
+
+
+def coupling_block(kind: str, clamp: float) -> tuple[type[Fm.InvertibleModule], dict[str, Any]]:
+    """The coupling class for ``kind`` (see :data:`COUPLINGS`) and its extra keyword arguments.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not a known coupling.
+    """
+    if kind not in COUPLINGS:
+        raise ValueError(f"coupling must be one of {', '.join(COUPLINGS)}, got {kind!r}")
+    return COUPLINGS[kind], ({"clamp": float(clamp)} if kind == "affine" else {})
+
+
+class ConditionalScale(Fm.InvertibleModule):
+    """Pixel-wise conditional affine map ``y = x * exp(s) + t`` (a conditional ActNorm).
+
+    The condition is the raw ``(s, t)`` map itself, ``(2C, H, W)``, computed by the network's
+    conditioner from ``x_tilde`` alone (see :func:`scale_head`), so the map is elementwise, its
+    inverse is ``(y - t) * exp(-s)`` and log|det J| is the sum of s; and a sampler computes it
+    once per image, not once per sample. Placed at the data end of a flow, ``exp(-s)`` is the
+    pixel-wise spread of the modelled distribution before the rest of the flow acts: one layer
+    that lets a flow with volume-preserving (additive) couplings make its std depend on the input
+    and the position. The log-scale is soft-clamped to ``(-clamp, clamp)`` like the affine
+    couplings'.
+
+    Args:
+        dims_in: ``[(C, H, W)]``.
+        dims_c: one condition ``[(2C, H, W)]``.
+        clamp: bound of the log-scale.
+    """
+
+    def __init__(self, dims_in, dims_c=None, clamp: float = 3.0) -> None:
+        super().__init__(dims_in, dims_c)
+        c, *spatial = dims_in[0]
+        if not dims_c or len(dims_c) != 1 or tuple(dims_c[0]) != (2 * c, *spatial):
+            raise ValueError(f"ConditionalScale of {dims_in[0]} needs one condition of shape {(2 * c, *spatial)}")
+        self.channels = c
+        self.clamp = float(clamp)
+
+    def forward(self, x, c=None, rev: bool = False, jac: bool = True):
+        s = self.clamp * 0.636 * torch.atan(c[0][:, : self.channels])
+        t = c[0][:, self.channels :]
+        log_det = s.sum(dim=(1, 2, 3))
+        if not rev:
+            return (x[0] * torch.exp(s) + t,), log_det
+        return ((x[0] - t) * torch.exp(-s),), -log_det
+
+    def output_dims(self, input_dims):
+        return input_dims
+
+
+def scale_head(c_in: int, channels: int = 1, hidden: int = 8) -> nn.Module:
+    """Conditioner head for :class:`ConditionalScale`: conv3x3, LeakyReLU, conv3x3 (zero) from
+    ``c_in`` feature channels to the ``2 * channels`` raw (s, t) maps (identity at initialisation)."""
+    return _ZeroLast(
+        nn.Conv2d(c_in, hidden, 3, padding=1), nn.LeakyReLU(), nn.Conv2d(hidden, 2 * channels, 3, padding=1)
+    )
+
+
 class ActNorm(Fm.ActNorm):
     """FrEIA's ``ActNorm`` (per-channel ``y = x * exp(s) + b``, initialised on the first forward
     batch to zero mean and unit variance per channel) with three fixes:
@@ -376,277 +459,3 @@ class RunningMoments:
         bshape = (-1,) + (1,) * (self.mean.dim() - 1)
         var = self.m2 / self.count.clamp_min(1).view(bshape)
         return self.mean, var.clamp_min(0).sqrt()
-
-
-# ----------------------------------------------------------------------------- model base class
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    return value
-
-
-class CheckpointMismatchError(ValueError, RuntimeError):
-    """A state dict of another architecture or size (a ``ValueError``; also a ``RuntimeError``,
-    what ``torch.nn.Module.load_state_dict`` raises, so existing handlers keep working)."""
-
-
-class ConditionalFlow(PostProcessor):
-    """Shared likelihood, sampling and checkpoint logic of CiNN/CiUNet and their residual variants.
-
-    Subclasses build their FrEIA graph(s) and a conditioning network, set ``self.multiple`` (the
-    padded size must be a multiple of it) and implement :meth:`_conditions`,
-    :meth:`_flow_forward` (padded image -> flat latent of the same size, log|det J|) and
-    :meth:`_flow_inverse`. Graphs are built once for the smallest valid size and run at any
-    multiple of it: all their layers are size-agnostic (convolutional couplings, resampling,
-    channel splits/permutations, the ActNorm above); anything size-dependent (flattening) is
-    done outside the graph.
-
-    Conventions:
-
-    * The invertible path sees ``v = x`` (``residual = False``) or ``v = x_tilde - x``
-      (``residual = True``, the paper's "Res" variants).
-    * Padding: ``v`` is padded at the bottom/right with zeros to a multiple of ``self.multiple``
-      (for phantoms and residuals 0 is the natural background value), the condition
-      ``x_tilde`` by reflection. Padded pixels are ordinary flow dimensions: in training mode
-      they receive the same target noise as the image, so their density is non-degenerate;
-      samples are cropped back, so only the marginal over the real pixels is used.
-    * ``loss`` is the NLL in bits per dimension over all Hp*Wp flow dimensions (padding
-      included; 0.8% of them at 255 -> 256), without the +8 offset of 8-bit dequantisation.
-    """
-
-    has_uncertainty = True
-
-    residual: bool = False
-    training_defaults: dict[str, Any] = TRAINING_DEFAULTS
-    multiple: int = 1
-
-    def __init__(self, **hparams: Any) -> None:
-        super().__init__(**{k: _jsonable(v) for k, v in hparams.items()})
-        target_noise = float(self.hparams.get("target_noise", 0.0))
-        if target_noise < 0:
-            raise ValueError(f"target_noise must be >= 0, got {target_noise}")
-        self.target_noise = target_noise
-
-    # -- to implement -------------------------------------------------------------------------
-    def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
-        """Condition tensors in the order of the graph's condition nodes."""
-        raise NotImplementedError
-
-    def _flow_forward(self, vp: torch.Tensor, conds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Padded (B, 1, Hp, Wp) -> (z (B, Hp*Wp), log|det J| (B,))."""
-        raise NotImplementedError
-
-    def _flow_inverse(self, z: torch.Tensor, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
-        """z (B, Hp*Wp) -> padded (B, 1, Hp, Wp), where size = (Hp, Wp)."""
-        raise NotImplementedError
-
-    # -- input checks ---------------------------------------------------------------------------
-    def _check_condition(self, x_tilde: torch.Tensor) -> None:
-        if not torch.is_tensor(x_tilde) or x_tilde.dim() != 4 or x_tilde.shape[1] != 1:
-            shape = tuple(x_tilde.shape) if torch.is_tensor(x_tilde) else type(x_tilde).__name__
-            raise ValueError(f"{self.name}: the condition x_tilde must be a (batch, 1, H, W) tensor, got {shape}")
-        if x_tilde.shape[0] < 1 or x_tilde.shape[-1] < 1 or x_tilde.shape[-2] < 1:
-            raise ValueError(f"{self.name}: empty condition of shape {tuple(x_tilde.shape)}")
-
-    def _check_pair(self, v: torch.Tensor, x_tilde: torch.Tensor, what: str = "x") -> None:
-        self._check_condition(x_tilde)
-        if not torch.is_tensor(v) or tuple(v.shape) != tuple(x_tilde.shape):
-            shape = tuple(v.shape) if torch.is_tensor(v) else type(v).__name__
-            raise ValueError(
-                f"{self.name}: {what} has shape {shape} but the condition x_tilde has shape "
-                f"{tuple(x_tilde.shape)}; they must be equal"
-            )
-
-    def padded_size(self, h: int, w: int) -> tuple[int, int]:
-        m = self.multiple
-        return h + (-h) % m, w + (-w) % m
-
-    def latent_dim(self, h: int, w: int) -> int:
-        """Length of z for an H x W image (= the padded pixel count)."""
-        hp, wp = self.padded_size(h, w)
-        return hp * wp
-
-    def condition(self, x_tilde: torch.Tensor) -> list[torch.Tensor]:
-        """Run the conditioning network on (padded) ``x_tilde``; reusable across many samples."""
-        self._check_condition(x_tilde)
-        return self._conditions(pad_to_multiple(x_tilde, self.multiple, mode="reflect"))
-
-    # -- the flow -------------------------------------------------------------------------------
-    def forward(self, v: torch.Tensor, x_tilde: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Density direction: ``v`` (B, 1, H, W) given ``x_tilde`` -> (z (B, D), log|det dz/dv| (B,)).
-
-        ``v`` is the target ``x`` (``residual = False``) or the residual ``x_tilde - x``.
-        """
-        self._check_pair(v, x_tilde, "v")
-        conds = self.condition(x_tilde)
-        return self._flow_forward(pad_to_multiple(v, self.multiple, value=0.0), conds)
-
-    def _inverse_with(self, z: torch.Tensor, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
-        finish_actnorm_init(self)
-        v = self._flow_inverse(z, conds, self.padded_size(*size))
-        return crop(v, size)
-
-    def inverse(self, z: torch.Tensor, x_tilde: torch.Tensor) -> torch.Tensor:
-        """Generative direction: latent ``z`` (B, D) given ``x_tilde`` -> ``v`` (B, 1, H, W)."""
-        self._check_condition(x_tilde)
-        b, _, h, w = x_tilde.shape
-        d = self.latent_dim(h, w)
-        if not torch.is_tensor(z) or z.dim() != 2 or tuple(z.shape) != (b, d):
-            shape = tuple(z.shape) if torch.is_tensor(z) else type(z).__name__
-            raise ValueError(
-                f"{self.name}: z must have shape ({b}, {d}) for a condition of shape "
-                f"{tuple(x_tilde.shape)}, got {shape}"
-            )
-        return self._inverse_with(z, self.condition(x_tilde), (h, w))
-
-    # -- PostProcessor ----------------------------------------------------------------------------
-    def _target(self, x_tilde: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        return x_tilde - x if self.residual else x
-
-    def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
-        """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss).
-
-        In training mode N(0, target_noise^2) noise is added to the target first (to all pixels,
-        padded ones included); in eval mode the loss is deterministic.
-        """
-        self._check_pair(x, x_tilde, "x")
-        if self.training and self.target_noise > 0:
-            x = x + self.target_noise * torch.randn_like(x)
-        v = self._target(x_tilde, x)
-        conds = self.condition(x_tilde)
-        vp = pad_to_multiple(v, self.multiple, value=0.0)
-        if self.training and self.target_noise > 0 and vp.shape != v.shape:
-            # the padded pixels get the same noise as the image, so their density is not degenerate
-            noise = self.target_noise * torch.randn_like(vp)
-            noise[..., : v.shape[-2], : v.shape[-1]] = 0.0
-            vp = vp + noise
-        z, log_jac = self._flow_forward(vp, conds)
-        bpd = gaussian_nll_bpd(z, log_jac)
-        loss = bpd.mean()
-        d = z.shape[1]
-        return loss, {
-            "nll_bpd": float(loss.detach()),
-            "z_sq_mean": float(z.detach().pow(2).mean()),
-            "logdet_per_dim": float(log_jac.detach().mean() / d),
-        }
-
-    @torch.no_grad()
-    def data_init(self, x_tilde: torch.Tensor, x: torch.Tensor) -> None:
-        """Initialise the ActNorm layers from one batch (call before wrapping in DDP so that all
-        ranks start from the same parameters; otherwise the first ``loss`` call does it)."""
-        self._check_pair(x, x_tilde, "x")
-        self.forward(self._target(x_tilde, x), x_tilde)
-
-    def _sample_rows(
-        self, x_tilde: torch.Tensor, n_samples: int, chunk: int, generator: torch.Generator | None
-    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-        """Yield (image index per row, v samples) in passes of at most ``chunk`` rows."""
-        b, _, h, w = x_tilde.shape
-        d = self.latent_dim(h, w)
-        conds = self.condition(x_tilde)
-        total = b * n_samples
-        for r0 in range(0, total, chunk):
-            rows = torch.arange(r0, min(r0 + chunk, total), device=x_tilde.device)
-            img = torch.div(rows, n_samples, rounding_mode="floor")
-            z = torch.randn(
-                len(rows),
-                d,
-                generator=generator,
-                dtype=x_tilde.dtype,
-                device="cpu" if generator is None else generator.device,
-            ).to(x_tilde.device)
-            cs = [c.index_select(0, img) for c in conds]
-            yield img, self._inverse_with(z, cs, (h, w))
-
-    @staticmethod
-    def _generator(generator: torch.Generator | None, seed: int | None) -> torch.Generator | None:
-        if generator is None and seed is not None:
-            generator = torch.Generator().manual_seed(int(seed))
-        return generator
-
-    @staticmethod
-    def _check_sampling_args(n_samples: Any, chunk: Any) -> None:
-        for label, val in (("n_samples", n_samples), ("chunk", chunk)):
-            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val <= 0:
-                raise ValueError(f"{label} must be a positive integer, got {val!r}")
-
-    @torch.no_grad()
-    def sample(
-        self,
-        x_tilde: torch.Tensor,
-        n_samples: int = 1,
-        chunk: int = 32,
-        generator: torch.Generator | None = None,
-        seed: int | None = None,
-    ) -> torch.Tensor:
-        """``n_samples`` reconstructions per input, (B, n_samples, 1, H, W): ``G^-1(z)`` (or
-        ``x_tilde - G^-1(z)`` for the residual variants) with z ~ N(0, I)."""
-        self._check_condition(x_tilde)
-        self._check_sampling_args(n_samples, chunk)
-        generator = self._generator(generator, seed)
-        b, _, h, w = x_tilde.shape
-        out = torch.empty(b * n_samples, 1, h, w, dtype=x_tilde.dtype, device=x_tilde.device)
-        pos = 0
-        with parametrize_cached():
-            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
-                out[pos : pos + len(img)] = x_tilde[img] - v if self.residual else v
-                pos += len(img)
-        return out.view(b, n_samples, 1, h, w)
-
-    @torch.no_grad()
-    def reconstruct(
-        self,
-        x_tilde: torch.Tensor,
-        n_samples: int = 100,
-        chunk: int = 32,
-        generator: torch.Generator | None = None,
-        seed: int | None = None,
-        **kwargs: Any,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean and pixel-wise standard deviation over ``n_samples`` latent samples per input.
-
-        ``x_reco = 1/M sum_m G^-1(z_m)`` and ``sigma = (1/M sum_m (G^-1(z_m) - x_reco)^2)^(1/2)``;
-        for the residual variants ``x_reco = x_tilde - 1/M sum_m dx_m`` and ``sigma`` = the std of
-        the residual samples (paper eqs. for CiNN(Res)). At most ``chunk`` latent samples (over
-        all images of the batch) go through the network at once; moments are accumulated in
-        float64, so memory does not grow with ``n_samples``. The latent draws come from
-        ``generator`` if given, else from a generator seeded with ``seed`` if given, else from
-        torch's global RNG.
-        """
-        if kwargs:
-            raise TypeError(f"{self.name}.reconstruct got unexpected arguments {sorted(kwargs)}")
-        self._check_condition(x_tilde)
-        self._check_sampling_args(n_samples, chunk)
-        generator = self._generator(generator, seed)
-        b, _, h, w = x_tilde.shape
-        moments = RunningMoments(b, (1, h, w), device=x_tilde.device)
-        with parametrize_cached():
-            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
-                moments.update(v, img)
-        mean_v, std = moments.result()
-        mean_v, std = mean_v.to(x_tilde.dtype), std.to(x_tilde.dtype)
-        mean = x_tilde - mean_v if self.residual else mean_v
-        return mean, std
-
-    # -- checkpoints ------------------------------------------------------------------------------
-    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
-        try:
-            return super().load_state_dict(state_dict, strict=strict, assign=assign)
-        except RuntimeError as e:
-            if isinstance(e, CheckpointMismatchError):
-                raise
-            raise CheckpointMismatchError(
-                f"{self.name} with {self.hparams}: the state dict does not match this architecture/size "
-                f"(build the model with the checkpoint's name and hparams): {e}"
-            ) from e
-
-
-@contextmanager
-def parametrize_cached() -> Iterator[None]:
-    """Cache the orthogonal matrices during sampling (they are recomputed on every call otherwise)."""
-    from torch.nn.utils import parametrize
-
-    with parametrize.cached():
-        yield

@@ -4,7 +4,7 @@ A model is registered by name with the import path of its :class:`~nanoct.learn.
 subclass (imported only when used, so the registry costs nothing) and the paper's training
 settings for it. To add a model::
 
-    MODELS["cinn"] = ModelSpec("nanoct.learn.cinn:CiNNPost", lr=1e-5, batch_size=16, clip_grad=1.0)
+    MODELS["mynet"] = ModelSpec("nanoct.learn.mynet:MyNet", lr=1e-4, batch_size=16, clip_grad=1.0)
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ MODELS: dict[str, ModelSpec] = {
     # default (cosine annealing to 1e-4); dival is by two of the paper's authors
     "unet": ModelSpec("nanoct.learn.unet:UNetPost", lr=1e-3, batch_size=16, epochs=500, scheduler="cosine"),
     # the paper: Adam lr 1e-5, batch 16, 500 epochs; gradient clipping at 1.0 and a plateau
-    # schedule as in cinn_for_imaging (documented options, see nanoct.learn.invertible)
+    # schedule as in cinn_for_imaging (see docs/learn.md)
     "cinn": ModelSpec("nanoct.learn.cinn:CiNN", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"),
     "cinn-res": ModelSpec(
         "nanoct.learn.cinn:CiNNRes", lr=1e-5, batch_size=16, epochs=500, clip_grad=1.0, scheduler="plateau"

@@ -30,6 +30,7 @@ import random
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -246,76 +247,102 @@ def train(
     use_cl = (dev.type == "cpu") if channels_last is None else bool(channels_last)
     main_rank = rank == 0
 
+    settings = _Settings(
+        store_path=store_path,
+        model_name=model_name,
+        input_name=input_name,
+        out=Path(out_dir),
+        epochs=epochs,
+        batch_size=batch_size,
+        local_batch=local_batch,
+        lr=lr,
+        seed=int(seed),
+        dev=dev,
+        use_cl=use_cl,
+        progress=progress and main_rank,
+        max_steps=max_steps,
+        model_kwargs=dict(model_kwargs or {}),
+        clip=clip,
+        sched=sched,
+        num_workers=num_workers,
+        in_memory=in_memory,
+        rank=rank,
+        world=world,
+        distributed=distributed,
+        on_epoch_end=on_epoch_end,
+    )
     try:
         if batch_size % world:
             raise NanoctError(f"batch size {batch_size} is not divisible by the {world} processes")
-        return _train(
-            store_path,
-            model_name,
-            input_name,
-            Path(out_dir),
-            epochs=epochs,
-            batch_size=batch_size,
-            local_batch=local_batch,
-            lr=lr,
-            seed=int(seed),
-            dev=dev,
-            use_cl=use_cl,
-            progress=progress and main_rank,
-            max_steps=max_steps,
-            model_kwargs=dict(model_kwargs or {}),
-            clip=clip,
-            sched=sched,
-            num_workers=num_workers,
-            in_memory=in_memory,
-            rank=rank,
-            world=world,
-            distributed=distributed,
-            on_epoch_end=on_epoch_end,
-        )
+        return _run(settings)
     finally:
         if own_group and dist.is_initialized():
             dist.destroy_process_group()
 
 
-def _train(
-    store_path: Any,
-    model_name: str,
-    input_name: str,
-    out: Path,
-    *,
-    epochs: int,
-    batch_size: int,
-    local_batch: int,
-    lr: float,
-    seed: int,
-    dev: torch.device,
-    use_cl: bool,
-    progress: bool,
-    max_steps: int | None,
-    model_kwargs: dict[str, Any],
-    clip: float | None,
-    sched: str,
-    num_workers: int,
-    in_memory: bool | None,
-    rank: int,
-    world: int,
-    distributed: bool,
-    on_epoch_end: Callable[[int, dict[str, Any]], None] | None,
-) -> Path:
-    from tqdm.auto import tqdm
+@dataclass(frozen=True)
+class _Settings:
+    """The resolved request of one training run (what :func:`train` was asked to do, and where)."""
 
-    main_rank = rank == 0
-    train_ds = ReconDataset(store_path, input_name, "train", in_memory=in_memory)
-    val_ds = ReconDataset(store_path, input_name, "val", in_memory=in_memory)
-    store = DataStore.open(store_path)
+    store_path: Any
+    model_name: str
+    input_name: str
+    out: Path
+    epochs: int
+    batch_size: int
+    local_batch: int
+    lr: float
+    seed: int
+    dev: torch.device
+    use_cl: bool
+    progress: bool
+    max_steps: int | None
+    model_kwargs: dict[str, Any]
+    clip: float | None
+    sched: str
+    num_workers: int
+    in_memory: bool | None
+    rank: int
+    world: int
+    distributed: bool
+    on_epoch_end: Callable[[int, dict[str, Any]], None] | None
 
-    seed_everything(seed, 0x5EED)
-    model = build_model(model_name, **model_kwargs)
+    @property
+    def main_rank(self) -> bool:
+        return self.rank == 0
+
+    def path(self, name: str) -> Path:
+        """``config.json``, ``log.csv``, ``last.pt`` or ``best.pt`` of the run directory."""
+        return self.out / name
+
+
+@dataclass
+class _State:
+    """What changes while a run trains: the model and optimiser, the counters, the history."""
+
+    model: PostProcessor
+    config: dict[str, Any]
+    image_size: int
+    optimizer: torch.optim.Optimizer
+    lr_sched: Any
+    start_epoch: int = 1
+    step: int = 0
+    best_val: float = math.inf
+    best_epoch: int = 0
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+    def done(self, s: _Settings) -> bool:
+        """The run has reached its epoch count or its step limit."""
+        return self.start_epoch > s.epochs or (s.max_steps is not None and self.step >= s.max_steps)
+
+
+def _config(s: _Settings, model: PostProcessor, train_ds: ReconDataset, val_ds: ReconDataset) -> dict[str, Any]:
+    """The request as written to ``config.json`` (also stored in every checkpoint)."""
+    store = DataStore.open(s.store_path)
     config = {
-        "model": model_name,
-        "hparams": json.loads(json.dumps(model.hparams)),
-        "input": input_name,
+        "model": s.model_name,
+        "hparams": model.hparams,
+        "input": s.input_name,
         "data": {
             "n": store.n,
             "seed": store.seed,
@@ -324,202 +351,275 @@ def _train(
             "val": len(val_ds),
         },
         "image_size": train_ds.image_size,
-        "batch_size": batch_size,
-        "lr": lr,
-        "seed": seed,
-        "clip_grad": clip,
-        "scheduler": sched,
-        "epochs": epochs,
-        "max_steps": max_steps,
-        "store": str(Path(store_path).resolve()),
-        "world_size": world,
-        "device": str(dev),
-        "channels_last": use_cl,
+        "batch_size": s.batch_size,
+        "lr": s.lr,
+        "seed": s.seed,
+        "clip_grad": s.clip,
+        "scheduler": s.sched,
+        "epochs": s.epochs,
+        "max_steps": s.max_steps,
+        "store": str(Path(s.store_path).resolve()),
+        "world_size": s.world,
+        "device": str(s.dev),
+        "channels_last": s.use_cl,
         "nanoct_version": __version__,
     }
-    config = json.loads(json.dumps(config))
+    return json.loads(json.dumps(config))
 
-    # ---------------------------------------------------------------- existing run?
-    last_path, best_path, cfg_path, log_path = out / "last.pt", out / "best.pt", out / "config.json", out / "log.csv"
-    ckpt = None
+
+def _previous(s: _Settings, config: dict[str, Any]) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """(last checkpoint, its request) of an existing run in the directory, (None, None) for a new one.
+
+    Raises
+    ------
+    NanoctError
+        If the directory holds a run of another request.
+    """
+    last_path = s.path("last.pt")
+    ckpt, old = None, None
     if last_path.exists():
         ckpt = load_checkpoint(
-            last_path, model_name=model_name, image_size=train_ds.image_size, hparams=config["hparams"]
+            last_path, model_name=s.model_name, image_size=config["image_size"], hparams=config["hparams"]
         )
         old = ckpt.get("config") or {}
-    else:
-        old = None  # a config.json without last.pt holds no training state (e.g. a run that diverged): redo it
+    # a config.json without last.pt holds no training state (e.g. a run that diverged): it is redone
     if old is not None and _diff(config, old):
         raise NanoctError(
-            f"{out} holds a run made with other settings (differs in: {', '.join(_diff(config, old))}); "
+            f"{s.out} holds a run made with other settings (differs in: {', '.join(_diff(config, old))}); "
             "choose another --out, or repeat the original command to resume it"
         )
+    return ckpt, old
 
-    model = model.to(dev, memory_format=torch.channels_last) if use_cl else model.to(dev)
-    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
-    lr_sched = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, **PLATEAU) if sched == "plateau" else None
-    start_epoch, step, best_val, best_epoch, history = 1, 0, math.inf, 0, []
+
+def _resume(s: _Settings, state: _State, ckpt: dict[str, Any]) -> None:
+    """Load weights, optimiser, schedule, RNG and counters of the last checkpoint into ``state``."""
+    try:
+        state.model.load_state_dict(ckpt["model_state"])
+        state.optimizer.load_state_dict(ckpt["optimizer_state"])
+        if state.lr_sched is not None and ckpt.get("scheduler_state") is not None:
+            state.lr_sched.load_state_dict(ckpt["scheduler_state"])
+    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+        raise NanoctError(
+            f"{s.path('last.pt')} does not fit this model ({exc}); delete the run directory or choose another --out"
+        ) from exc
+    set_rng_state(ckpt.get("rng", {}))
+    state.start_epoch, state.step = int(ckpt["epoch"]) + 1, int(ckpt.get("step", 0))
+    state.best_val, state.best_epoch = float(ckpt.get("best_val_loss", math.inf)), int(ckpt.get("best_epoch", 0))
+    state.history = list(ckpt.get("history", []))
+
+
+def _start(s: _Settings, train_ds: ReconDataset, val_ds: ReconDataset) -> tuple[_State, bool]:
+    """Build the model (seeded), check the directory, resume; returns (state, whether it resumed)."""
+    seed_everything(s.seed, 0x5EED)
+    model = build_model(s.model_name, **s.model_kwargs)
+    config = _config(s, model, train_ds, val_ds)
+    ckpt, _ = _previous(s, config)
+    model = model.to(s.dev, memory_format=torch.channels_last) if s.use_cl else model.to(s.dev)
+    optimizer = torch.optim.Adam(model.parameters(), lr=s.lr)
+    lr_sched = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, **PLATEAU) if s.sched == "plateau" else None
+    state = _State(model, config, train_ds.image_size, optimizer, lr_sched)
     if ckpt is not None:
-        try:
-            model.load_state_dict(ckpt["model_state"])
-            optimizer.load_state_dict(ckpt["optimizer_state"])
-            if lr_sched is not None and ckpt.get("scheduler_state") is not None:
-                lr_sched.load_state_dict(ckpt["scheduler_state"])
-        except (RuntimeError, ValueError, KeyError, TypeError) as exc:
-            raise NanoctError(
-                f"{last_path} does not fit this model ({exc}); delete the run directory or choose another --out"
-            ) from exc
-        set_rng_state(ckpt.get("rng", {}))
-        start_epoch, step = int(ckpt["epoch"]) + 1, int(ckpt.get("step", 0))
-        best_val, best_epoch = float(ckpt.get("best_val_loss", math.inf)), int(ckpt.get("best_epoch", 0))
-        history = list(ckpt.get("history", []))
-    if main_rank:
-        out.mkdir(parents=True, exist_ok=True)
-        remove_stale_temporaries(out)  # left by a kill during a checkpoint write
-        _atomic_json(cfg_path, config)
-        _write_log(log_path, history)  # drops rows of an epoch whose checkpoint was never written
-    if start_epoch > epochs or (max_steps is not None and step >= max_steps):
-        if main_rank and progress:
-            print(f"{out}: already trained to epoch {start_epoch - 1} of {epochs}; nothing to do", file=sys.stderr)
-        return out
+        _resume(s, state, ckpt)
+    if s.main_rank:
+        s.out.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(s.out)  # left by a kill during a checkpoint write
+        _atomic_json(s.path("config.json"), config)
+        _write_log(s.path("log.csv"), state.history)  # drops rows of an epoch whose checkpoint was never written
+    return state, ckpt is not None
 
-    # ---------------------------------------------------------------- data
-    train_sampler = DistributedSampler(
-        train_ds, num_replicas=world, rank=rank, shuffle=True, seed=seed, drop_last=False
+
+@dataclass
+class _Loaders:
+    """The train loader with its seeded sampler and generator, and this rank's share of validation."""
+
+    train: DataLoader
+    sampler: DistributedSampler
+    generator: torch.Generator
+    val: DataLoader
+
+
+def _loaders(s: _Settings, train_ds: ReconDataset, val_ds: ReconDataset) -> _Loaders:
+    sampler = DistributedSampler(
+        train_ds, num_replicas=s.world, rank=s.rank, shuffle=True, seed=s.seed, drop_last=False
     )
-    loader_gen = torch.Generator()
-    loader_kw: dict[str, Any] = {"num_workers": num_workers, "pin_memory": dev.type == "cuda"}
-    if num_workers > 0:
-        loader_kw["worker_init_fn"] = _worker_init
-    train_loader = DataLoader(
-        train_ds, batch_size=local_batch, sampler=train_sampler, generator=loader_gen, **loader_kw
-    )
+    gen = torch.Generator()
+    kw: dict[str, Any] = {"num_workers": s.num_workers, "pin_memory": s.dev.type == "cuda"}
+    if s.num_workers > 0:
+        kw["worker_init_fn"] = _worker_init
+    train_loader = DataLoader(train_ds, batch_size=s.local_batch, sampler=sampler, generator=gen, **kw)
     val_loader = DataLoader(
-        Subset(val_ds, list(range(rank, len(val_ds), world))), batch_size=local_batch, shuffle=False, **loader_kw
+        Subset(val_ds, list(range(s.rank, len(val_ds), s.world))), batch_size=s.local_batch, shuffle=False, **kw
     )
+    return _Loaders(train_loader, sampler, gen, val_loader)
 
-    if ckpt is None and hasattr(model, "data_init"):
-        # data-dependent initialisation (ActNorm) from the same first train images on every
-        # rank, before DDP wraps the model
-        first = [train_ds[i] for i in range(min(local_batch, len(train_ds)))]
-        x_tilde0 = _to(torch.stack([a for a, _ in first]), dev, use_cl)
-        x0 = _to(torch.stack([b for _, b in first]), dev, use_cl)
-        with torch.no_grad():
-            model.data_init(x_tilde0, x0)
-    step_model: nn.Module = _LossModule(model)
-    if distributed:
-        from torch.nn.parallel import DistributedDataParallel
 
-        step_model = DistributedDataParallel(step_model, device_ids=[dev.index] if dev.type == "cuda" else None)
+def _data_init(s: _Settings, model: PostProcessor, train_ds: ReconDataset) -> None:
+    """Data-dependent initialisation (ActNorm) from the same first train images on every rank, before DDP."""
+    first = [train_ds[i] for i in range(min(s.local_batch, len(train_ds)))]
+    x_tilde0 = _to(torch.stack([a for a, _ in first]), s.dev, s.use_cl)
+    x0 = _to(torch.stack([b for _, b in first]), s.dev, s.use_cl)
+    with torch.no_grad():
+        model.data_init(x_tilde0, x0)
 
-    def reduce(values: list[float]) -> list[float]:
-        t = torch.tensor(values, dtype=torch.float64, device=dev if dev.type == "cuda" else "cpu")
-        if distributed:
-            dist.all_reduce(t)
-        return t.tolist()
 
-    epoch_bar = tqdm(
-        range(start_epoch, epochs + 1),
-        desc=f"train {model_name}",
-        unit="epoch",
-        disable=not progress,
-        initial=start_epoch - 1,
-        total=epochs,
+def _reduce(s: _Settings, sums: dict[str, float], count: int, keys: list[str]) -> dict[str, float]:
+    """Sample-weighted means of ``sums`` over all ranks (ranks without samples still take part)."""
+    t = torch.tensor(
+        [sums.get(k, 0.0) for k in keys] + [count],
+        dtype=torch.float64,
+        device=s.dev if s.dev.type == "cuda" else "cpu",
     )
-    for epoch in epoch_bar:
-        t0 = time.perf_counter()
-        if sched == "cosine":
-            for group in optimizer.param_groups:
-                group["lr"] = cosine_lr(lr, epoch, epochs)
-        seed_everything(seed, epoch, rank)
-        train_sampler.set_epoch(epoch)
-        loader_gen.manual_seed(seed * 1_000_003 + epoch)
-        # ------------------------------------------------ train
-        model.train()
-        sums: dict[str, float] = {}
-        count = 0
-        for x_tilde, x in tqdm(train_loader, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not progress):
-            x_tilde, x = _to(x_tilde, dev, use_cl), _to(x, dev, use_cl)
-            optimizer.zero_grad(set_to_none=True)
-            loss, logs = step_model(x_tilde, x)
-            loss.backward()
-            if clip:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), clip)
-            optimizer.step()
-            step += 1
-            lv = float(loss.detach())
-            if not math.isfinite(lv):
-                raise NanoctError(f"training diverged (loss {lv}) in epoch {epoch}, step {step}; try a smaller --lr")
+    if s.distributed:
+        dist.all_reduce(t)
+    red = t.tolist()
+    return {k: v / max(red[-1], 1) for k, v in zip(keys, red[:-1])}
+
+
+def _train_epoch(s: _Settings, state: _State, loaders: _Loaders, step_model: nn.Module, epoch: int) -> dict[str, float]:
+    """One pass over the train split (or up to the step limit); mean loss and logged values."""
+    from tqdm.auto import tqdm
+
+    model, optimizer = state.model, state.optimizer
+    model.train()
+    sums: dict[str, float] = {}
+    count = 0
+    for x_tilde, x in tqdm(loaders.train, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not s.progress):
+        x_tilde, x = _to(x_tilde, s.dev, s.use_cl), _to(x, s.dev, s.use_cl)
+        optimizer.zero_grad(set_to_none=True)
+        loss, logs = step_model(x_tilde, x)
+        loss.backward()
+        if s.clip:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), s.clip)
+        optimizer.step()
+        state.step += 1
+        lv = float(loss.detach())
+        if not math.isfinite(lv):
+            raise NanoctError(f"training diverged (loss {lv}) in epoch {epoch}, step {state.step}; try a smaller --lr")
+        b = x.shape[0]
+        count += b
+        for k, v in {"loss": lv, **logs}.items():
+            sums[k] = sums.get(k, 0.0) + float(v) * b
+        if s.max_steps is not None and state.step >= s.max_steps:
+            break
+    return _reduce(s, sums, count, sorted(sums))
+
+
+def _validate(s: _Settings, state: _State, loader: DataLoader, keys: list[str]) -> dict[str, float]:
+    """Mean loss (for the flows: the NLL in bits/dim) and logged values on this rank's validation share."""
+    model = state.model
+    model.eval()
+    sums: dict[str, float] = {}
+    count = 0
+    with torch.no_grad():
+        for x_tilde, x in loader:
+            x_tilde, x = _to(x_tilde, s.dev, s.use_cl), _to(x, s.dev, s.use_cl)
+            loss, logs = model.loss(x_tilde, x)
             b = x.shape[0]
             count += b
-            for k, v in {"loss": lv, **logs}.items():
+            for k, v in {"loss": float(loss), **logs}.items():
                 sums[k] = sums.get(k, 0.0) + float(v) * b
-            if max_steps is not None and step >= max_steps:
-                break
-        keys = sorted(sums)
-        red = reduce([sums[k] for k in keys] + [count])
-        train_stats = {k: v / max(red[-1], 1) for k, v in zip(keys, red[:-1])}
-        # ------------------------------------------------ validate
-        model.eval()
-        vsums: dict[str, float] = {}
-        vcount = 0
-        with torch.no_grad():
-            for x_tilde, x in val_loader:
-                x_tilde, x = _to(x_tilde, dev, use_cl), _to(x, dev, use_cl)
-                loss, logs = model.loss(x_tilde, x)
-                b = x.shape[0]
-                vcount += b
-                for k, v in {"loss": float(loss), **logs}.items():
-                    vsums[k] = vsums.get(k, 0.0) + float(v) * b
-        vkeys = sorted(set(keys) | set(vsums))  # ranks without val samples still take part
-        vred = reduce([vsums.get(k, 0.0) for k in vkeys] + [vcount])
-        val_stats = {k: v / max(vred[-1], 1) for k, v in zip(vkeys, vred[:-1])}
-        val_loss = val_stats["loss"]
-        if lr_sched is not None:
-            lr_sched.step(val_loss)
-        improved = val_loss < best_val
-        if improved:
-            best_val, best_epoch = val_loss, epoch
-        row: dict[str, Any] = {"epoch": epoch, "train_loss": train_stats.pop("loss"), "val_loss": val_stats.pop("loss")}
-        row.update({f"train_{k}": v for k, v in train_stats.items()})
-        row.update({f"val_{k}": v for k, v in val_stats.items()})
-        row.update(
-            {
-                "lr": optimizer.param_groups[0]["lr"],
-                "best": int(improved),
-                "steps": step,
-                "seconds": round(time.perf_counter() - t0, 3),
-            }
-        )
-        history.append(row)
-        # ------------------------------------------------ write (rank 0)
-        if main_rank:
-            kw = dict(
-                model=model,
-                input_name=input_name,
-                image_size=train_ds.image_size,
-                epoch=epoch,
-                step=step,
-                optimizer=optimizer,
-                scheduler=lr_sched,
-                best_val_loss=best_val,
-                best_epoch=best_epoch,
-                history=history,
-                config=config,
+    return _reduce(s, sums, count, sorted(set(keys) | set(sums)))
+
+
+def _record(state: _State, epoch: int, train_stats: dict[str, float], val_stats: dict[str, float], t0: float) -> bool:
+    """Step the plateau schedule, update the best epoch and append the log row; True if improved."""
+    val_loss = val_stats["loss"]
+    if state.lr_sched is not None:
+        state.lr_sched.step(val_loss)
+    improved = val_loss < state.best_val
+    if improved:
+        state.best_val, state.best_epoch = val_loss, epoch
+    train_stats, val_stats = dict(train_stats), dict(val_stats)
+    row: dict[str, Any] = {"epoch": epoch, "train_loss": train_stats.pop("loss"), "val_loss": val_stats.pop("loss")}
+    row.update({f"train_{k}": v for k, v in train_stats.items()})
+    row.update({f"val_{k}": v for k, v in val_stats.items()})
+    row.update(
+        {
+            "lr": state.optimizer.param_groups[0]["lr"],
+            "best": int(improved),
+            "steps": state.step,
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
+    )
+    state.history.append(row)
+    return improved
+
+
+def _save(s: _Settings, state: _State, epoch: int, improved: bool) -> None:
+    """Write ``best.pt`` (if improved), ``last.pt`` and ``log.csv`` (rank 0), then call ``on_epoch_end``."""
+    kw = dict(
+        model=state.model,
+        input_name=s.input_name,
+        image_size=state.image_size,
+        epoch=epoch,
+        step=state.step,
+        optimizer=state.optimizer,
+        scheduler=state.lr_sched,
+        best_val_loss=state.best_val,
+        best_epoch=state.best_epoch,
+        history=state.history,
+        config=state.config,
+    )
+    if improved:
+        save_checkpoint(s.path("best.pt"), **kw)
+    save_checkpoint(s.path("last.pt"), **kw)
+    _write_log(s.path("log.csv"), state.history)
+    if s.on_epoch_end is not None:
+        s.on_epoch_end(epoch, state.history[-1])
+
+
+def _run(s: _Settings) -> Path:
+    """Train from the start or from the last checkpoint to ``s.epochs`` (or ``s.max_steps``)."""
+    from tqdm.auto import tqdm
+
+    train_ds = ReconDataset(s.store_path, s.input_name, "train", in_memory=s.in_memory)
+    val_ds = ReconDataset(s.store_path, s.input_name, "val", in_memory=s.in_memory)
+    state, resumed = _start(s, train_ds, val_ds)
+    if state.done(s):
+        if s.progress:
+            print(
+                f"{s.out}: already trained to epoch {state.start_epoch - 1} of {s.epochs}; nothing to do",
+                file=sys.stderr,
             )
-            if improved:
-                save_checkpoint(best_path, **kw)
-            save_checkpoint(last_path, **kw)
-            _write_log(log_path, history)
-            epoch_bar.set_postfix(train=f"{row['train_loss']:.3g}", val=f"{row['val_loss']:.3g}", best=best_epoch)
-            if on_epoch_end is not None:
-                on_epoch_end(epoch, row)
-        if max_steps is not None and step >= max_steps:
+        return s.out
+    loaders = _loaders(s, train_ds, val_ds)
+    if not resumed and hasattr(state.model, "data_init"):
+        _data_init(s, state.model, train_ds)
+    step_model: nn.Module = _LossModule(state.model)
+    if s.distributed:
+        from torch.nn.parallel import DistributedDataParallel
+
+        step_model = DistributedDataParallel(step_model, device_ids=[s.dev.index] if s.dev.type == "cuda" else None)
+    bar = tqdm(
+        range(state.start_epoch, s.epochs + 1),
+        desc=f"train {s.model_name}",
+        unit="epoch",
+        disable=not s.progress,
+        initial=state.start_epoch - 1,
+        total=s.epochs,
+    )
+    for epoch in bar:
+        t0 = time.perf_counter()
+        if s.sched == "cosine":
+            for group in state.optimizer.param_groups:
+                group["lr"] = cosine_lr(s.lr, epoch, s.epochs)
+        seed_everything(s.seed, epoch, s.rank)
+        loaders.sampler.set_epoch(epoch)
+        loaders.generator.manual_seed(s.seed * 1_000_003 + epoch)
+        train_stats = _train_epoch(s, state, loaders, step_model, epoch)
+        improved = _record(
+            state, epoch, train_stats, _validate(s, state, loaders.val, list(train_stats) + ["loss"]), t0
+        )
+        if s.main_rank:
+            _save(s, state, epoch, improved)
+            row = state.history[-1]
+            bar.set_postfix(train=f"{row['train_loss']:.3g}", val=f"{row['val_loss']:.3g}", best=state.best_epoch)
+        if s.max_steps is not None and state.step >= s.max_steps:
             break
-    epoch_bar.close()
-    if distributed:
+    bar.close()
+    if s.distributed:
         dist.barrier()
-    return out
+    return s.out
 
 
 def main(argv: list[str] | None = None) -> int:
