@@ -33,13 +33,22 @@ def _memory_limit_bytes() -> float:
         return 4 * 2**30
 
 
+def _command(store: DataStore, name: str) -> str:
+    """The command that makes reconstruction ``name``: predict for ``<input>+<model>``, else reconstruct."""
+    if "+" in name:
+        return f"'nanoct predict {store.path} --run RUN' (a run of a network trained on {name.split('+')[0]})"
+    from ..recon.registry import reconstruct_command
+
+    return f"'{reconstruct_command(store.path, name)}'"
+
+
 def check_input(store: DataStore, input_name: str, indices: np.ndarray, what: str) -> None:
     """Raise a NanoctError unless ``reconstructions/<input_name>`` covers ``indices``."""
     if input_name not in store.reconstruction_names():
         present = ", ".join(store.reconstruction_names()) or "none"
         raise NanoctError(
             f"{store.path} has no reconstruction '{input_name}' (present: {present}); "
-            f"make it first, e.g. 'nanoct reconstruct {store.path} --method {input_name.split('+')[0]}'"
+            f"make it first: {_command(store, input_name)}"
         )
     done = store.reconstruction_done(input_name, indices)
     if not done.all():
