@@ -151,3 +151,11 @@ def test_export_needs_a_sample_for_per_sample_motion(tiny_store, tmp_path):
     np.testing.assert_allclose(read_shifts(out, tiny_store.geometry.n_angles), expected, atol=1e-5)
     with pytest.raises(NanoctError, match="no reconstruction 'nope'"):
         write_store_shifts(tiny_store.path, "nope", tmp_path / "t.txt")
+
+
+def test_dremel_fix_shifts_keeps_given_shifts(stack):
+    g, sinos, true = stack
+    fixed = dremel(g, sinos[0], n_iter=3, shifts0=true, fix_shifts=True)
+    np.testing.assert_array_equal(fixed.motion, true.astype(np.float32))
+    free = dremel(g, sinos[0], n_iter=3, shifts0=true)
+    assert not np.array_equal(free.motion, fixed.motion)

@@ -9,6 +9,10 @@ contract of :mod:`nanoct.recon` and a ``check_params(op, **params)`` with the sa
 and defaults) and add one entry::
 
     METHODS["sart"] = MethodSpec("nanoct.recon.sart:sart", "nanoct.recon.sart:check_params", "SART")
+
+A method may also have batch parameters, used by the batch runner and not passed to the
+solver (where RESESOP's eta comes from; a motion shared by several slices for Dremel), checked
+by its ``batch_checker`` together with the solver's parameters.
 """
 
 from __future__ import annotations
