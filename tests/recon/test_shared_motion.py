@@ -160,3 +160,19 @@ def test_dremel_fix_shifts_keeps_given_shifts(stack):
     zero = np.zeros(g.n_angles)
     assert np.abs(dremel(g, sinos[0], n_iter=3, shifts0=zero).motion).max() > 0.5  # corrected when free
     assert np.abs(dremel(g, sinos[0], n_iter=3, shifts0=zero, fix_shifts=True).motion).max() == 0
+
+
+def test_cli_wrong_shifts_file_one_error_nothing_written(tmp_path, stack, monkeypatch, capsys):
+    import sys
+
+    from nanoct.cli import main
+
+    store = _scan(tmp_path / "scan", stack)
+    wrong = write_shifts(tmp_path / "wrong.txt", np.zeros(5))
+    args = ["reconstruct", store.path, "--method", "dremel", "--param", f"shifts_from={wrong}", "--param"]
+    monkeypatch.setattr(sys, "argv", ["nanoct", *map(str, args), "fix_shifts=true", "-q"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "has 5 views, the data set 140" in err[0]
+    assert DataStore.open(store.path).reconstruction_names() == []
