@@ -49,6 +49,11 @@ def test_residual_estimate_needs_first_reconstruction(tiny_store):
             tiny_store.path, "resesop", params={"eta": "estimate:residual=firstx"}, workers=0, progress=False
         )
     assert "resesop_est-residual-firstx" not in DataStore.open(tiny_store.path).reconstruction_names()
+    reconstruct_dataset(tiny_store.path, "fbp", split="test", name="firsty", workers=0, progress=False)
+    params = {"eta": "estimate:residual=firsty"}
+    with pytest.raises(NanoctError, match="--name firsty is the first reconstruction"):
+        reconstruct_dataset(tiny_store.path, "resesop", split="test", params=params, name="firsty", overwrite=True)
+    assert DataStore.open(tiny_store.path).reconstruction_done("firsty", tiny_store.indices("test")).all()
 
 
 def test_residual_estimate(tiny_store):

@@ -188,6 +188,8 @@ def reconstruct_dataset(
         )
     solver_params = {k: v for k, v in stored.items() if k not in spec.batch_parameter_names()}
     inputs = _Inputs(eta=plan_eta(store, checked["eta"], wanted)) if spec.needs_eta else _Inputs()
+    if inputs.eta is not None and inputs.eta.first == name:
+        raise NanoctError(f"--name {name} is the first reconstruction its eta is estimated from; choose another name")
     shifts0, slices = _plan_motion(store, checked) if spec.estimates_motion else (None, None)
     if overwrite:
         store.delete_reconstruction(name)
