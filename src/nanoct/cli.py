@@ -144,9 +144,23 @@ def reconstruct(
         "--eta-scale",
         help=f"Methods that use eta ({', '.join(methods_with_eta())}): its scale (default 1; paper: 0.8, 1.0, 1.2).",
     ),
-    param: list[str] = typer.Option([], "--param", help="Method parameter name=value (repeatable)."),
+    eta: str | None = typer.Option(
+        None,
+        "--eta",
+        help="Methods that use eta: true (the store's, default), estimate:residual[=RECONSTRUCTION] (from a first "
+        "reconstruction, default dremel) or estimate:reference=STORE (per-view median of a simulated store's eta).",
+    ),
+    param: list[str] = typer.Option(
+        [],
+        "--param",
+        help="Method parameter name=value (repeatable). Dremel also: motion_slices=all|0,5,9 (one motion for "
+        "these slices), shifts_from=FILE (start motion), fix_shifts=true (use it as given).",
+    ),
     name: str | None = typer.Option(
-        None, "--name", help="Output name (default: method, resesop_eta<F>).", callback=lambda v: _check_name(v)
+        None,
+        "--name",
+        help="Output name (default: method, resesop_eta<F>, resesop_est-residual...).",
+        callback=lambda v: _check_name(v),
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing reconstruction of that name."),
     workers: int = WORKERS,
@@ -159,9 +173,12 @@ def reconstruct(
     params = _parse_params(param)
     if method_spec(method).needs_eta:
         params.setdefault("eta_scale", 1.0 if eta_scale is None else eta_scale)
-    elif eta_scale is not None:
+        if eta is not None:
+            params["eta"] = eta
+    elif eta_scale is not None or eta is not None:
         with_eta = " or ".join(f"--method {m}" for m in methods_with_eta())
-        raise NanoctError(f"--eta-scale applies to {with_eta} only (methods that use eta), not to --method {method}")
+        flag = "--eta-scale" if eta_scale is not None else "--eta"
+        raise NanoctError(f"{flag} applies to {with_eta} only (methods that use eta), not to --method {method}")
     written = reconstruct_dataset(
         directory,
         method,

@@ -4,6 +4,7 @@ For a reconstruction ``<name>`` of a store with n samples, image N x N and K vie
 
     reconstructions/<name>          (n, N, N) float32, attrs["params"]: parameters used
     reconstructions/<name>_shifts   (n, K)    float32: estimated motion (methods that have one)
+        attrs["shared_shifts"] of reconstructions/<name>: (K,) the one motion of a stack (when shared)
     uncertainty/<name>              (n, N, N) float32: pixel-wise std (sampling post-processors)
     progress/<name>                 (n,)      bool: which samples are written (set last)
 
@@ -222,6 +223,18 @@ class ReconstructionArrays:
         """
         attrs = self._group[f"reconstructions/{name}"].attrs
         return {"params": attrs.get("params"), "created": attrs.get("created")}
+
+    def shared_shifts(self, name: str) -> np.ndarray | None:
+        """The one motion (K,) estimated for all slices of ``name`` (None: per-sample motion or not estimated yet)."""
+        values = self._group[f"reconstructions/{name}"].attrs.get("shared_shifts")
+        return None if values is None else np.asarray(values, dtype=np.float32)
+
+    def set_shared_shifts(self, name: str, shifts: np.ndarray) -> None:
+        """Record the motion shared by all slices of ``name`` (an attribute; each slice's shifts row gets it too)."""
+        values = np.asarray(shifts, dtype=np.float32)
+        if values.shape != (self.n_angles,) or not np.isfinite(values).all():
+            raise StoreError(f"shared shifts of '{name}' must be {self.n_angles} finite values")
+        self._group[f"reconstructions/{name}"].attrs["shared_shifts"] = [float(v) for v in values]
 
     def params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""

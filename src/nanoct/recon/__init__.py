@@ -28,7 +28,9 @@ Every method is a plain function ``method(op, sino, [eta,] *, **params) -> Recon
   defaults as the solver's tunable parameters; it raises ``ValueError`` naming the parameter
   and its accepted values, and returns the normalised values the solver records. The solver
   calls it first, so bad values fail before any work; the batch runner calls it before it
-  writes anything.
+  writes anything. Parameters that only a batch run has (``eta``: where eta comes from;
+  Dremel's ``motion_slices``, ``shifts_from``) are checked by the registry's ``batch_checker``
+  (:mod:`nanoct.recon.eta_source`, :mod:`nanoct.recon.shared`) and never reach the solver.
 
 Choices where the paper is ambiguous, with the measurements behind the defaults, are in
 ``docs/choices.md``.

@@ -1,8 +1,17 @@
-"""Batch reconstruction of a data set: every sample of a split, resumable, over Dask."""
+"""Batch reconstruction of a data set: every sample of a split, resumable, over Dask.
+
+Besides the solver's own parameters a batch run takes the method's batch parameters
+(:attr:`~nanoct.recon.registry.MethodSpec.batch_checker`): where eta comes from
+(:mod:`nanoct.recon.eta_source`) and, for Dremel, a motion shared by several slices or read
+from a file (:mod:`nanoct.recon.shared`). What they need from the store is checked and
+prepared here, in the calling process, before any sample task starts; a shared motion is
+estimated once and kept with the reconstruction, so a resumed run does not estimate it again.
+"""
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -12,31 +21,110 @@ from ..errors import NanoctError
 from ..fanout import run_tasks
 from ..geometry import Geometry
 from ..store import DataStore, Sample, open_cached
+from .eta_source import EtaPlan, plan_eta
 from .registry import check_method_params, method_spec, output_name
 from .result import ReconResult
+from .shared import joint_shifts, read_shifts_file
 
 __all__ = ["reconstruct_dataset", "reconstruct_sample"]
 
 
-def reconstruct_sample(method: str, geometry: Geometry, sample: Sample, params: dict[str, Any]) -> ReconResult:
+def reconstruct_sample(
+    method: str, geometry: Geometry, sample: Sample, params: dict[str, Any], *, eta: np.ndarray | None = None
+) -> ReconResult:
     """Reconstruct one sample with ``method`` using the unperturbed (inexact) operator.
 
     ``params`` are keyword arguments of the method's function; a method that needs eta
-    (:attr:`~nanoct.recon.registry.MethodSpec.needs_eta`) gets the sample's per-view model
-    error (scaled by ``params["eta_scale"]`` inside the method).
+    (:attr:`~nanoct.recon.registry.MethodSpec.needs_eta`) gets ``eta`` or else the sample's
+    per-view model error (scaled by ``params["eta_scale"]`` inside the method).
     """
     spec = method_spec(method)
-    data = (sample.sinogram, sample.eta) if spec.needs_eta else (sample.sinogram,)
+    data = (sample.sinogram, sample.eta if eta is None else eta) if spec.needs_eta else (sample.sinogram,)
     return spec.solver()(geometry, *data, **params)
 
 
-def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], index: int) -> int:
+@dataclass(frozen=True)
+class _Inputs:
+    """What every sample task gets beside the solver parameters: an eta source, start or fixed shifts."""
+
+    eta: EtaPlan | None = None
+    shifts0: np.ndarray | None = None
+    fixed: bool = False
+
+
+def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], inputs: _Inputs, index: int) -> int:
     store = open_cached(path)
-    result = reconstruct_sample(method, store.geometry, store.read_sample(index), params)
+    sample = store.read_sample(index)
+    eta = None if inputs.eta is None else inputs.eta.eta(store, index, sample)
+    if inputs.shifts0 is not None:
+        params = {**params, "shifts0": inputs.shifts0, "fix_shifts": inputs.fixed}
+    result = reconstruct_sample(method, store.geometry, sample, params, eta=eta)
     if not np.isfinite(result.image).all():
         raise NanoctError(f"{method} produced non-finite values on sample {index}; check the parameters {params}")
     store.write_reconstruction(name, index, result.image, result.motion)
     return index
+
+
+def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Checked parameters (all), and the user's parameters with the batch ones normalised, defaults left out.
+
+    An imported stack with one motion for all slices gets ``motion_slices="all"`` unless the
+    motion is given (``fix_shifts``) or the slices are chosen.
+    """
+    spec = method_spec(method)
+    checked = check_method_params(method, params, store.geometry)
+    shared = store.is_scan and bool(store.meta["scan"].get("shared_motion"))
+    if spec.estimates_motion and shared and checked["motion_slices"] is None and not checked["fix_shifts"]:
+        params = {**params, "motion_slices": "all"}
+        checked["motion_slices"] = "all"
+    stored = dict(params)
+    if spec.batch_checker is not None:
+        defaults = check_method_params(method, {}, store.geometry)
+        for key in spec.batch_parameter_names():
+            stored.pop(key, None)
+            if checked[key] != defaults[key]:
+                stored[key] = checked[key]
+    return checked, stored
+
+
+def _motion_slices(store: DataStore, value: str) -> np.ndarray:
+    done = np.flatnonzero(store.done)
+    if value == "all":
+        return done
+    chosen = np.array([int(v) for v in value.split(",")])
+    bad = chosen[(chosen >= store.n) | ~np.isin(chosen, done)]
+    if bad.size:
+        raise NanoctError(
+            f"--param motion_slices: sample(s) {bad.tolist()} are not generated samples of {store.path} "
+            f"(it has {store.n}, indices 0..{store.n - 1})"
+        )
+    return chosen
+
+
+def _plan_motion(store: DataStore, checked: dict[str, Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Start shifts (from ``shifts_from``) and the slices of a joint estimate, checked."""
+    shifts0 = None if checked["shifts_from"] is None else read_shifts_file(checked["shifts_from"], store.geometry)
+    if checked["fix_shifts"] and shifts0 is None:
+        raise NanoctError("--param fix_shifts=true needs the motion to use: add --param shifts_from=FILE")
+    if checked["fix_shifts"] and checked["motion_slices"] is not None:
+        raise NanoctError(
+            "--param fix_shifts=true uses the motion of shifts_from as given; --param motion_slices would estimate "
+            "one: choose one of the two"
+        )
+    slices = None if checked["motion_slices"] is None else _motion_slices(store, checked["motion_slices"])
+    return shifts0, slices
+
+
+def _shared_shifts(
+    store: DataStore, name: str, solver_params: dict[str, Any], slices: np.ndarray, shifts0: np.ndarray | None
+) -> np.ndarray:
+    """The stored joint estimate of ``name``, or estimated now from ``slices`` and stored."""
+    shifts = store.recons.shared_shifts(name)
+    if shifts is None:
+        sinograms = np.stack([store.read_sample(int(i)).sinogram for i in slices])
+        shifts, _ = joint_shifts(store.geometry, sinograms, solver_params, shifts0)
+        store.recons.set_shared_shifts(name, shifts)
+    return shifts
 
 
 def reconstruct_dataset(
@@ -65,8 +153,10 @@ def reconstruct_dataset(
     split : {"all", "train", "val", "test"}
         Which samples to reconstruct (others are left missing and can be added later).
     params : dict, optional
-        Keyword arguments of the method (stored with the result; a second run with other
-        parameters under the same name is refused unless ``overwrite``).
+        Keyword arguments of the method and its batch parameters (``eta`` for RESESOP;
+        ``motion_slices``, ``shifts_from`` for Dremel; see the module docstring); stored with
+        the result, a second run with other parameters under the same name is refused unless
+        ``overwrite``.
     name : str, optional
         Output name (default :func:`~nanoct.recon.registry.output_name`).
     overwrite : bool
@@ -82,13 +172,13 @@ def reconstruct_dataset(
     Raises
     ------
     NanoctError
-        For an unknown method, a bad parameter, or samples of the split not generated yet.
+        For an unknown method, a bad parameter, samples of the split not generated yet, or an
+        eta source or motion the store cannot give (nothing is written then).
     """
     spec = method_spec(method)
-    params = dict(params or {})
     store = DataStore.open(path, mode="r+")
-    check_method_params(method, params, store.geometry)
-    name = name or output_name(method, params)
+    checked, stored = _batch_values(method, store, dict(params or {}))
+    name = name or output_name(method, stored)
     wanted = store.indices(split)
     not_done = ~store.done[wanted]
     if not_done.any():
@@ -96,11 +186,21 @@ def reconstruct_dataset(
         raise NanoctError(
             f"{missing} sample(s) of split '{split}' are not generated yet; finish 'nanoct generate' first"
         )
+    solver_params = {k: v for k, v in stored.items() if k not in spec.batch_parameter_names()}
+    inputs = _Inputs(eta=plan_eta(store, checked["eta"], wanted)) if spec.needs_eta else _Inputs()
+    if inputs.eta is not None and inputs.eta.first == name:
+        raise NanoctError(f"--name {name} is the first reconstruction its eta is estimated from; choose another name")
+    shifts0, slices = _plan_motion(store, checked) if spec.estimates_motion else (None, None)
     if overwrite:
         store.delete_reconstruction(name)
-    stored = {"method": method, **params}
-    store.prepare_reconstruction(name, stored, shifts=spec.estimates_motion)
+    store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
+    if slices is not None:
+        shifts0 = _shared_shifts(store, name, solver_params, slices, shifts0)
+    if shifts0 is not None:
+        if slices is not None or checked["fix_shifts"]:
+            store.recons.set_shared_shifts(name, shifts0)
+        inputs = _Inputs(shifts0=shifts0, fixed=slices is not None or checked["fix_shifts"])
     pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
-    task = partial(_reconstruct_into, str(store.path), method, name, params)
+    task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
     return name

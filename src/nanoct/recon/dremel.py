@@ -430,6 +430,7 @@ def check_params(
     f_sr: int = 2,
     weighting: str = "additive",
     subpixel: bool = False,
+    fix_shifts: bool = False,
 ) -> dict[str, Any]:
     """Check the tunable parameters of :func:`dremel` (same names and defaults); return them normalised.
 
@@ -457,6 +458,7 @@ def check_params(
         f_sr=check_int(f_sr, "f_sr", 1),
         weighting=check_choice(weighting, "weighting", WEIGHTINGS),
         subpixel=check_bool(subpixel, "subpixel"),
+        fix_shifts=check_bool(fix_shifts, "fix_shifts"),
         seed=common["seed"],
         residual=common["residual"],
     )
@@ -477,6 +479,7 @@ def dremel(
     f_sr: int = 2,
     weighting: str = "additive",
     subpixel: bool = False,
+    fix_shifts: bool = False,
     x0: Any = None,
     shifts0: Any = None,
     callback: Callable[[int, np.ndarray, np.ndarray], Any] | None = None,
@@ -522,6 +525,9 @@ def dremel(
     subpixel : bool, default False
         Parabolic refinement of the correlation peak (:func:`shift_cross_corr`; not in the
         paper).
+    fix_shifts : bool, default False
+        Keep the shifts at ``shifts0`` (no shift correction): SART with a known motion, e.g.
+        one estimated jointly from several slices or read from another tool's file.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, "empty phantom").
     shifts0 : array_like of shape (K,), optional
@@ -561,6 +567,7 @@ def dremel(
         f_sr=f_sr,
         weighting=weighting,
         subpixel=subpixel,
+        fix_shifts=fix_shifts,
     )
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     n_views, n_det = geometry.sino_shape
@@ -578,9 +585,10 @@ def dremel(
     shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"], ycorr, ymean)
     residuals: list[float] = []
     stop = "max_iter"
+    start = p["n_iter"] if p["fix_shifts"] else p["correction_start"]  # first iteration with shift correction
     for it in range(p["n_iter"]):
         views = view_order(n_views, p["order"], rng)
-        step_args = (views, n_det, shifts, det_per_obj, p["relaxation"], p["nonneg"], it >= p["correction_start"])
+        step_args = (views, n_det, shifts, det_per_obj, p["relaxation"], p["nonneg"], it >= start)
         run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, *work)
         if p["residual"] == "exact":
             dshift = shifts * det_per_obj

@@ -9,6 +9,10 @@ contract of :mod:`nanoct.recon` and a ``check_params(op, **params)`` with the sa
 and defaults) and add one entry::
 
     METHODS["sart"] = MethodSpec("nanoct.recon.sart:sart", "nanoct.recon.sart:check_params", "SART")
+
+A method may also have batch parameters, used by the batch runner and not passed to the
+solver (where RESESOP's eta comes from; a motion shared by several slices for Dremel), checked
+by its ``batch_checker`` together with the solver's parameters.
 """
 
 from __future__ import annotations
@@ -44,9 +48,13 @@ def _plain_name(method: str, params: dict[str, Any]) -> str:
 
 
 def _eta_name(method: str, params: dict[str, Any]) -> str:
-    """``resesop`` for the paper's eta, ``resesop_eta0.8`` for a scaled one."""
+    """``resesop`` for the true eta, ``resesop_est-residual`` for an estimate; ``_eta0.8`` added when scaled."""
+    from .eta_source import check_eta_param, eta_label
+
+    label = eta_label(check_eta_param(None, eta=params.get("eta", "true"))["eta"])  # type: ignore[arg-type]
+    base = f"{method}_{label}" if label else method
     scale = params.get("eta_scale", 1.0)
-    return method if np.isclose(scale, 1.0) else f"{method}_eta{scale:g}"
+    return base if np.isclose(scale, 1.0) else f"{base}_eta{scale:g}"
 
 
 @dataclass(frozen=True)
@@ -69,6 +77,10 @@ class MethodSpec:
         The result carries per-view shifts (stored as ``reconstructions/<name>_shifts``).
     output_name : callable
         ``output_name(method, params) -> str``: the default store name of a result.
+    batch_checker : str, optional
+        ``"module:function"`` of the check of the parameters the batch runner uses itself and
+        does not pass to the solver (e.g. where eta or a shared motion comes from), same form
+        as ``checker``.
     """
 
     target: str
@@ -77,6 +89,7 @@ class MethodSpec:
     needs_eta: bool = False
     estimates_motion: bool = False
     output_name: Callable[[str, dict[str, Any]], str] = _plain_name
+    batch_checker: str | None = None
 
     def solver(self) -> Callable[..., Any]:
         """The solver function (imported on first use)."""
@@ -87,9 +100,21 @@ class MethodSpec:
         return _load(self.checker)
 
     def parameter_names(self) -> tuple[str, ...]:
-        """The parameters a user may set (keyword-only parameters of the check)."""
-        sig = inspect.signature(self.check_function())
-        return tuple(n for n, p in sig.parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+        """The parameters a user may set (keyword-only parameters of both checks)."""
+        return self.solver_parameter_names() + self.batch_parameter_names()
+
+    def solver_parameter_names(self) -> tuple[str, ...]:
+        """The parameters passed to the solver (keyword-only parameters of ``checker``)."""
+        return _keywords(self.check_function())
+
+    def batch_parameter_names(self) -> tuple[str, ...]:
+        """The parameters the batch runner uses itself (not passed to the solver)."""
+        return () if self.batch_checker is None else _keywords(_load(self.batch_checker))
+
+
+def _keywords(function: Callable[..., Any]) -> tuple[str, ...]:
+    sig = inspect.signature(function)
+    return tuple(n for n, p in sig.parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY)
 
 
 def _load(target: str) -> Callable[..., Any]:
@@ -108,6 +133,7 @@ METHODS: dict[str, MethodSpec] = {
         "nanoct.recon.dremel:check_params",
         "Kaczmarz with per-view shift estimation (Algorithm 1)",
         estimates_motion=True,
+        batch_checker="nanoct.recon.shared:check_motion_params",
     ),
     "resesop": MethodSpec(
         "nanoct.recon.resesop:resesop",
@@ -115,6 +141,7 @@ METHODS: dict[str, MethodSpec] = {
         "RESESOP-Kaczmarz with model error eta (Algorithm 2)",
         needs_eta=True,
         output_name=_eta_name,
+        batch_checker="nanoct.recon.eta_source:check_eta_param",
     ),
 }
 
@@ -158,7 +185,7 @@ def output_name(method: str, params: dict[str, Any] | None = None) -> str:
 
 
 def _flag(param: str) -> str:
-    return "--eta-scale" if param == "eta_scale" else f"--param {param}"
+    return {"eta_scale": "--eta-scale", "eta": "--eta"}.get(param, f"--param {param}")
 
 
 def check_method_params(method: str, params: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
@@ -183,28 +210,44 @@ def check_method_params(method: str, params: dict[str, Any], geometry: Geometry)
             f"{', '.join(_flag(u) for u in unknown)}: not a parameter of --method {method}; "
             f"accepted: {', '.join(accepted)}"
         )
+    batch = set(spec.batch_parameter_names())
     try:
-        return spec.check_function()(geometry, **params)
+        checked = spec.check_function()(geometry, **{k: v for k, v in params.items() if k not in batch})
+        if spec.batch_checker is not None:
+            checked.update(_load(spec.batch_checker)(geometry, **{k: v for k, v in params.items() if k in batch}))
+        return checked
     except (TypeError, ValueError) as exc:
         name = str(exc).partition("=")[0]
         flag = _flag(name) if name in accepted else "a parameter"
         raise NanoctError(f"{flag} of --method {method}: {exc}") from exc
 
 
+def _eta_command(path: str | os.PathLike[str], method: str, name: str) -> str | None:
+    """The command of a default name of a method that uses eta (``resesop_est-residual_eta0.8``), or None."""
+    base, sep, scale = name.rpartition("_eta")
+    try:
+        value = float(scale) if sep and base.startswith(method) else 1.0
+    except ValueError:
+        return None
+    scale_flag = f" --eta-scale {scale}" if sep and base.startswith(method) else ""
+    for eta in ("true", "estimate:residual", "estimate:reference=STORE"):
+        if output_name(method, {"eta": eta, "eta_scale": value}) == name:
+            eta_flag = "" if eta == "true" else f" --eta {eta}"
+            return f"nanoct reconstruct {path} --method {method}{eta_flag}{scale_flag}"
+    return None
+
+
 def reconstruct_command(path: str | os.PathLike[str], name: str) -> str:
     """The ``nanoct reconstruct`` command that makes the reconstruction ``name`` (a hint for messages).
 
-    Default output names (``fbp``, ``resesop_eta0.8``) give the exact command; any other name
-    gives a template with ``--name``.
+    Default output names (``fbp``, ``resesop_eta0.8``, ``resesop_est-residual``) give the exact
+    command (``STORE`` standing for the reference store of ``resesop_est-reference``); any other
+    name gives a template with ``--name``.
     """
     for method in METHODS:
         if name == method:
             return f"nanoct reconstruct {path} --method {method}"
-        if METHODS[method].needs_eta and name.startswith(f"{method}_eta"):
-            scale = name[len(method) + 4 :]
-            try:
-                if output_name(method, {"eta_scale": float(scale)}) == name:
-                    return f"nanoct reconstruct {path} --method {method} --eta-scale {scale}"
-            except ValueError:
-                pass
+        command = _eta_command(path, method, name) if METHODS[method].needs_eta else None
+        if command is not None:
+            return command
     return f"nanoct reconstruct {path} --method <{'|'.join(METHODS)}> --name {name}"

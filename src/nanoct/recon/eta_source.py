@@ -1,0 +1,148 @@
+"""Where a method that needs the model error eta (RESESOP) gets it in a batch run: the ``eta`` parameter.
+
+``eta`` (the CLI's ``--eta``) is one of
+
+``"true"`` (default)
+    The store's own eta (only a simulation has it).
+``"estimate:residual"`` or ``"estimate:residual=NAME"``
+    Per sample from a first reconstruction ``reconstructions/NAME`` (default ``dremel``):
+    :func:`nanoct.eta.eta_from_residual` with scale 1; ``--eta-scale`` scales it like any eta.
+``"estimate:reference=PATH"``
+    The per-view median of the eta of a simulated reference store of the same geometry
+    (:func:`nanoct.eta.eta_from_reference`), the same for every sample.
+
+:func:`check_eta_param` checks the syntax with the method's parameters; :func:`plan_eta` checks
+what depends on the store (the first reconstruction exists, the reference store matches) before
+anything is written, and computes what is shared by all samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import NanoctError
+from ..geometry import Geometry
+from ..operators import RayTransform
+
+__all__ = ["EtaPlan", "check_eta_param", "eta_label", "plan_eta"]
+
+_SYNTAX = "use true, estimate:residual[=RECONSTRUCTION] or estimate:reference=STORE"
+
+
+def check_eta_param(op: Geometry | RayTransform, *, eta: str = "true") -> dict[str, Any]:
+    """Check the ``eta`` batch parameter's syntax; return it normalised (a reference path made absolute).
+
+    Raises
+    ------
+    ValueError
+        For an unknown source (``eta=...`` named).
+    """
+    text = str(eta).strip()
+    kind, _, arg = text.partition("=")
+    if text == "true":
+        return {"eta": "true"}
+    if kind == "estimate:residual":
+        from ..store_recon import check_name
+
+        try:
+            check_name(arg or "dremel")
+        except NanoctError as exc:
+            raise ValueError(f"eta={eta!r}: the first reconstruction's name is not valid; {_SYNTAX}") from exc
+        return {"eta": f"estimate:residual={arg or 'dremel'}"}
+    if kind == "estimate:reference" and arg:
+        return {"eta": f"estimate:reference={Path(arg).resolve()}"}
+    raise ValueError(f"eta={eta!r} is unknown; {_SYNTAX}")
+
+
+def eta_label(eta: str) -> str:
+    """Short name of an eta source for output names: ``""`` (true), ``est-residual``, ``est-reference``.
+
+    A residual estimate from another first reconstruction than ``dremel`` adds it: ``est-residual-NAME``.
+    """
+    kind, _, arg = eta.partition("=")
+    if kind == "true" or not kind:
+        return ""
+    label = "est-" + kind.split(":", 1)[1]
+    return f"{label}-{arg}" if kind == "estimate:residual" and arg not in ("", "dremel") else label
+
+
+@dataclass(frozen=True)
+class EtaPlan:
+    """How each sample of a batch gets its eta.
+
+    Attributes
+    ----------
+    kind : {"true", "residual", "reference"}
+    first : str or None
+        The first reconstruction of the residual estimator.
+    reference : ndarray of shape (K,) or None
+        The reference estimate, the same for every sample.
+    """
+
+    kind: str
+    first: str | None = None
+    reference: np.ndarray | None = None
+
+    def eta(self, store: Any, index: int, sample: Any) -> np.ndarray:
+        """The (unscaled) eta of sample ``index`` of ``store`` (``sample`` its data)."""
+        if self.kind == "true":
+            return sample.eta
+        if self.kind == "reference":
+            return self.reference  # type: ignore[return-value]
+        from ..eta import eta_from_residual
+
+        first = store.read_reconstruction(self.first, [index])[0]
+        return eta_from_residual(store.geometry, sample.sinogram, first)
+
+
+def _reference_eta(path: str, geometry: Geometry) -> np.ndarray:
+    from ..eta import eta_from_reference
+    from ..store import DataStore
+
+    ref = DataStore.open(path)
+    if ref.geometry != geometry:
+        raise NanoctError(
+            f"--eta estimate:reference={path}: the reference store has another geometry ({ref.geometry.kind}, "
+            f"{ref.geometry.n_angles} views, {ref.geometry.n_det} detector pixels, image {ref.geometry.n}); "
+            "simulate one with the data set's preset (nanoct generate --preset ...)"
+        )
+    if ref.is_scan:
+        raise NanoctError(f"--eta estimate:reference={path} is an imported scan without eta; use a simulated store")
+    done = np.flatnonzero(ref.done)
+    if done.size == 0:
+        raise NanoctError(f"--eta estimate:reference={path} has no generated samples; finish 'nanoct generate' first")
+    return eta_from_reference(np.stack([ref.read_sample(int(i)).eta for i in done]))
+
+
+def plan_eta(store: Any, eta: str, indices: np.ndarray) -> EtaPlan:
+    """Check the eta source ``eta`` (normalised) for the samples ``indices`` of ``store``; prepare it.
+
+    Raises
+    ------
+    NanoctError
+        The store has no eta (an imported scan) and ``eta`` is ``true``; the first
+        reconstruction is missing or incomplete (the message gives the command that makes it);
+        the reference store is missing, of another geometry or without eta.
+    """
+    kind, _, arg = eta.partition("=")
+    if kind == "true":
+        if store.is_scan:
+            raise NanoctError(
+                f"{store.path} is an imported scan: it has no true eta; estimate it with --eta estimate:residual "
+                "(after --method dremel) or --eta estimate:reference=STORE (a simulated store of the same geometry)"
+            )
+        return EtaPlan("true")
+    if kind == "estimate:reference":
+        return EtaPlan("reference", reference=_reference_eta(arg, store.geometry))
+    from .registry import reconstruct_command
+
+    if arg not in store.reconstruction_names() or not store.reconstruction_done(arg, indices).all():
+        raise NanoctError(
+            f"--eta estimate:residual needs the first reconstruction '{arg}' of every sample to reconstruct; "
+            f"make it first: {reconstruct_command(store.path, arg)}"
+        )
+    return EtaPlan("residual", first=arg)

@@ -1,0 +1,195 @@
+"""One motion for a whole stack: joint shift estimation, shifts files, and their batch parameters.
+
+The slices of a measured 3-D scan (an imported store with ``meta["scan"]["shared_motion"]``)
+were all recorded at once, so they share one per-view object shift. Dremel run on each slice
+alone estimates it once per slice, each estimate up to a translation common to all views,
+``a cos(phi_k) + b sin(phi_k)``, that the slice's image absorbs (see :func:`~nanoct.recon.dremel.dremel`).
+:func:`joint_shifts` runs Dremel on the chosen slices, removes that term from each estimate
+(:func:`remove_translation`) and takes the per-view median, which is robust to a slice with
+little structure whose estimate is noise. Every slice is then reconstructed with these shifts
+held fixed (``fix_shifts=True``), so all slices of the stack are corrected alike.
+
+The batch parameters of the methods that estimate motion (the CLI's ``--param``), checked with
+the method's own parameters before anything is written (:func:`check_motion_params`):
+
+``motion_slices``
+    ``"all"`` or comma-separated slice (sample) indices ``"0,5,9"``: estimate one shared motion
+    from these slices. Default on an imported stack with shared motion: ``"all"``; on a
+    simulated store: each sample its own motion.
+``shifts_from``
+    A shifts file (``view shift_px``, :func:`nanoct.scanio.write_shifts`): the starting motion
+    of every estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion
+    used as given.
+
+Shifts files are in detector pixels; Dremel's shifts are in image pixels along the detector
+axis; the two differ by ``magnification / det_spacing`` (1 for the parallel presets).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import NanoctError
+from ..geometry import Geometry
+from ..operators import RayTransform
+from .rowaction import resolve_geometry
+
+__all__ = [
+    "check_motion_params",
+    "joint_shifts",
+    "parse_slices",
+    "read_shifts_file",
+    "remove_translation",
+    "write_store_shifts",
+]
+
+
+def _det_per_obj(geometry: Geometry) -> float:
+    return geometry.magnification / geometry.det_spacing
+
+
+def remove_translation(shifts: Any, angles: Any) -> np.ndarray:
+    """``shifts`` minus their least-squares fit ``a cos(phi) + b sin(phi)`` (a translation of the object).
+
+    Parameters
+    ----------
+    shifts : array_like of shape (K,)
+        Per-view shifts along the detector axis.
+    angles : array_like of shape (K,)
+        View angles in radians.
+
+    Returns
+    -------
+    ndarray of shape (K,), float64
+    """
+    phi = np.asarray(angles, dtype=np.float64)
+    s = np.asarray(shifts, dtype=np.float64)
+    basis = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, s, rcond=None)
+    return s - basis @ coef
+
+
+def parse_slices(value: Any) -> str | None:
+    """Normalise ``motion_slices``: None, ``"all"`` or sorted unique indices as ``"0,5,9"``.
+
+    Raises
+    ------
+    ValueError
+        For anything else (``motion_slices=...`` named, as parameter checks do).
+    """
+    if value is None or value == "all":
+        return value
+    items = value if isinstance(value, (list, tuple)) else str(value).split(",")
+    try:
+        indices = sorted({int(str(v).strip()) for v in items})
+    except ValueError:
+        indices = []
+    if not indices or indices[0] < 0:
+        raise ValueError(f"motion_slices={value!r}: use 'all' or comma-separated sample indices >= 0, e.g. 0,5,9")
+    return ",".join(str(i) for i in indices)
+
+
+def read_shifts_file(path: str | os.PathLike[str], geometry: Geometry) -> np.ndarray:
+    """A shifts file (detector pixels) as Dremel shifts (image pixels along the detector axis), float64."""
+    from ..scanio import read_shifts
+
+    return read_shifts(path, geometry.n_angles) / _det_per_obj(geometry)
+
+
+def check_motion_params(
+    op: Geometry | RayTransform, *, motion_slices: str | None = None, shifts_from: str | None = None
+) -> dict[str, Any]:
+    """Check the batch parameters of a method that estimates motion; return them normalised.
+
+    ``shifts_from`` is read here (so a missing file or one with another number of views fails
+    before anything is written) and returned as an absolute path.
+
+    Raises
+    ------
+    ValueError
+        For a bad ``motion_slices``, an unreadable shifts file or one with another number of views.
+    """
+    geometry = resolve_geometry(op)
+    out: dict[str, Any] = {"motion_slices": parse_slices(motion_slices), "shifts_from": None}
+    if shifts_from is not None:
+        try:
+            read_shifts_file(str(shifts_from), geometry)
+        except NanoctError as exc:
+            raise ValueError(f"shifts_from={shifts_from!r}: {exc}") from exc
+        out["shifts_from"] = str(Path(str(shifts_from)).resolve())
+    return out
+
+
+def joint_shifts(
+    geometry: Geometry, sinograms: Any, params: dict[str, Any], shifts0: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """One per-view shift for several slices that share a motion.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Scan geometry.
+    sinograms : array_like of shape (S, K, L)
+        The chosen slices' sinograms.
+    params : dict
+        Dremel parameters (checked, :func:`~nanoct.recon.dremel.check_params`).
+    shifts0 : array_like of shape (K,), optional
+        Starting shifts of every slice's estimate.
+
+    Returns
+    -------
+    shared : ndarray of shape (K,), float32
+        Per-view median over slices of the estimates, each with its translation term removed.
+    per_slice : ndarray of shape (S, K), float32
+        The slices' own estimates (translation removed).
+    """
+    from .dremel import dremel
+
+    estimates = []
+    for sino in np.asarray(sinograms):
+        result = dremel(geometry, sino, **{**params, "fix_shifts": False}, shifts0=shifts0)
+        estimates.append(remove_translation(result.motion, geometry.angles))
+    per_slice = np.asarray(estimates, dtype=np.float32)
+    return np.median(per_slice, axis=0).astype(np.float32), per_slice
+
+
+def write_store_shifts(
+    path: str | os.PathLike[str], name: str, out: str | os.PathLike[str], sample: int | None = None
+) -> Path:
+    """Write the shifts of reconstruction ``name`` of a store as a shifts file (``view shift_px``).
+
+    Parameters
+    ----------
+    path : path
+        Data-set store.
+    name : str
+        A reconstruction with shifts (Dremel's).
+    out : path
+        The text file to write (detector pixels, :func:`nanoct.scanio.write_shifts`).
+    sample : int, optional
+        Which sample's shifts; may be omitted when the reconstruction has one motion shared by
+        all slices (an imported stack) or the store has a single sample.
+
+    Raises
+    ------
+    NanoctError
+        For a reconstruction without shifts, or per-sample shifts and no ``sample``.
+    """
+    from ..scanio import write_shifts
+    from ..store import DataStore
+
+    store = DataStore.open(path)
+    if name not in store.reconstruction_names():
+        raise NanoctError(f"{store.path} has no reconstruction '{name}'; present: {store.reconstruction_names()}")
+    shifts = store.recons.shared_shifts(name)
+    if shifts is None:
+        if sample is None and store.n != 1:
+            raise NanoctError(
+                f"reconstruction '{name}' of {store.path} has one motion per sample; choose the sample to export"
+            )
+        shifts = store.read_shifts(name, [0 if sample is None else sample])[0]
+    return write_shifts(out, np.asarray(shifts) * _det_per_obj(store.geometry), angles=store.geometry.angles)

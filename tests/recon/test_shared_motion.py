@@ -1,0 +1,178 @@
+"""One motion for a whole stack: joint Dremel estimate, shifts files as start or fixed motion, export."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nanoct.errors import NanoctError
+from nanoct.geometry import get_preset
+from nanoct.motion import MotionParams, sample_motion
+from nanoct.operators import RayTransform
+from nanoct.phantoms import random_phantom
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.recon.dremel import dremel
+from nanoct.recon.shared import remove_translation, write_store_shifts
+from nanoct.scanio import read_shifts, write_shifts
+from nanoct.store import DataStore, create_scan
+
+
+def _stack(seed: int = 21, slices: int = 3):
+    """``slices`` phantoms projected with ONE motion (translation only): (geometry, sinograms, true t . e_u)."""
+    g = get_preset("tiny-parallel")
+    rng = np.random.default_rng(seed)
+    motion = sample_motion(rng, g.n_angles, MotionParams.for_kind(g.kind))
+    motion[:, 2] = 0.0
+    op = RayTransform(g, motion, oversample=2)
+    sinos = np.stack([op.forward(random_phantom(rng, g.n, oversample=2)) for _ in range(slices)])
+    true = motion[:, 0] * np.cos(g.angles) + motion[:, 1] * np.sin(g.angles)
+    return g, sinos, true
+
+
+@pytest.fixture(scope="module")
+def stack():
+    return _stack()
+
+
+def _scan(path, stack, shared=True):
+    g, sinos, _ = stack
+    return create_scan(path, g, sinos, scan={"shared_motion": shared, "source": "test"})
+
+
+def test_remove_translation():
+    phi = np.linspace(0, np.pi, 40, endpoint=False)
+    rest = np.sin(3 * phi)
+    out = remove_translation(rest + 1.5 * np.cos(phi) - 0.7 * np.sin(phi), phi)
+    np.testing.assert_allclose(out, remove_translation(rest, phi), atol=1e-12)
+    basis = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    np.testing.assert_allclose(basis.T @ out, 0, atol=1e-10)  # orthogonal to the translation term
+
+
+def test_shared_motion_recovered_on_imported_stack(tmp_path, stack):
+    g, _, true = stack
+    store = _scan(tmp_path / "scan", stack)
+    name = reconstruct_dataset(store.path, "dremel", workers=0, progress=False)
+    assert name == "dremel"
+    store = DataStore.open(store.path)
+    assert store.reconstruction_params(name) == {"method": "dremel", "motion_slices": "all"}
+    shifts = store.read_shifts(name)
+    assert shifts.shape == (3, g.n_angles) and np.isfinite(shifts).all()
+    assert np.all(shifts == shifts[0])  # one motion for every slice
+    shared = store.recons.shared_shifts(name)
+    np.testing.assert_array_equal(shared, shifts[0])
+    corr = np.corrcoef(remove_translation(shared, g.angles), remove_translation(true, g.angles))[0, 1]
+    assert corr >= 0.8, corr
+    # exported as a shifts file and read back as the same motion
+    out = write_store_shifts(store.path, name, tmp_path / "shifts.txt")
+    np.testing.assert_allclose(read_shifts(out, g.n_angles), shared, atol=1e-5)
+
+
+def test_joint_estimate_not_redone_on_resume(tmp_path, stack, monkeypatch):
+    import nanoct.recon.batch as batch
+
+    store = _scan(tmp_path / "scan", stack)
+    reconstruct_dataset(store.path, "dremel", params={"n_iter": 3}, workers=0, progress=False)
+    store.recons.invalidate("dremel", [1])
+    monkeypatch.setattr(batch, "joint_shifts", lambda *a, **k: pytest.fail("estimated again"))
+    reconstruct_dataset(store.path, "dremel", params={"n_iter": 3}, workers=0, progress=False)
+    assert DataStore.open(store.path).reconstruction_done("dremel").all()
+
+
+def test_chosen_slices_on_simulated_store(tiny_store):
+    """A simulated store (one motion per sample) estimates a shared one only when asked."""
+    test = tiny_store.indices("test")
+    chosen = f"{test[1]},{test[0]}"
+    params = {"n_iter": 3, "motion_slices": chosen}
+    name = reconstruct_dataset(
+        tiny_store.path, "dremel", split="test", params=params, name="dj", workers=0, progress=False
+    )
+    store = DataStore.open(tiny_store.path)
+    assert store.reconstruction_params(name)["motion_slices"] == f"{min(test[:2])},{max(test[:2])}"
+    shifts = store.read_shifts(name, test)
+    assert np.all(shifts == store.recons.shared_shifts(name))
+    with pytest.raises(NanoctError, match="motion_slices"):
+        reconstruct_dataset(
+            tiny_store.path, "dremel", params={"motion_slices": "999"}, name="dk", workers=0, progress=False
+        )
+    assert "dk" not in store.reconstruction_names()
+
+
+def test_fixed_shifts_from_file_used_as_given(tmp_path, stack):
+    g, _, true = stack
+    store = _scan(tmp_path / "scan", stack)
+    path = write_shifts(tmp_path / "given.txt", true, angles=g.angles)
+    params = {"n_iter": 3, "shifts_from": str(path), "fix_shifts": True}
+    reconstruct_dataset(store.path, "dremel", params=params, workers=0, progress=False)
+    store = DataStore.open(store.path)
+    np.testing.assert_allclose(store.read_shifts("dremel"), np.tile(true, (3, 1)), atol=1e-5)
+    assert store.reconstruction_params("dremel")["shifts_from"] == str(path.resolve())
+    assert "motion_slices" not in store.reconstruction_params("dremel")
+    direct = dremel(g, stack[1][0], n_iter=3, shifts0=true, fix_shifts=True)
+    np.testing.assert_allclose(store.read_reconstruction("dremel", [0])[0], direct.image, atol=1e-6)
+
+
+def test_shifts_file_as_start_motion(tiny_store, tmp_path):
+    g = tiny_store.geometry
+    test = tiny_store.indices("test")[:1]
+    path = write_shifts(tmp_path / "start.txt", np.full(g.n_angles, 0.5))
+    params = {"n_iter": 1, "shifts_from": str(path), "correction_start": 1}
+    reconstruct_dataset(tiny_store.path, "dremel", split="test", params=params, name="ds", workers=0, progress=False)
+    store = DataStore.open(tiny_store.path)
+    np.testing.assert_allclose(store.read_shifts("ds", test), 0.5)  # started there, not corrected in 1 sweep
+    assert store.recons.shared_shifts("ds") is None  # a start motion, each sample then has its own
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"shifts_from": "WRONG"}, r"--param shifts_from.*has 5 views, the data set 140"),
+        ({"fix_shifts": True}, "needs the motion to use"),
+        ({"shifts_from": "MISSING"}, "--param shifts_from.*cannot read"),
+    ],
+)
+def test_bad_motion_parameters_write_nothing(tmp_path, stack, params, message):
+    store = _scan(tmp_path / "scan", stack)
+    wrong = write_shifts(tmp_path / "wrong.txt", np.zeros(5))
+    values = {k: {"WRONG": str(wrong), "MISSING": str(tmp_path / "none.txt")}.get(v, v) for k, v in params.items()}
+    with pytest.raises(NanoctError, match=message):
+        reconstruct_dataset(store.path, "dremel", params=values, workers=0, progress=False)
+    assert DataStore.open(store.path).reconstruction_names() == []
+
+
+def test_export_needs_a_sample_for_per_sample_motion(tiny_store, tmp_path):
+    test = tiny_store.indices("test")
+    reconstruct_dataset(
+        tiny_store.path, "dremel", split="test", params={"n_iter": 2}, name="de", workers=0, progress=False
+    )
+    with pytest.raises(NanoctError, match="choose the sample"):
+        write_store_shifts(tiny_store.path, "de", tmp_path / "s.txt")
+    out = write_store_shifts(tiny_store.path, "de", tmp_path / "s.txt", sample=int(test[0]))
+    expected = DataStore.open(tiny_store.path).read_shifts("de", test[:1])[0]
+    np.testing.assert_allclose(read_shifts(out, tiny_store.geometry.n_angles), expected, atol=1e-5)
+    with pytest.raises(NanoctError, match="no reconstruction 'nope'"):
+        write_store_shifts(tiny_store.path, "nope", tmp_path / "t.txt")
+
+
+def test_dremel_fix_shifts_keeps_given_shifts(stack):
+    g, sinos, true = stack
+    fixed = dremel(g, sinos[0], n_iter=3, shifts0=true, fix_shifts=True)
+    np.testing.assert_array_equal(fixed.motion, true.astype(np.float32))
+    zero = np.zeros(g.n_angles)
+    assert np.abs(dremel(g, sinos[0], n_iter=3, shifts0=zero).motion).max() > 0.5  # corrected when free
+    assert np.abs(dremel(g, sinos[0], n_iter=3, shifts0=zero, fix_shifts=True).motion).max() == 0
+
+
+def test_cli_wrong_shifts_file_one_error_nothing_written(tmp_path, stack, monkeypatch, capsys):
+    import sys
+
+    from nanoct.cli import main
+
+    store = _scan(tmp_path / "scan", stack)
+    wrong = write_shifts(tmp_path / "wrong.txt", np.zeros(5))
+    args = ["reconstruct", store.path, "--method", "dremel", "--param", f"shifts_from={wrong}", "--param"]
+    monkeypatch.setattr(sys, "argv", ["nanoct", *map(str, args), "fix_shifts=true", "-q"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "has 5 views, the data set 140" in err[0]
+    assert DataStore.open(store.path).reconstruction_names() == []
