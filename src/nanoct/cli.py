@@ -502,13 +502,19 @@ def export(
     out: Path = typer.Option(..., "--out", "-o", help="FILE.tif | .npy | .h5 (images or std) or FILE.txt (shifts)."),
     std: bool = typer.Option(False, "--std", help="Export the pixel-wise std instead of the images."),
     split: str = typer.Option("all", "--split", help="test | val | train | all"),
+    index: int | None = typer.Option(
+        None, "--index", "-i", help="With .txt: the sample whose shifts to write (needed unless motion is shared)."
+    ),
 ) -> None:
     """Export a reconstruction: float32 images (one TIFF page / .npy or HDF5 slice per sample) or shifts as text.
 
     A .txt output writes the per-view shifts of a motion-estimating reconstruction (Dremel) as
-    two columns "view shift_px" (nabu-style; read back with --param shifts_from=FILE).
+    two columns "view shift_px" in detector pixels (nabu-style; read back with
+    --param shifts_from=FILE): the stack's shared shifts for an imported scan, else those of
+    sample --index.
     """
-    from .scanio import write_images, write_shifts
+    from .recon.shared import write_store_shifts
+    from .scanio import write_images
     from .store import DataStore
 
     store = DataStore.open(directory)
@@ -523,9 +529,8 @@ def export(
         method = store.reconstruction_params(name).get("method")
         if method not in methods_with_motion():
             raise NanoctError(f"reconstructions/{name} ({method}) has no estimated shifts; export a Dremel result")
-        shifts = store.read_shifts(name, idx[:1])[0]
-        path = write_shifts(out, shifts, angles=store.geometry.angles)
-        typer.echo(f"wrote the shifts of reconstructions/{name} (sample {int(idx[0])}) to {path}")
+        path = write_store_shifts(directory, name, out, sample=index)
+        typer.echo(f"wrote the shifts of reconstructions/{name} to {path}")
         return
     if std and not store.has_uncertainty(name):
         raise NanoctError(f"reconstructions/{name} has no std (only invertible networks give one)")
