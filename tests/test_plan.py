@@ -1,10 +1,11 @@
 """``nanoct reproduce --plan``: stages, job counts, disk and time estimates without running anything."""
 
+import sys
 import time
 
 import pytest
 
-from nanoct.cli import app
+from nanoct.cli import main
 from nanoct.errors import NanoctError
 from nanoct.plan import STAGES, format_plan, plan_study
 from nanoct.reproduce import STUDIES
@@ -62,11 +63,26 @@ def test_plan_rejects_bad_input(kwargs):
         plan_study(scale, **kwargs)
 
 
-def test_cli_plan_runs_nothing(tmp_path, monkeypatch):
-    from typer.testing import CliRunner
+def _cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["nanoct", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code or 0
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
+
+def test_cli_plan_runs_nothing(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    result = CliRunner().invoke(app, ["reproduce", "--scale", "paper", "--plan", "--cores", "64"])
-    assert result.exit_code == 0, result.output
-    assert "parallel" in result.output and "reconstructions" in result.output and "160,475" in result.output
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "paper", "--plan", "--cores", "64")
+    assert code == 0, err
+    assert "parallel" in out and "reconstructions" in out and "160,475" in out
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_scale_rejects_preset_options(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "tiny", "--no-motion", "--plan")
+    assert code == 2 and "--no-motion" in err

@@ -410,6 +410,8 @@ def reproduce(
     from .reproduce import reproduce_scale, reproduce_study
 
     chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
+    if scale is not None and (n is not None or no_motion):
+        raise NanoctError("--n and --no-motion apply to one --preset; --scale runs the study's three settings")
     if plan:
         from .plan import format_plan, plan_study
 
