@@ -129,6 +129,12 @@ def test_reproduce_toy_scale_matches_plan(tmp_path):
         assert all(len(r["psnr_values"]) == r["n"] for r in js["results"].values())
     seeded = json.loads((out / "parallel" / "report" / "evaluation.json").read_text())["conclusions"]
     assert any(c["seeds"] == 2 for check in seeded for c in check["comparisons"])
+    summary = json.loads((out / "report.json").read_text())
+    assert list(summary["settings"]) == ["parallel", "fan", "unperturbed"] and summary["environment"]["packages"]
+    assert (
+        summary["settings"]["fan"]["conclusions"]
+        == json.loads((out / "fan" / "report" / "evaluation.json").read_text())["conclusions"]
+    )
     text = report.read_text()
     assert "Environment: Python" in text and "torch" in text
     for heading in ("## tiny-parallel", "## tiny-fan", "## tiny-parallel (no motion)", "unet: PSNR [dB], ours (paper)"):

@@ -20,6 +20,7 @@ from .conclusions import format_conclusions
 from .errors import NanoctError
 from .fileio import atomic_write_text
 from .metrics import EDGE_SIGMA, edge_std, psnr, ssim, support_mask, uncertainty_summary
+from .provenance import environment_info
 from .store import DataStore
 
 __all__ = [
@@ -287,8 +288,9 @@ def write_report_tables(
     ``ssim_std``, ``n``, ``psnr_values``, ``ssim_values`` (per image, split order; and where a
     std exists ``std_error_corr``, ``uncertainty`` and ``edge_baseline``, see
     :func:`uncertainty_scores`), the input-mixing tables under ``"mixing"``, the paper's
-    setting under ``"setting"`` and the conclusion checks
-    (:func:`nanoct.conclusions.check_conclusions`) under ``"conclusions"``.
+    setting under ``"setting"``, the conclusion checks
+    (:func:`nanoct.conclusions.check_conclusions`) under ``"conclusions"`` and
+    :func:`nanoct.provenance.environment_info` under ``"environment"``.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -308,6 +310,7 @@ def write_report_tables(
         "mixing": mixing,
         "setting": setting,
         "conclusions": conclusions or [],
+        "environment": environment_info(),
     }
     atomic_write_text(md, text)
     atomic_write_text(js, json.dumps(payload, indent=2))

@@ -16,6 +16,7 @@ torch threads (the UNet's convolutions scale with threads, the invertible networ
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -589,17 +590,24 @@ def reproduce_scale(
     unperturbed parallel beam (FBP, Dremel, RESESOP with eta = 0, the networks on FBP). Each
     setting lives in ``<out>/<setting>`` (default ``out``: ``runs/<scale>``) with its own report;
     ``<out>/report.md`` / ``report.html`` gather the three settings' tables, the paper's numbers
-    and the conclusion checks. Other arguments as :func:`reproduce_study`.
+    and the conclusion checks, ``<out>/report.json`` their results, mixing tables and checks
+    per setting with the environment. Other arguments as :func:`reproduce_study`.
     """
     models = _check_models(models)
     settings = scale_settings(scale, None if out is None else Path(out), seed)
     study = study or STUDIES[scale]
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}
-    root = settings[0].out.parent
-    text = [f"# nanoct study: {scale} scale, the paper's three settings", "", format_environment(environment_info())]
+    root, env = settings[0].out.parent, environment_info()
+    text = [f"# nanoct study: {scale} scale, the paper's three settings", "", format_environment(env)]
+    summary: dict[str, Any] = {"scale": scale, "seed": seed, "seeds": seeds, "environment": env, "settings": {}}
     for setting in settings:
         md, sections = run_setting(setting, study, models, seed=seed, seeds=seeds, fan=fan)
         text += sections + [f"Full report of this setting: [{md.relative_to(root)}]({md.relative_to(root)})", ""]
+        evaluation = json.loads((md.parent / "evaluation.json").read_text())
+        summary["settings"][setting.paper] = {"report": str(md.relative_to(root))} | {
+            k: evaluation[k] for k in ("results", "mixing", "conclusions")
+        }
+    atomic_write_text(root / "report.json", json.dumps(summary, indent=2))
     report = atomic_write_text(root / "report.md", "\n".join(text))
     write_html_report(report)
     return report
