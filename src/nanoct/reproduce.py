@@ -218,8 +218,7 @@ def preset_setting(
     preset: str, perturbed: bool, out: Path | None, mixing: tuple[str, ...], seed: int = DEFAULT_SEED
 ) -> Setting:
     """The setting of ``nanoct reproduce --preset``: every first reconstruction is an input of every network."""
-    if preset not in preset_names():
-        raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names())}")
+    preset_study(preset)  # rejects an unknown preset
     suffix = ("" if perturbed else "-nomotion") + ("" if seed == DEFAULT_SEED else f"-seed{seed}")
     recons = _recons(perturbed)
     out = Path(out or Path("runs") / f"{preset}{suffix}")
