@@ -56,12 +56,14 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     code, out, _ = run(monkeypatch, capsys, "reconstruct", d, "--method", "fbp", "--workers", 0, "-q")
     assert code == 0 and "reconstructions/fbp" in out
     code, out, _ = run(monkeypatch, capsys, "evaluate", d, "--json")
-    assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["fbp"]) == {
+    assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["results"]["fbp"]) == {
         "psnr_mean",
         "psnr_std",
         "ssim_mean",
         "ssim_std",
         "n",
+        "psnr_values",
+        "ssim_values",
     }
     assert (d / "report" / "evaluation.md").is_file()
     run_dir = tmp_path / "run"

@@ -12,9 +12,11 @@ from nanoct.evaluate import (
     format_uncertainty_table,
     mixing_matrices,
     parse_name,
+    per_image_values,
+    store_setting,
     write_report_tables,
 )
-from nanoct.metrics import coverage, edge_std, psnr, support_mask
+from nanoct.metrics import coverage, edge_std, psnr, ssim, summarize, support_mask
 from nanoct.store import DataStore
 
 
@@ -113,3 +115,35 @@ def test_uncertainty_table_without_calibration():
     table = format_uncertainty_table(results)
     assert "| fbp+cinn | all | 0.500 | 90 / 95 / 100 | - | - | 0.100 / 0.400 (0.25) | 0.500 | - |" in table
     assert "| fbp |" not in table and format_uncertainty_table({"fbp": _scores(20)}) == ""
+
+
+def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp_path):
+    """Per-image PSNR/SSIM follow the split's index order (pairs line up across rows); the JSON has the checks."""
+    from nanoct.conclusions import check_conclusions
+
+    store = DataStore.open(tiny_store.path, mode="r+")
+    test = store.indices("test")
+    gts = store.read_phantoms(test)
+    rng = np.random.default_rng(5)
+    for name, noise in (("fbp", 0.2), ("dremel", 0.02)):  # dremel: ten times less noise than fbp
+        store.prepare_reconstruction(name, {})
+        for i, g in zip(test, gts):
+            store.write_reconstruction(name, int(i), g + rng.normal(0, noise, g.shape).astype(np.float32))
+    results = evaluate_store(store, "test", names=["fbp", "dremel"])
+    for name in ("fbp", "dremel"):
+        recos = store.read_reconstruction(name, test)
+        assert results[name]["psnr_values"] == pytest.approx([psnr(r, g) for r, g in zip(recos, gts)])
+        assert results[name]["ssim_values"] == pytest.approx([ssim(r, g) for r, g in zip(recos, gts)])
+        assert {k: results[name][k] for k in ("psnr_mean", "psnr_std", "ssim_mean", "n")} == pytest.approx(
+            {k: v for k, v in summarize(recos, gts).items() if k != "ssim_std"}
+        )
+    values = per_image_values(results)
+    assert values["fbp"]["psnr"].shape == (len(test),)
+    assert store_setting(store) == "parallel"
+    checks = check_conclusions(values, "parallel")
+    beat = next(c for c in checks if c["comparisons"] and c["comparisons"][0]["label"] == "dremel > fbp")
+    assert [c["verdict"] for c in beat["comparisons"] if c["label"] == "dremel > fbp"] == ["holds", "holds"]
+    _, js = write_report_tables(store, results, tmp_path, conclusions=checks, setting="parallel")
+    payload = json.loads(js.read_text())
+    assert payload["setting"] == "parallel" and payload["conclusions"][0]["id"] == checks[0]["id"]
+    assert "The paper's conclusions (parallel)" in (tmp_path / "evaluation.md").read_text()

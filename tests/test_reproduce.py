@@ -3,9 +3,10 @@
 import json
 import time
 
+import numpy as np
 import pytest
 
-from nanoct.reproduce import Study, reproduce_study
+from nanoct.reproduce import Study, reproduce_scale, reproduce_study
 
 TOY = Study(
     n=12,
@@ -95,3 +96,54 @@ def test_dask_client_leaves_environment_as_it_was():
     before = dict(os.environ)
     assert run_tasks(abs, [0, 1], workers=1, progress=False) == 2
     assert dict(os.environ) == before
+
+
+def test_reproduce_toy_scale_matches_plan(tmp_path):
+    """The three settings at a toy scale: the run does the jobs the plan counts; reports in Markdown and HTML."""
+    from nanoct.plan import plan_study
+    from nanoct.store import DataStore
+    from test_report_html import parse
+
+    out = tmp_path / "scale"
+    models = ("unet",)
+    report = reproduce_scale("tiny", out=out, models=models, study=TOY, seed=3, seeds=2, workers=0, progress=False)
+    plan = plan_study("tiny", models=models, study=TOY, seeds=2)
+    for p in plan:
+        setting = out / p.setting
+        store = DataStore.open(setting / "data")
+        assert store.seed == 3
+        done = {
+            "data": store.n,
+            "reconstructions": sum(
+                int(store.reconstruction_done(r, np.arange(store.n)).sum())
+                for r in store.reconstruction_names()
+                if "+" not in r
+            ),
+            "training": len([d for d in (setting / "runs").iterdir() if (d / "best.pt").exists()]),
+            "prediction": len([n for n in store.reconstruction_names() if "+" in n]),
+            "report": int((setting / "report" / "report.html").is_file()),
+        }
+        assert done[p.stage] == p.jobs, (p.setting, p.stage)
+        js = json.loads((setting / "report" / "evaluation.json").read_text())
+        assert js["setting"] == p.setting and js["conclusions"]
+        assert all(len(r["psnr_values"]) == r["n"] for r in js["results"].values())
+    seeded = json.loads((out / "parallel" / "report" / "evaluation.json").read_text())["conclusions"]
+    assert any(c["seeds"] == 2 for check in seeded for c in check["comparisons"])
+    summary = json.loads((out / "report.json").read_text())
+    assert list(summary["settings"]) == ["parallel", "fan", "unperturbed"] and summary["environment"]["packages"]
+    assert (
+        summary["settings"]["fan"]["conclusions"]
+        == json.loads((out / "fan" / "report" / "evaluation.json").read_text())["conclusions"]
+    )
+    text = report.read_text()
+    assert "Environment: Python" in text and "torch" in text
+    for heading in ("## tiny-parallel", "## tiny-fan", "## tiny-parallel (no motion)", "unet: PSNR [dB], ours (paper)"):
+        assert heading in text
+    assert "| resesop+unet | " in text and "38.17 ± 3.36" in text  # the paper's RESESOP + UNet next to ours
+    assert "The paper's conclusions" in text and "does not hold" in text
+    for html in (out / "report.html", out / "parallel" / "report" / "report.html"):
+        page = parse(html.read_text())
+        tags = [t for t, _ in page.tags]
+        assert tags.count("table") >= 3
+        assert all(a["src"].startswith("data:image/png;base64,") for t, a in page.tags if t == "img")
+    assert "img" in [t for t, _ in parse((out / "parallel" / "report" / "report.html").read_text()).tags]

@@ -371,14 +371,16 @@ def evaluate(
     directory: Path = typer.Argument(..., help="Data-set store."),
     split: str = typer.Option("test", "--split", help="Split to evaluate on."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
-    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the Markdown table."),
+    as_json: bool = typer.Option(False, "--json", help="Print evaluation.json instead of the Markdown tables."),
 ) -> None:
-    """PSNR/SSIM (mean ± std over a split) of every reconstruction in the store.
+    """PSNR/SSIM (mean ± std over a split, and per image) of every reconstruction in the store.
 
-    Also the input-mixing tables (models applied to inputs they were not trained on) and,
-    for sampling models, the std/error correlation and calibration.
+    Also the input-mixing tables (models applied to inputs they were not trained on), for
+    sampling models the std/error correlation and calibration, and the paper's conclusions
+    checked on the per-image values (paired differences) for the paper's setting of the store.
     """
-    from .evaluate import evaluate_store, write_report_tables
+    from .conclusions import check_conclusions
+    from .evaluate import evaluate_store, per_image_values, store_setting, write_report_tables
     from .store import DataStore
 
     store = DataStore.open(directory)
@@ -387,19 +389,36 @@ def evaluate(
         raise NanoctError(
             f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first"
         )
-    md, js = write_report_tables(store, results, out or Path(directory) / "report", split)
-    typer.echo(json.dumps(results, indent=2) if as_json else md.read_text())
+    setting = store_setting(store)
+    checks = check_conclusions(per_image_values(results), setting) if setting else []
+    md, js = write_report_tables(
+        store, results, out or Path(directory) / "report", split, conclusions=checks, setting=setting
+    )
+    typer.echo(js.read_text() if as_json else md.read_text())
     typer.echo(f"wrote {md} and {js}", err=True)
 
 
 @app.command()
 def reproduce(
     preset: str = typer.Option("tiny-parallel", "--preset", "-p", help="Study preset (geometry preset name)."),
-    out: Path | None = typer.Option(None, "--out", "-o", help="Output directory (default runs/<preset>)."),
+    scale: str | None = typer.Option(
+        None, "--scale", help="Run the paper's three settings at a scale (tiny, small, paper) instead of one preset."
+    ),
+    out: Path | None = typer.Option(
+        None, "--out", "-o", help="Output directory (default runs/<preset> or runs/<scale>)."
+    ),
     n: int | None = typer.Option(None, "--n", help="Override the number of samples of the preset."),
     no_motion: bool = typer.Option(False, "--no-motion", help="The unperturbed sanity case."),
     models: str = typer.Option(
         "unet,cinn,cinn-res,ciunet,ciunet-res", "--models", help="Comma-separated post-processing networks, or 'none'."
+    ),
+    seed: int = typer.Option(0, "--seed", help="Seed of the data set(s)."),
+    seeds: int = typer.Option(1, "--seeds", help="Training seeds per network row (spread in the conclusion checks)."),
+    plan: bool = typer.Option(False, "--plan", help="Print the stages, jobs, disk and time estimates; run nothing."),
+    cores: int = typer.Option(2, "--cores", help="With --plan: CPU cores to plan for."),
+    gpus: int = typer.Option(0, "--gpus", help="With --plan: GPUs for training and prediction."),
+    gpu_speedup: float | None = typer.Option(
+        None, "--gpu-speedup", help="With --plan and --gpus: one GPU's speed relative to one CPU core (not measured)."
     ),
     workers: int = WORKERS,
     scheduler: str | None = SCHEDULER,
@@ -408,23 +427,40 @@ def reproduce(
     """Run the study end to end: generate, reconstruct, train, predict, evaluate, report.
 
     Every stage is cached in the output directory: a second run only redoes what is
-    missing, and a killed run resumes.
+    missing, and a killed run resumes. The report (Markdown and a self-contained HTML file)
+    puts the paper's numbers next to ours and checks the paper's conclusions.
     """
-    from .reproduce import reproduce_study
+    from .reproduce import reproduce_scale, reproduce_study
 
     chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
-    report = reproduce_study(
-        preset,
-        out=out,
-        n=n,
-        perturbed=not no_motion,
-        models=chosen,
-        workers=workers,
-        scheduler=scheduler,
-        progress=not quiet,
-    )
+    if scale is not None and (n is not None or no_motion):
+        raise NanoctError("--n and --no-motion apply to one --preset; --scale runs the study's three settings")
+    if plan:
+        from .plan import format_plan, plan_study
+
+        typer.echo(
+            format_plan(
+                plan_study(
+                    scale,
+                    preset=preset,
+                    perturbed=not no_motion,
+                    n=n,
+                    models=chosen,
+                    seeds=seeds,
+                    cores=cores,
+                    gpus=gpus,
+                    gpu_speedup=gpu_speedup,
+                )
+            )
+        )
+        return
+    run = dict(out=out, models=chosen, seed=seed, seeds=seeds, workers=workers, scheduler=scheduler, progress=not quiet)
+    if scale is not None:
+        report = reproduce_scale(scale, **run)
+    else:
+        report = reproduce_study(preset, n=n, perturbed=not no_motion, **run)
     typer.echo(report.read_text())
-    typer.echo(f"report: {report}", err=True)
+    typer.echo(f"report: {report} (and {report.with_suffix('.html').name})", err=True)
 
 
 def _parse_range(text: str | None, flag: str, sep: str) -> tuple[int, int] | None:

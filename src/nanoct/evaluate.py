@@ -16,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from .conclusions import format_conclusions
 from .errors import NanoctError
 from .fileio import atomic_write_text
-from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, psnr, ssim, support_mask, uncertainty_summary
+from .provenance import environment_info
 from .store import DataStore
 
 __all__ = [
@@ -28,7 +30,9 @@ __all__ = [
     "format_uncertainty_table",
     "mixing_matrices",
     "parse_name",
+    "per_image_values",
     "read_std",
+    "store_setting",
     "uncertainty_scores",
     "write_report_tables",
 ]
@@ -101,8 +105,46 @@ def uncertainty_scores(
     }
 
 
+def _scores(recos: np.ndarray, gts: np.ndarray) -> dict[str, Any]:
+    """PSNR/SSIM per image (in the given order) and their mean, std (ddof 0) and count."""
+    p = np.array([psnr(r, g) for r, g in zip(recos, gts)])
+    s = np.array([ssim(r, g) for r, g in zip(recos, gts)])
+    return {
+        "psnr_mean": float(p.mean()),
+        "psnr_std": float(p.std()),
+        "ssim_mean": float(s.mean()),
+        "ssim_std": float(s.std()),
+        "n": int(len(gts)),
+        "psnr_values": p.tolist(),
+        "ssim_values": s.tolist(),
+    }
+
+
+def per_image_values(results: dict[str, dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
+    """``{name: {"psnr": values, "ssim": values}}`` per image: the input of the conclusion checks."""
+    return {
+        name: {m: np.asarray(r[f"{m}_values"], dtype=np.float64) for m in ("psnr", "ssim")}
+        for name, r in results.items()
+        if "psnr_values" in r
+    }
+
+
+def store_setting(store: DataStore) -> str | None:
+    """Which of the paper's settings a store's data correspond to (``parallel``, ``fan``, ``unperturbed``).
+
+    Fan beam without motion is not one of the paper's settings and gives None.
+    """
+    perturbed = bool((store.meta.get("simulation") or {}).get("perturbed", True))
+    if store.geometry.kind == "fan":
+        return "fan" if perturbed else None
+    return "parallel" if perturbed else "unperturbed"
+
+
 def evaluate_store(store: DataStore, split: str = "test", names: list[str] | None = None) -> dict[str, dict[str, Any]]:
-    """PSNR/SSIM (mean, std, n) of reconstructions over a split, plus uncertainty scores.
+    """PSNR/SSIM (mean, std, n, and per image) of reconstructions over a split, plus uncertainty scores.
+
+    Per-image values (``psnr_values``, ``ssim_values``) follow the split's index order, the same
+    for every reconstruction, so rows can be compared image by image (paired differences).
 
     ``names`` gives the reconstructions and their order (default: all present, sorted);
     those that do not cover the whole split are left out. Reconstructions with a pixel-wise
@@ -126,7 +168,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
         if not store.reconstruction_done(name, idx).all():
             continue
         recos = store.read_reconstruction(name, idx)
-        results[name] = summarize(recos, gts)
+        results[name] = _scores(recos, gts)
         if store.has_uncertainty(name):
             raw, cal = read_std(store, name, idx)
             results[name].update(uncertainty_scores(raw, recos, gts, cal, support))
@@ -233,13 +275,22 @@ def format_mixing(mixing: dict[str, dict[str, dict[str, dict[str, Any]]]]) -> st
 
 
 def write_report_tables(
-    store: DataStore, results: dict[str, dict[str, Any]], out_dir: str | os.PathLike[str], split: str = "test"
+    store: DataStore,
+    results: dict[str, dict[str, Any]],
+    out_dir: str | os.PathLike[str],
+    split: str = "test",
+    conclusions: list[dict[str, Any]] | None = None,
+    setting: str | None = None,
 ) -> tuple[Path, Path]:
     """Write ``evaluation.md`` and ``evaluation.json`` into ``out_dir``; returns their paths.
 
     The JSON has, per reconstruction name, ``psnr_mean``, ``psnr_std``, ``ssim_mean``,
-    ``ssim_std``, ``n`` (and where a std exists ``std_error_corr``, ``uncertainty`` and
-    ``edge_baseline``, see :func:`uncertainty_scores`), and the input-mixing tables under ``"mixing"``.
+    ``ssim_std``, ``n``, ``psnr_values``, ``ssim_values`` (per image, split order; and where a
+    std exists ``std_error_corr``, ``uncertainty`` and ``edge_baseline``, see
+    :func:`uncertainty_scores`), the input-mixing tables under ``"mixing"``, the paper's
+    setting under ``"setting"``, the conclusion checks
+    (:func:`nanoct.conclusions.check_conclusions`) under ``"conclusions"`` and
+    :func:`nanoct.provenance.environment_info` under ``"environment"``.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -248,6 +299,8 @@ def write_report_tables(
     mixing = mixing_matrices(results)
     uq = format_uncertainty_table(results, f"Uncertainty, split '{split}'")
     text = format_table(results, title) + ("\n" + uq if uq else "") + ("\n" + format_mixing(mixing) if mixing else "")
+    if conclusions:
+        text += f"\n### The paper's conclusions ({setting})\n\n" + format_conclusions(conclusions)
     md, js = out / "evaluation.md", out / "evaluation.json"
     payload = {
         "split": split,
@@ -255,6 +308,9 @@ def write_report_tables(
         "simulation": store.meta.get("simulation"),
         "results": results,
         "mixing": mixing,
+        "setting": setting,
+        "conclusions": conclusions or [],
+        "environment": environment_info(),
     }
     atomic_write_text(md, text)
     atomic_write_text(js, json.dumps(payload, indent=2))

@@ -1,5 +1,11 @@
 """The whole study from one call: generate, reconstruct, train, predict, evaluate, report.
 
+:func:`reproduce_study` runs one setting (a geometry preset, perturbed or not);
+:func:`reproduce_scale` runs the paper's three settings with the paper's rows. Both go through
+the same stage functions (:func:`data_stage`, :func:`reconstruction_stage`,
+:func:`training_stage`, :func:`prediction_stage`, :func:`report_stage`), and their job lists
+come from :func:`setting_jobs`, which :mod:`nanoct.plan` uses to plan a run without running it.
+
 Every stage is cached in the output directory: the data set, each reconstruction, each
 training run and each prediction resume where they stopped and are skipped when complete;
 tables and figures are cheap and redone. Training runs and predictions are independent jobs
@@ -10,6 +16,7 @@ torch threads (the UNet's convolutions scale with threads, the invertible networ
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,19 +24,62 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from .conclusions import check_conclusions, format_conclusions
 from .errors import NanoctError
-from .evaluate import evaluate_store, format_mixing, format_table, mixing_matrices, write_report_tables
+from .evaluate import (
+    evaluate_store,
+    format_mixing,
+    format_table,
+    mixing_matrices,
+    parse_name,
+    per_image_values,
+    write_report_tables,
+)
 from .fanout import run_tasks
 from .figures import compare_reconstructions, show_sample, uncertainty_report
 from .fileio import atomic_write_text, remove_stale_temporaries
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
 from .learn.models import model_class, table_order
+from .learn.predict import output_name as prediction_name
+from .paper import format_comparison, format_mixing_comparison
+from .provenance import environment_info, format_environment
 from .recon.batch import reconstruct_dataset
 from .recon.registry import method_spec, output_name
+from .report_html import write_html_report
 from .simulate import SimulationConfig
+from .store import DataStore
 
-__all__ = ["STUDIES", "Study", "reproduce_study"]
+__all__ = [
+    "CONCLUSION_K",
+    "DEFAULT_SEED",
+    "SCALE_SETTINGS",
+    "STUDIES",
+    "Jobs",
+    "Setting",
+    "Study",
+    "data_stage",
+    "prediction_stage",
+    "preset_setting",
+    "preset_study",
+    "reconstruction_stage",
+    "report_stage",
+    "reproduce_scale",
+    "reproduce_study",
+    "run_setting",
+    "scale_settings",
+    "seed_name",
+    "setting_jobs",
+    "setting_mixing",
+    "training_stage",
+]
+
+#: Seed of the study's data sets unless ``--seed`` says otherwise.
+DEFAULT_SEED = 0
+#: Standard errors a paired difference must exceed for a conclusion check to hold.
+CONCLUSION_K = 2.0
 
 
 @dataclass(frozen=True)
@@ -104,6 +154,13 @@ _PAPER_RECONS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("resesop", {"eta_scale": 1.2}),
 )
 
+#: The paper's three settings: (geometry kind, perturbed).
+SCALE_SETTINGS: dict[str, tuple[str, bool]] = {
+    "parallel": ("parallel", True),
+    "fan": ("fan", True),
+    "unperturbed": ("parallel", False),
+}
+
 
 def _recons(perturbed: bool = True) -> dict[str, tuple[str, dict[str, Any]]]:
     """Output name -> (method, parameters) of the study's reconstructions."""
@@ -111,6 +168,133 @@ def _recons(perturbed: bool = True) -> dict[str, tuple[str, dict[str, Any]]]:
         methods = dict.fromkeys(m for m, _ in _PAPER_RECONS)
         return {m: (m, {"eta_scale": 0.0} if method_spec(m).needs_eta else {}) for m in methods}
     return {output_name(m, p): (m, p) for m, p in _PAPER_RECONS}
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting of a study: its geometry, data directory and the rows it has.
+
+    Attributes
+    ----------
+    preset : str
+        Geometry preset.
+    perturbed : bool
+        Motion in the data (False: the unperturbed case).
+    out : Path
+        Directory of the setting: ``data``, ``runs``, ``report`` below it.
+    recons : dict
+        Output name -> (method, parameters) of the first reconstructions.
+    train_inputs : tuple of str
+        Inputs the networks are trained on.
+    mixing : tuple of str
+        Networks also applied to every training input they were not trained on.
+    paper : str or None
+        Key of the paper's table this setting corresponds to (``parallel``, ``fan``,
+        ``unperturbed``), None for a setting the paper does not have.
+    """
+
+    preset: str
+    perturbed: bool
+    out: Path
+    recons: dict[str, tuple[str, dict[str, Any]]]
+    train_inputs: tuple[str, ...]
+    mixing: tuple[str, ...]
+    paper: str | None
+
+
+def _paper_key(preset: str, perturbed: bool) -> str | None:
+    kind = get_preset(preset).kind
+    return next((k for k, v in SCALE_SETTINGS.items() if v == (kind, perturbed)), None)
+
+
+def preset_study(preset: str) -> Study:
+    """The :data:`STUDIES` entry of a geometry preset (its size prefix).
+
+    Raises
+    ------
+    NanoctError
+        If ``preset`` is not a geometry preset.
+    """
+    if preset not in preset_names():
+        raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names())}")
+    return STUDIES[preset.split("-")[0]]
+
+
+def preset_setting(
+    preset: str, perturbed: bool, out: Path | None, mixing: tuple[str, ...], seed: int = DEFAULT_SEED
+) -> Setting:
+    """The setting of ``nanoct reproduce --preset``: every first reconstruction is an input of every network."""
+    preset_study(preset)  # rejects an unknown preset
+    suffix = ("" if perturbed else "-nomotion") + ("" if seed == DEFAULT_SEED else f"-seed{seed}")
+    recons = _recons(perturbed)
+    out = Path(out or Path("runs") / f"{preset}{suffix}")
+    return Setting(preset, perturbed, out, recons, tuple(recons), mixing, _paper_key(preset, perturbed))
+
+
+def scale_settings(scale: str, out: Path | None = None, seed: int = DEFAULT_SEED) -> list[Setting]:
+    """The paper's three settings at a scale, with the paper's rows (see :func:`reproduce_scale`).
+
+    Raises
+    ------
+    NanoctError
+        If ``scale`` is not one of :data:`STUDIES`.
+    """
+    if scale not in STUDIES:
+        raise NanoctError(f"unknown scale {scale!r}; choose one of: {', '.join(STUDIES)}")
+    root = Path(out or Path("runs") / (scale if seed == DEFAULT_SEED else f"{scale}-seed{seed}"))
+    perturbed = _recons(True)
+    fan = {k: v for k, v in perturbed.items() if k in ("fbp", "dremel", "resesop")}
+    return [
+        Setting(f"{scale}-parallel", True, root / "parallel", perturbed, tuple(perturbed), table_order(), "parallel"),
+        Setting(f"{scale}-fan", True, root / "fan", fan, tuple(fan), (), "fan"),
+        Setting(f"{scale}-parallel", False, root / "unperturbed", _recons(False), ("fbp",), (), "unperturbed"),
+    ]
+
+
+@dataclass(frozen=True)
+class Jobs:
+    """The jobs of one setting, per stage; the runner and :func:`nanoct.plan.plan_study` both use them.
+
+    Attributes
+    ----------
+    samples : int
+        Samples to simulate.
+    recons : list of str
+        First reconstructions (each over every sample).
+    train : list of (model, input, seed)
+        Training runs.
+    predict : list of (model, train_input, input, seed)
+        Predictions on the test split.
+    """
+
+    samples: int
+    recons: list[str]
+    train: list[tuple[str, str, int]]
+    predict: list[tuple[str, str, str, int]]
+
+
+def setting_jobs(setting: Setting, study: Study, models: tuple[str, ...], n: int | None, seeds: int = 1) -> Jobs:
+    """Every job of a setting: samples, reconstructions, training runs and predictions.
+
+    With ``seeds > 1`` each network is trained on each of its inputs with training seeds
+    ``0 .. seeds - 1`` (the rows that decide the paper's conclusions); input mixing uses seed 0.
+    """
+    if seeds < 1:
+        raise NanoctError(f"seeds = {seeds} must be >= 1 (training seeds per network row)")
+    train = [(m, i, s) for m in models for i in setting.train_inputs for s in range(seeds)]
+    predict = [(m, i, i, s) for m, i, s in train]
+    mixed = [m for m in models if m in setting.mixing]
+    predict += [(m, t, i, 0) for m in mixed for t in setting.train_inputs for i in setting.train_inputs if i != t]
+    return Jobs(study.n if n is None else n, list(setting.recons), train, predict)
+
+
+def _run_dir(runs: str, model: str, input_name: str, seed: int) -> Path:
+    return Path(runs) / (f"{model}-{input_name}" + (f"-seed{seed}" if seed else ""))
+
+
+def seed_name(name: str, seed: int) -> str:
+    """Store name of a prediction of training seed ``seed`` (seed 0: the name itself)."""
+    return name if seed == 0 else f"{name}%seed{seed}"
 
 
 def _with_threads(threads: int, job: Callable[[], object]) -> None:
@@ -125,45 +309,222 @@ def _with_threads(threads: int, job: Callable[[], object]) -> None:
         torch.set_num_threads(old)
 
 
-def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str]], threads: int, index: int) -> int:
+def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, int]], threads: int, index: int) -> int:
     from .learn.train import train
 
-    model, input_name = jobs[index]
-    _with_threads(
-        threads,
-        partial(
-            train,
-            data,
-            model,
-            input_name,
-            Path(runs) / f"{model}-{input_name}",
-            epochs=study.epochs[model],
-            lr=study.lr.get(model),
-            model_kwargs=study.model_kwargs.get(model),
-            progress=False,
-        ),
+    model, input_name, seed = jobs[index]
+    run = partial(
+        train,
+        data,
+        model,
+        input_name,
+        _run_dir(runs, model, input_name, seed),
+        epochs=study.epochs[model],
+        lr=study.lr.get(model),
+        model_kwargs=study.model_kwargs.get(model),
+        seed=seed,
+        progress=False,
     )
+    _with_threads(threads, run)
     return index
 
 
-def _predict_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, str]], threads: int, index: int) -> int:
+def _predict_job(
+    data: str, runs: str, study: Study, jobs: list[tuple[str, str, str, int]], threads: int, index: int
+) -> int:
     from .learn.predict import predict
 
-    model, train_input, input_name = jobs[index]
+    model, train_input, input_name, seed = jobs[index]
     kwargs = {"n_samples": study.n_samples} if model_class(model).has_uncertainty else None
-    _with_threads(
-        threads,
-        partial(
-            predict,
-            data,
-            Path(runs) / f"{model}-{train_input}",
-            input_name,
-            split="test",
-            progress=False,
-            reconstruct_kwargs=kwargs,
-        ),
+    name = seed_name(prediction_name(input_name, model, train_input), seed) if seed else None
+    run = partial(
+        predict,
+        data,
+        _run_dir(runs, model, train_input, seed),
+        input_name,
+        split="test",
+        progress=False,
+        name=name,
+        reconstruct_kwargs=kwargs,
     )
+    _with_threads(threads, run)
     return index
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def data_stage(setting: Setting, study: Study, jobs: Jobs, seed: int, fan: dict[str, Any]) -> DataStore:
+    """Simulate the setting's data set (resumable) and return its store."""
+    geometry = get_preset(setting.preset)
+    config = SimulationConfig.for_geometry(geometry, perturbed=setting.perturbed)
+    return generate_dataset(
+        setting.out / "data",
+        geometry,
+        jobs.samples,
+        seed=seed,
+        config=config,
+        split_fractions=study.split_fractions,
+        **fan,
+    )
+
+
+def reconstruction_stage(setting: Setting, fan: dict[str, Any]) -> None:
+    """Every first reconstruction of the setting over every sample (resumable)."""
+    for name, (method, params) in setting.recons.items():
+        reconstruct_dataset(setting.out / "data", method, params=params, name=name, **fan)
+
+
+def training_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
+    """One network per (model, input, seed); finished runs are skipped, killed ones resume.
+
+    Jobs fanned out over local workers get one torch thread each; the UNet runs go one after
+    another in this process with all threads instead (tiny preset, 2 cores: 0.29 s per step
+    with 1 thread, 0.16 s with 2, and two 1-thread runs side by side slow each other by 25 %).
+    Counts are set explicitly per job (torch may have been imported under OMP_NUM_THREADS=1).
+    """
+    cores, local = _cores(), fan.get("scheduler") is None
+    job_threads = cores if local and fan["workers"] == 0 else 1
+    data, runs = str(setting.out / "data"), str(setting.out / "runs")
+    for in_process in (True, False):
+        todo = [j for j in jobs.train if (j[0] == "unet" and local) == in_process]
+        if todo:
+            run_tasks(
+                partial(_train_job, data, runs, study, todo, cores if in_process else job_threads),
+                range(len(todo)),
+                desc="train",
+                unit="run",
+                **(fan | {"workers": 0} if in_process else fan),
+            )
+
+
+def prediction_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
+    """Every prediction on the test split (done ones are skipped by :func:`nanoct.learn.predict.predict`)."""
+    threads = _cores() if fan.get("scheduler") is None and fan["workers"] == 0 else 1
+    if jobs.predict:
+        run_tasks(
+            partial(_predict_job, str(setting.out / "data"), str(setting.out / "runs"), study, jobs.predict, threads),
+            range(len(jobs.predict)),
+            desc="predict",
+            unit="run",
+            **fan,
+        )
+
+
+def _result_names(setting: Setting, models: tuple[str, ...], jobs: Jobs) -> tuple[list[str], list[str]]:
+    """(table rows in order, extra-seed rows) of the setting's report."""
+    names = list(setting.recons) + [f"{i}+{m}" for m in models for i in setting.train_inputs]
+    names += [prediction_name(i, m, t) for m, t, i, s in jobs.predict if i != t and s == 0]
+    extra = [seed_name(prediction_name(i, m, t), s) for m, t, i, s in jobs.predict if s]
+    return names, extra
+
+
+def _conclusion_values(results: dict[str, Any], extra: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Per-image values of every row, stacked over training seeds where a row has several."""
+    values = per_image_values(results)
+    for name, scores in extra.items():
+        base = name.split("%seed")[0]
+        if base in values:
+            for metric in ("psnr", "ssim"):
+                values[base][metric] = np.vstack([values[base][metric], scores[f"{metric}_values"]])
+    return values
+
+
+def _figures(store: DataStore, setting: Setting, models: tuple[str, ...], report_dir: Path) -> list[str]:
+    test = [int(i) for i in store.indices("test")[:3]]
+    inputs = list(setting.train_inputs)
+    compare_reconstructions(store, list(setting.recons), test, report_dir / "reconstructions.png")
+    figures = [("reconstructions.png", "First reconstructions")]
+    for m in models:
+        compare_reconstructions(store, [f"{i}+{m}" for i in inputs], test, report_dir / f"reconstructions_{m}.png")
+        figures.append((f"reconstructions_{m}.png", f"Post-processed by {m}"))
+    show_sample(store, test[0], report_dir / "sample.png")
+    figures.append(("sample.png", "A test sample: motion, sinograms, FBP"))
+    return [f"## {title}\n\n![{title}]({png})\n" for png, title in figures]
+
+
+def _paper_sections(setting: Setting, results: dict[str, Any], checks: list[dict[str, Any]]) -> list[str]:
+    """Our rows next to the paper's, the mixing tables and the conclusion checks (Markdown)."""
+    if setting.paper is None:
+        return []
+    title = f"Ours next to the paper ({setting.paper}; gain = row minus its input)"
+    text = [format_comparison(results, setting.paper, title)]
+    mixed = {m for m, *_ in setting_mixing(results)} if setting.paper == "parallel" else set()
+    for model in [m for m in table_order() if m in mixed]:
+        text.append(format_mixing_comparison(results, model))
+    text += ["### The paper's conclusions", "", format_conclusions(checks, CONCLUSION_K)]
+    return text
+
+
+def setting_mixing(results: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """(model, train_input, input) of every input-mixing row in ``results``, in table order."""
+    return [(m, t, i) for i, m, t in map(parse_name, results) if m is not None and i != t]
+
+
+def report_stage(setting: Setting, study: Study, models: tuple[str, ...], jobs: Jobs) -> tuple[Path, list[str]]:
+    """Tables, comparison with the paper, conclusion checks, figures, Markdown + HTML report.
+
+    Returns the Markdown report's path and its sections that a scale report repeats.
+    """
+    store = DataStore.open(setting.out / "data")
+    report_dir = setting.out / "report"
+    names, extra_names = _result_names(setting, models, jobs)
+    results = evaluate_store(store, "test", names=names)
+    extra = evaluate_store(store, "test", names=extra_names) if extra_names else {}
+    checks = []
+    if setting.paper is not None:
+        checks = check_conclusions(_conclusion_values(results, extra), setting.paper, k=CONCLUSION_K)
+    remove_stale_temporaries(report_dir)  # left by a kill during an earlier report
+    write_report_tables(store, results, report_dir, "test", conclusions=checks, setting=setting.paper)
+    mixing = mixing_matrices(results)
+    seeds = 1 + max((s for *_, s in jobs.train), default=0)
+    sections = [
+        f"## {setting.preset}{'' if setting.perturbed else ' (no motion)'}",
+        "",
+        f"{store.n} samples (train/val/test {store.info()['splits']}), seed {store.seed}; "
+        f"networks: {', '.join(models) or 'none'}; epochs {', '.join(f'{m} {study.epochs[m]}' for m in models)}"
+        + (f"; {seeds} training seeds per network row (tables: seed 0)" if seeds > 1 else "")
+        + ".",
+        "",
+        *_paper_sections(setting, results, checks),
+    ]
+    text = [f"# nanoct study: {setting.preset}{'' if setting.perturbed else ' (no motion)'}", ""]
+    text += [format_environment(environment_info()), *sections[2:4], format_table(results, "Test split")]
+    text += [*sections[4:], format_mixing(mixing) if mixing else ""]
+    runs = setting.out / "runs"
+    text.append(uncertainty_report(store, results, list(models), list(setting.train_inputs), runs, report_dir))
+    text += _figures(store, setting, models, report_dir)
+    md = atomic_write_text(report_dir / "report.md", "\n".join(text))
+    write_html_report(md)
+    return md, sections
+
+
+def _check_models(models: tuple[str, ...] | None) -> tuple[str, ...]:
+    models = table_order() if models is None else tuple(models)
+    unknown = [m for m in models if m not in table_order()]
+    if unknown:
+        raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(table_order())}")
+    return models
+
+
+def run_setting(
+    setting: Setting,
+    study: Study,
+    models: tuple[str, ...],
+    *,
+    n: int | None = None,
+    seed: int = DEFAULT_SEED,
+    seeds: int = 1,
+    fan: dict[str, Any],
+) -> tuple[Path, list[str]]:
+    """Every stage of one setting in order; see :func:`report_stage` for what it returns."""
+    jobs = setting_jobs(setting, study, models, n, seeds)
+    data_stage(setting, study, jobs, seed, fan)
+    reconstruction_stage(setting, fan)
+    training_stage(setting, study, jobs, fan)
+    prediction_stage(setting, study, jobs, fan)
+    return report_stage(setting, study, models, jobs)
 
 
 def reproduce_study(
@@ -174,11 +535,13 @@ def reproduce_study(
     perturbed: bool = True,
     models: tuple[str, ...] | None = None,
     study: Study | None = None,
+    seed: int = DEFAULT_SEED,
+    seeds: int = 1,
     workers: int = 2,
     scheduler: str | None = None,
     progress: bool = True,
 ) -> Path:
-    """Run the study for a geometry preset and return the path of its Markdown report.
+    """Run the study for one geometry preset and return the path of its Markdown report.
 
     Parameters
     ----------
@@ -186,8 +549,9 @@ def reproduce_study(
         Geometry preset (``tiny-parallel``, ``paper-fan``, ...); its size prefix picks the
         scale in :data:`STUDIES`.
     out : path, optional
-        Output directory (default ``runs/<preset>`` or ``runs/<preset>-nomotion``): the data set
-        is ``<out>/data``, training runs ``<out>/runs/<model>-<input>``, the report ``<out>/report``.
+        Output directory (default ``runs/<preset>``, ``-nomotion`` / ``-seed<S>`` appended where
+        they apply): the data set is ``<out>/data``, training runs ``<out>/runs/<model>-<input>``,
+        the report ``<out>/report`` (``report.md``, ``report.html``, ``evaluation.json``).
     n : int, optional
         Number of samples instead of the scale's default.
     perturbed : bool
@@ -197,82 +561,58 @@ def reproduce_study(
         ``()`` for none).
     study : Study, optional
         Scale settings instead of the preset's entry in :data:`STUDIES`.
+    seed : int
+        Seed of the data set.
+    seeds : int
+        Training seeds per network row (the conclusion checks add their spread).
     workers, scheduler, progress
         See :func:`nanoct.fanout.run_tasks`.
     """
-    if preset not in preset_names():
-        raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names())}")
-    models = table_order() if models is None else tuple(models)
-    unknown = [m for m in models if m not in table_order()]
-    if unknown:
-        raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(table_order())}")
-    geometry = get_preset(preset)
-    study = study or STUDIES[preset.split("-")[0]]
-    out = Path(out or Path("runs") / (preset if perturbed else f"{preset}-nomotion"))
-    data, runs, report_dir = out / "data", out / "runs", out / "report"
+    models = _check_models(models)
+    study = study or preset_study(preset)
+    setting = preset_setting(preset, perturbed, None if out is None else Path(out), study.mixing, seed)
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}
+    return run_setting(setting, study, models, n=n, seed=seed, seeds=seeds, fan=fan)[0]
 
-    # 1. data and first reconstructions
-    config = SimulationConfig.for_geometry(geometry, perturbed=perturbed)
-    store = generate_dataset(
-        data, geometry, study.n if n is None else n, seed=0, config=config, split_fractions=study.split_fractions, **fan
-    )
-    recons = _recons(perturbed)
-    for name, (method, params) in recons.items():
-        reconstruct_dataset(data, method, params=params, name=name, **fan)
-    inputs = list(recons)
 
-    # 2. one network per (model, input); then predictions on the test split, with input mixing.
-    # Jobs fanned out over local workers get one torch thread each; the UNet runs go one after
-    # another in this process with all threads instead (tiny preset, 2 cores: 0.29 s per step
-    # with 1 thread, 0.16 s with 2, and two 1-thread runs side by side slow each other by 25 %).
-    # Counts are set explicitly per job (torch may have been imported under OMP_NUM_THREADS=1).
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    job_threads = cores if scheduler is None and workers == 0 else 1
-    train_jobs = [(m, i) for m in models for i in inputs]
-    for in_process in (True, False):
-        jobs = [(m, i) for m, i in train_jobs if (m == "unet" and scheduler is None) == in_process]
-        if jobs:
-            run_tasks(
-                partial(_train_job, str(data), str(runs), study, jobs, cores if in_process else job_threads),
-                range(len(jobs)),
-                desc="train",
-                unit="run",
-                **(fan | {"workers": 0} if in_process else fan),
-            )
-    predict_jobs = [(m, t, i) for m in models for t in inputs for i in inputs if i == t or m in study.mixing]
-    run_tasks(
-        partial(_predict_job, str(data), str(runs), study, predict_jobs, job_threads),
-        range(len(predict_jobs)),
-        desc="predict",
-        unit="run",
-        **fan,
-    )
+def reproduce_scale(
+    scale: str,
+    *,
+    out: str | os.PathLike[str] | None = None,
+    models: tuple[str, ...] | None = None,
+    study: Study | None = None,
+    seed: int = DEFAULT_SEED,
+    seeds: int = 1,
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> Path:
+    """Run the paper's three settings at a scale and return the path of the combined report.
 
-    # 3. tables and figures
-    names = inputs + [f"{i}+{m}" for m in models for i in inputs]
-    names += [f"{i}+{m}@{t}" for m, t, i in predict_jobs if i != t]
-    results = evaluate_store(store, "test", names=names)
-    remove_stale_temporaries(report_dir)  # left by a kill during an earlier report
-    write_report_tables(store, results, report_dir, "test")
-    test = [int(i) for i in store.indices("test")[:3]]
-    figures = [("reconstructions.png", "First reconstructions")]
-    compare_reconstructions(store, inputs, test, report_dir / "reconstructions.png")
-    for m in models:
-        compare_reconstructions(store, [f"{i}+{m}" for i in inputs], test, report_dir / f"reconstructions_{m}.png")
-        figures.append((f"reconstructions_{m}.png", f"Post-processed by {m}"))
-    show_sample(store, test[0], report_dir / "sample.png")
-    figures.append(("sample.png", "A test sample: motion, sinograms, FBP"))
-    mixing = mixing_matrices(results)
-    text = [
-        f"# nanoct study: {preset}{'' if perturbed else ' (no motion)'}",
-        "",
-        f"{store.n} samples (train/val/test {store.info()['splits']}), seed {store.seed}; "
-        f"networks: {', '.join(models) or 'none'}; epochs {', '.join(f'{m} {study.epochs[m]}' for m in models)}.",
-        "",
-        format_table(results, "Test split"),
-        format_mixing(mixing) if mixing else "",
-        uncertainty_report(store, results, list(models), inputs, runs, report_dir),
-    ]
-    text += [f"## {title}\n\n![{title}]({png})\n" for png, title in figures]
-    return atomic_write_text(report_dir / "report.md", "\n".join(text))
+    The settings (:func:`scale_settings`): perturbed parallel beam (FBP, Dremel, RESESOP with
+    eta, 0.8 eta and 1.2 eta, each raw and with every network, input mixing for every
+    network), perturbed fan beam (FBP, Dremel, RESESOP, raw and with every network) and
+    unperturbed parallel beam (FBP, Dremel, RESESOP with eta = 0, the networks on FBP). Each
+    setting lives in ``<out>/<setting>`` (default ``out``: ``runs/<scale>``) with its own report;
+    ``<out>/report.md`` / ``report.html`` gather the three settings' tables, the paper's numbers
+    and the conclusion checks, ``<out>/report.json`` their results, mixing tables and checks
+    per setting with the environment. Other arguments as :func:`reproduce_study`.
+    """
+    models = _check_models(models)
+    settings = scale_settings(scale, None if out is None else Path(out), seed)
+    study = study or STUDIES[scale]
+    fan = {"workers": workers, "scheduler": scheduler, "progress": progress}
+    root, env = settings[0].out.parent, environment_info()
+    text = [f"# nanoct study: {scale} scale, the paper's three settings", "", format_environment(env)]
+    summary: dict[str, Any] = {"scale": scale, "seed": seed, "seeds": seeds, "environment": env, "settings": {}}
+    for setting in settings:
+        md, sections = run_setting(setting, study, models, seed=seed, seeds=seeds, fan=fan)
+        text += sections + [f"Full report of this setting: [{md.relative_to(root)}]({md.relative_to(root)})", ""]
+        evaluation = json.loads((md.parent / "evaluation.json").read_text())
+        summary["settings"][setting.paper] = {"report": str(md.relative_to(root))} | {
+            k: evaluation[k] for k in ("results", "mixing", "conclusions")
+        }
+    atomic_write_text(root / "report.json", json.dumps(summary, indent=2))
+    report = atomic_write_text(root / "report.md", "\n".join(text))
+    write_html_report(report)
+    return report
