@@ -198,3 +198,29 @@ def test_dremel_on_the_imported_stack_recovers_the_shared_shifts_and_exports_the
     assert run(["reconstruct", str(store_path), "--method", "dremel", "--name", "fixed", "-w", "0", "-q",
                 "--param", f"shifts_from={out}", "--param", "fix_shifts=true"]) == 0  # fmt: skip
     np.testing.assert_allclose(DataStore.open(store_path).read_shifts("fixed", [1])[0], shifts, atol=1e-5)
+
+
+def test_predict_on_an_imported_scan_of_the_training_geometry(tmp_path, imported):
+    """A network trained on simulated tiny-parallel data post-processes a scan with the same views and detector."""
+    from nanoct.generate import generate_dataset
+    from nanoct.learn.train import train
+
+    sim = tmp_path / "sim"
+    generate_dataset(sim, get_preset("tiny-parallel"), 8, seed=3, workers=0, progress=False,
+                     split_fractions=(0.5, 0.25, 0.25))  # fmt: skip
+    reconstruct_dataset(sim, "fbp", workers=0, progress=False)
+    run_dir = train(sim, "unet", "fbp", tmp_path / "run", epochs=1, batch_size=2, progress=False,
+                    model_kwargs={"channels": [4, 4, 8, 8, 16]})  # fmt: skip
+    g = get_preset("tiny-parallel")
+    np.save(tmp_path / "sino.npy", DataStore.open(sim).read_sample(0).sinogram)  # a "measured" slice
+    np.savetxt(tmp_path / "angles.txt", np.rad2deg(g.angles))
+    scan = tmp_path / "scan"
+    assert run(["import", str(tmp_path / "sino.npy"), "--angles", str(tmp_path / "angles.txt"), "--line-integrals",
+                "--size", str(g.n), "--out", str(scan)]) == 0  # fmt: skip
+    assert DataStore.open(scan).geometry == g  # uniform views read from a file are the preset's geometry
+    reconstruct_dataset(scan, "fbp", workers=0, progress=False)
+    assert run(["predict", str(scan), "--run", str(run_dir), "-q"]) == 0
+    out = DataStore.open(scan).read_reconstruction("fbp+unet")
+    assert out.shape == (1, g.n, g.n) and np.isfinite(out).all()
+    # the scan with uneven angles and an axis offset is another geometry: refused with one clear line
+    assert run(["predict", str(imported[OFFSET]), "--run", str(run_dir), "-q"]) == 2

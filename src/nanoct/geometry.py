@@ -29,7 +29,11 @@ import numpy as np
 
 from .validation import check_int
 
-__all__ = ["Geometry", "PRESETS", "get_preset", "preset_names"]
+__all__ = ["PRESETS", "UNIFORM_ATOL", "Geometry", "get_preset", "preset_names"]
+
+#: Angles within this many radians of a uniform scan are taken as that scan (1e-6 rad: far
+#: below any motor's accuracy, far above float rounding of degrees read from a file).
+UNIFORM_ATOL = 1e-6
 
 Kind = Literal["parallel", "fan"]
 
@@ -139,15 +143,16 @@ class Geometry:
     def angle_weights(self) -> np.ndarray:
         """Angular quadrature weight of each view in radians, shape (K,), float64.
 
-        Uniform views get ``angle_range / K`` each. Explicit ``view_angles`` get half the gap
+        Uniform views get ``angle_range / K`` each (scaled by ``period / angle_range`` for a
+        scan over more than the period). Explicit ``view_angles`` get half the gap
         to each angular neighbour on the circle of period ``pi`` (parallel beam, opposite
         rays carry the same data) or ``2 pi`` (fan beam), scaled so that the weights add up to
         ``pi`` (parallel) or ``2 pi`` (fan): a scan over more than the period (e.g. 360 degrees
         in parallel beam) then counts every direction once on average.
         """
-        if self.view_angles is None:
-            return np.full(self.n_angles, self.angle_range / self.n_angles)
         period = math.pi if self.kind == "parallel" else 2 * math.pi
+        if self.view_angles is None:  # a scan over more than the period sees every direction more than once
+            return np.full(self.n_angles, self.angle_range / self.n_angles * min(1.0, period / self.angle_range))
         phase = np.mod(self.angles, period)
         order = np.argsort(phase, kind="stable")
         sorted_phase = phase[order]
@@ -244,8 +249,10 @@ class Geometry:
         Returns
         -------
         Geometry
-            With ``view_angles`` in radians and ``angle_range`` the smallest of pi / 2 pi
-            (parallel / fan) and the angles' span, for information.
+            Angles ``k * range / K`` (range pi or 2 pi, within :data:`UNIFORM_ATOL`) give the
+            uniform geometry (``view_angles`` None), so that a scan with the views of a preset has
+            the preset's geometry (and can use networks trained on it); any other angles are kept
+            in ``view_angles`` (radians), with ``angle_range`` their span, for information.
         """
         values = np.asarray(angles, dtype=np.float64).ravel()
         if degrees:
@@ -253,6 +260,10 @@ class Geometry:
         if values.size == 0:
             raise ValueError("angles is empty; a scan needs at least one view")
         full = math.pi if kind == "parallel" else 2 * math.pi
+        for angle_range in dict.fromkeys((full, 2 * math.pi)):  # the uniform scans of the presets
+            if np.allclose(values, np.arange(values.size) * (angle_range / values.size), rtol=0, atol=UNIFORM_ATOL):
+                return cls(kind, n, values.size, n_det, det_spacing, angle_range, source_radius, detector_radius,
+                           center_offset=center_offset)  # fmt: skip
         span = float(np.ptp(values)) * (1 + 1 / max(values.size - 1, 1)) if values.size > 1 else full
         return cls(
             kind, n, values.size, n_det, det_spacing, min(max(span, 1e-9), 2 * math.pi),

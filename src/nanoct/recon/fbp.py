@@ -153,7 +153,7 @@ def fbp(op: Geometry | RayTransform, sino: Any, *, filter: str = "ram-lak") -> R
         filtered = ramp_filter(sino * (src / np.sqrt(src**2 + u**2)), spacing, filter)
         scale = 0.5  # every ray is measured twice over a full turn
     if geometry.view_angles is None:  # uniform views: one quadrature weight
-        scale *= geometry.angle_range / geometry.n_angles
+        scale *= geometry.angle_weights[0]
     else:  # explicit angles: each view weighted by its share of the circle
         filtered *= geometry.angle_weights[:, None]
     image = _backproject(geometry, filtered, spacing) * scale
