@@ -42,6 +42,8 @@ def test_summarize(rng):
     assert s["n"] == 5
     assert s["psnr_mean"] == pytest.approx(np.mean(values))
     assert s["psnr_std"] == pytest.approx(np.std(values))
+    assert s["psnr_values"] == pytest.approx(values)
+    assert s["ssim_values"] == pytest.approx([ssim(r, g) for r, g in zip(recos, gts)])
 
 
 def test_bad_input(rng):

@@ -19,7 +19,7 @@ import numpy as np
 from .conclusions import format_conclusions
 from .errors import NanoctError
 from .fileio import atomic_write_text
-from .metrics import EDGE_SIGMA, edge_std, psnr, ssim, support_mask, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
 from .provenance import environment_info
 from .store import DataStore
 
@@ -105,21 +105,6 @@ def uncertainty_scores(
     }
 
 
-def _scores(recos: np.ndarray, gts: np.ndarray) -> dict[str, Any]:
-    """PSNR/SSIM per image (in the given order) and their mean, std (ddof 0) and count."""
-    p = np.array([psnr(r, g) for r, g in zip(recos, gts)])
-    s = np.array([ssim(r, g) for r, g in zip(recos, gts)])
-    return {
-        "psnr_mean": float(p.mean()),
-        "psnr_std": float(p.std()),
-        "ssim_mean": float(s.mean()),
-        "ssim_std": float(s.std()),
-        "n": int(len(gts)),
-        "psnr_values": p.tolist(),
-        "ssim_values": s.tolist(),
-    }
-
-
 def per_image_values(results: dict[str, dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
     """``{name: {"psnr": values, "ssim": values}}`` per image: the input of the conclusion checks."""
     return {
@@ -168,7 +153,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
         if not store.reconstruction_done(name, idx).all():
             continue
         recos = store.read_reconstruction(name, idx)
-        results[name] = _scores(recos, gts)
+        results[name] = summarize(recos, gts)
         if store.has_uncertainty(name):
             raw, cal = read_std(store, name, idx)
             results[name].update(uncertainty_scores(raw, recos, gts, cal, support))

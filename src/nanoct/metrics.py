@@ -12,6 +12,8 @@ What each score means and its conventions: ``docs/uncertainty.md``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy import ndimage
 from scipy.special import erfinv
@@ -72,13 +74,15 @@ def ssim(reco: np.ndarray, gt: np.ndarray) -> float:
     return float(structural_similarity(reco, gt, data_range=_data_range(gt)))
 
 
-def summarize(recos: np.ndarray, gts: np.ndarray) -> dict[str, float | int]:
-    """Mean and std of PSNR and SSIM over a stack of images.
+def summarize(recos: np.ndarray, gts: np.ndarray) -> dict[str, Any]:
+    """PSNR and SSIM of a stack of images: per image, and their mean and std.
 
     Returns
     -------
     dict
-        ``psnr_mean``, ``psnr_std``, ``ssim_mean``, ``ssim_std`` and ``n``.
+        ``psnr_mean``, ``psnr_std``, ``ssim_mean``, ``ssim_std`` (std with ddof 0), ``n``, and
+        the per-image values ``psnr_values``, ``ssim_values`` (lists, in the given order; the
+        paired comparisons of :mod:`nanoct.conclusions` use them).
     """
     if len(recos) != len(gts):
         raise ValueError(f"{len(recos)} reconstructions for {len(gts)} ground truths")
@@ -92,6 +96,8 @@ def summarize(recos: np.ndarray, gts: np.ndarray) -> dict[str, float | int]:
         "ssim_mean": float(s.mean()),
         "ssim_std": float(s.std()),
         "n": int(len(gts)),
+        "psnr_values": p.tolist(),
+        "ssim_values": s.tolist(),
     }
 
 
