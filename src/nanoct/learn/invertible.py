@@ -28,7 +28,7 @@ plain FrEIA graphs (``GraphINN`` of ``Node``/``ConditionNode``):
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -206,6 +206,15 @@ def fc_subnet(hidden_ratio: float = 2.0, min_hidden: int = 8):
     return make
 
 
+def _subnet_for(
+    dims_in: Any, kernel_size: int, hidden_ratio: float, min_hidden: int
+) -> Callable[[int, int], nn.Module]:
+    """The couplings' subnet constructor: fully connected for flat inputs, convolutional for images."""
+    if len(dims_in[0]) == 1:
+        return fc_subnet(hidden_ratio, min_hidden)
+    return conv_subnet(kernel_size, hidden_ratio, min_hidden)
+
+
 class ConditionalNICECoupling(Fm.NICECouplingBlock):
     """Additive (NICE) coupling ``y1 = x1 + F([x2, c]), y2 = x2 + G([y1, c])``; log|det J| = 0.
 
@@ -222,12 +231,8 @@ class ConditionalNICECoupling(Fm.NICECouplingBlock):
     def __init__(
         self, dims_in, dims_c=None, kernel_size: int = 3, hidden_ratio: float = 2.0, min_hidden: int = 8
     ) -> None:
-        dims_c = [] if dims_c is None else dims_c
-        if len(dims_in[0]) == 1:
-            ctor = fc_subnet(hidden_ratio, min_hidden)
-        else:
-            ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
-        super().__init__(dims_in, dims_c, subnet_constructor=ctor)
+        ctor = _subnet_for(dims_in, kernel_size, hidden_ratio, min_hidden)
+        super().__init__(dims_in, [] if dims_c is None else dims_c, subnet_constructor=ctor)
 
     def forward(self, x, c=None, rev: bool = False, jac: bool = True):
         (out,), _ = super().forward(x, c or [], rev=rev, jac=jac)
@@ -259,12 +264,8 @@ class ConditionalAffineCoupling(Fm.GLOWCouplingBlock):
         min_hidden: int = 8,
         clamp: float = 2.0,
     ) -> None:
-        dims_c = [] if dims_c is None else dims_c
-        if len(dims_in[0]) == 1:
-            ctor = fc_subnet(hidden_ratio, min_hidden)
-        else:
-            ctor = conv_subnet(kernel_size, hidden_ratio, min_hidden)
-        super().__init__(dims_in, dims_c, subnet_constructor=ctor, clamp=float(clamp))
+        ctor = _subnet_for(dims_in, kernel_size, hidden_ratio, min_hidden)
+        super().__init__(dims_in, [] if dims_c is None else dims_c, subnet_constructor=ctor, clamp=float(clamp))
 
     def forward(self, x, c=None, rev: bool = False, jac: bool = True):
         return super().forward(x, c or [], rev=rev, jac=jac)
