@@ -57,6 +57,8 @@ def _torch_info() -> dict[str, Any] | None:
         "num_threads": torch.get_num_threads(),
         "num_interop_threads": torch.get_num_interop_threads(),
         "deterministic_algorithms": torch.are_deterministic_algorithms_enabled(),
+        # the CPU kernels' instruction set (oneDNN/ATen): another one sums in another order
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "cuda": torch.version.cuda,
         "cuda_available": torch.cuda.is_available(),
     }
@@ -88,7 +90,7 @@ def environment_info(packages: tuple[str, ...] = PACKAGES, threads: bool = True)
         ``cpu_count``, ``cpu_affinity`` (CPUs this process may use), ``packages``
         (``{name: version or None}``), ``numpy_blas``, ``thread_variables`` (values of
         :data:`THREAD_VARIABLES`, None when unset) and, with ``threads``, ``torch``
-        (``num_threads``, ``num_interop_threads``, ``deterministic_algorithms``, ``cuda``,
+        (``num_threads``, ``num_interop_threads``, ``deterministic_algorithms``, ``cpu_capability``, ``cuda``,
         ``cuda_available``; None without torch) and ``numba_threads``.
     """
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None

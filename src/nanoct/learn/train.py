@@ -43,6 +43,7 @@ from torch.utils.data import DataLoader, DistributedSampler, Subset
 from .. import __version__
 from ..errors import NanoctError
 from ..fileio import atomic_write_bytes, remove_stale_temporaries
+from ..provenance import environment_info
 from ..store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
@@ -363,6 +364,9 @@ def _config(s: _Settings, model: PostProcessor, train_ds: ReconDataset, val_ds: 
         "device": str(s.dev),
         "channels_last": s.use_cl,
         "nanoct_version": __version__,
+        # what the weights depend on beyond the request (library versions, threads, CPU kernels);
+        # recorded, not compared on resume
+        "environment": environment_info(),
     }
     return json.loads(json.dumps(config))
 
