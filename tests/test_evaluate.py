@@ -119,9 +119,12 @@ def test_uncertainty_table_without_calibration():
 
 def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp_path):
     """Per-image PSNR/SSIM follow the split's index order (pairs line up across rows); the JSON has the checks."""
+    import shutil
+
     from nanoct.conclusions import check_conclusions
 
-    store = DataStore.open(tiny_store.path, mode="r+")
+    # a private copy: other modules write their own "fbp" into the session's store
+    store = DataStore.open(shutil.copytree(tiny_store.path, tmp_path / "copy"), mode="r+")
     test = store.indices("test")
     gts = store.read_phantoms(test)
     rng = np.random.default_rng(5)
