@@ -129,6 +129,7 @@ def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp
     gts = store.read_phantoms(test)
     rng = np.random.default_rng(5)
     for name, noise in (("fbp", 0.2), ("dremel", 0.02)):  # dremel: ten times less noise than fbp
+        store.delete_reconstruction(name)  # another module's real reconstruction, if it ran first
         store.prepare_reconstruction(name, {})
         for i, g in zip(test, gts):
             store.write_reconstruction(name, int(i), g + rng.normal(0, noise, g.shape).astype(np.float32))
