@@ -237,3 +237,33 @@ def test_angle_file_layouts(tmp_path, layout):
         path.write_text(" ".join(map(str, deg)) + "\n")
     np.testing.assert_allclose(read_angles(path), np.deg2rad(deg))
     np.testing.assert_allclose(read_angles(path, degrees=False), deg)
+
+
+def test_a_dead_flat_pixel_gives_line_integral_zero(truth):
+    from nanoct.scanio import RawScan
+
+    flats = truth["flats"].copy()
+    flats[:, 1, 4] = truth["darks"][:, 1, 4].mean()  # no open-beam signal in one pixel
+    out = line_integrals(
+        RawScan(truth["proj"], np.deg2rad(truth["deg"]), flats=flats, darks=truth["darks"]), tolerance=0.05
+    )
+    assert (out[:, 1, 4] == 0).all()
+    np.testing.assert_allclose(np.delete(out.reshape(K, -1), 1 * L + 4, axis=1),
+                               np.delete(truth["sino"].reshape(K, -1), 1 * L + 4, axis=1), atol=2e-5)  # fmt: skip
+
+
+def test_selection_outside_the_detector_and_bad_options_are_refused(tmp_path, truth):
+    from nanoct.scanio import import_scan
+
+    np.save(tmp_path / "p.npy", truth["sino"])
+    np.savetxt(tmp_path / "a.txt", truth["deg"])
+    common = {"angles_file": tmp_path / "a.txt", "is_line_integral": True}
+    with pytest.raises(NanoctError, match="--rows"):
+        sinograms(truth["sino"], rows=slice(2, 10))
+    with pytest.raises(NanoctError, match="--rows"):
+        import_scan(tmp_path / "p.npy", tmp_path / "out", rows=slice(2, 10), **common)
+    with pytest.raises(NanoctError, match="n=0"):
+        import_scan(tmp_path / "p.npy", tmp_path / "out", size=0, **common)
+    with pytest.raises(NanoctError, match="--tolerance"):
+        import_scan(tmp_path / "p.npy", tmp_path / "out", tolerance=1.5, **common)
+    assert not (tmp_path / "out").exists()

@@ -50,7 +50,7 @@ def make_geometry(
         if np.size(angles) != shape[0]:
             raise ValueError(f"{np.size(angles)} angles for a sinogram of {shape[0]} views; give one angle per row")
         geometry = Geometry.from_angles(
-            angles, size or shape[1], shape[1], degrees=degrees, center_offset=center_offset
+            angles, shape[1] if size is None else size, shape[1], degrees=degrees, center_offset=center_offset
         )
     if shape != geometry.sino_shape:
         raise ValueError(f"sinogram has shape {shape}, the geometry expects {geometry.sino_shape}")

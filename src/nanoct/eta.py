@@ -27,11 +27,10 @@ import numpy as np
 from .errors import NanoctError
 from .geometry import Geometry
 from .operators import system_matrix
-from .validation import check_array
+from .validation import check_array, check_float
 
-__all__ = ["ESTIMATORS", "eta_from_reference", "eta_from_residual", "fit_scale"]
+__all__ = ["eta_from_reference", "eta_from_residual", "fit_scale"]
 
-ESTIMATORS = ("residual", "reference")
 _STATISTICS = ("median", "mean", "max")
 
 
@@ -60,8 +59,10 @@ def eta_from_residual(
     """
     y = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
     x = check_array(image, "image", shape=geometry.image_shape)
-    if not (np.isfinite(scale) and scale >= 0):
-        raise NanoctError(f"eta scale {scale!r} must be a finite number >= 0")
+    try:
+        scale = check_float(scale, "eta scale", low=0.0)
+    except ValueError as exc:
+        raise NanoctError(str(exc)) from exc
     model = (system_matrix(geometry, projector) @ x.ravel()).reshape(geometry.sino_shape)
     return (scale * np.abs(y.astype(np.float64) - model).max(axis=1)).astype(np.float32)
 

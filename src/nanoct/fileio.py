@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import os
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
+__all__ = ["atomic_target", "atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
 
 _TMP_TAG = ".tmp-"
 
@@ -33,17 +35,28 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     Path
         ``path``.
     """
+    with atomic_target(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+    return path
+
+
+@contextmanager
+def atomic_target(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary sibling of ``path`` to write to; on success it is flushed to disk and renamed to ``path``.
+
+    For writers that need a file name (numpy, tifffile, h5py). The temporary keeps the suffix of
+    ``path`` (``.<name>.tmp-<hex><suffix>``), so writers that add one do not rename it; on an
+    error it is removed and ``path`` is untouched.
+    """
     path = Path(path)
-    tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}"
+    tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}{path.suffix}"
     try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
+        yield tmp
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-    return path
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .errors import NanoctError
+from .fileio import atomic_target
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -221,7 +222,8 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     """Flat/dark-corrected line integrals ``-log((p - d) / (f - d))`` of a scan, ``(K, R, L)``.
 
     Mean flat and dark fields are used; without flats the projections are taken as already
-    normalised transmissions, without darks the dark current is 0. Transmissions that are not
+    normalised transmissions, without darks the dark current is 0. Detector pixels whose flat is
+    not above the dark (at most a fraction ``tolerance`` of them) get line integral 0. Transmissions that are not
     positive (dead pixels, a dark field above the signal) are raised to ``floor`` when they are
     at most a fraction ``tolerance`` of all values; more than that is taken for a wrong flat,
     dark or unit and refused.
@@ -231,6 +233,8 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     NanoctError
         For NaN input, a non-positive flat-minus-dark, or too many non-positive transmissions.
     """
+    if not 0 <= tolerance < 1:
+        raise NanoctError(f"--tolerance {tolerance} must lie in [0, 1)")
     proj = scan.projections
     if not np.isfinite(proj).all():
         raise NanoctError(f"the projections contain {int((~np.isfinite(proj)).sum())} NaN or infinite value(s)")
@@ -248,7 +252,8 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
                 f"flat minus dark is not positive in {bad.mean():.1%} of detector pixels; "
                 "check the flat and dark fields"
             )
-        transmission = (proj - dark) / np.where(bad, 1.0, gain)
+        # a dead detector pixel (no flat signal) carries no information: line integral 0 there
+        transmission = np.where(bad, 1.0, (proj - dark) / np.where(bad, 1.0, gain))
     nonpositive = ~(transmission > 0)
     if nonpositive.mean() > tolerance:
         raise NanoctError(
@@ -286,6 +291,10 @@ def sinograms(
     """
     stack = np.asarray(data, dtype=np.float32)
     if rows is not None:
+        if not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= stack.shape[1]):
+            raise NanoctError(
+                f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {stack.shape[1]} rows"
+            )
         stack = stack[:, rows]
     if crop is not None:
         first, stop = crop
@@ -378,11 +387,14 @@ def import_scan(
         src, fmt=fmt, angles_file=angles_file, degrees=degrees, flats=flats, darks=darks,
         is_line_integral=is_line_integral,
     )  # fmt: skip
-    stack = sinograms(line_integrals(raw, tolerance=tolerance), rows=rows, crop=crop, binning=binning)
-    n_det = stack.shape[2]
-    offset = _axis_after(center_offset, raw.projections.shape[2], crop, binning)
+    n_cols = raw.projections.shape[2]
+    first, stop = crop if crop is not None else (0, n_cols)
+    n_det = (stop - first) // max(binning, 1)
+    offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
     try:
-        geometry = Geometry.from_angles(raw.angles, size or n_det, n_det, center_offset=offset)
+        geometry = Geometry.from_angles(
+            raw.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset
+        )
     except ValueError as exc:
         raise NanoctError(f"cannot build the scan geometry: {exc}") from exc
     scan = {
@@ -396,12 +408,29 @@ def import_scan(
         "darks": 0 if raw.darks is None else int(raw.darks.shape[0]),
         "shared_motion": True,
     }
-    existing = Path(out) / "zarr.json"
-    if existing.is_file():
+    if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
-            return store  # the same import again
+            return store  # the same import again: nothing to do
+    # select rows and columns before the correction: only the kept pixels are corrected and judged
+    stack = sinograms(line_integrals(_select(raw, rows, crop), tolerance=tolerance), binning=binning)
     return create_scan(out, geometry, stack, scan)
+
+
+def _select(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None) -> RawScan:
+    """The scan restricted to detector ``rows`` and columns ``crop`` (projections, flats, darks alike)."""
+    _, n_rows, n_cols = raw.projections.shape
+    if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
+        raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
+    if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
+        raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
+    r = rows if rows is not None else slice(None)
+    c = slice(*crop) if crop is not None else slice(None)
+
+    def cut(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a[:, r, c]
+
+    return replace(raw, projections=cut(raw.projections), flats=cut(raw.flats), darks=cut(raw.darks))
 
 
 # ---------------------------------------------------------------------------------- readers
@@ -518,8 +547,7 @@ def write_images(
     stack = stack[None] if stack.ndim == 2 else stack
     if stack.ndim != 3:
         raise NanoctError(f"images have shape {stack.shape}; expected (slices, rows, columns)")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
-    try:
+    with atomic_target(path) as tmp:
         if fmt == "tiff":
             import tifffile
 
@@ -533,9 +561,6 @@ def write_images(
                 ds = f.create_dataset(dataset, data=stack)
                 for key, value in (attrs or {}).items():
                     ds.attrs[key] = value if isinstance(value, (int, float, str)) else repr(value)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 

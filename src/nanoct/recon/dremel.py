@@ -182,7 +182,7 @@ def shift_cross_corr(z: Any, y: Any, f_sr: int = 2, *, weighting: str = "additiv
 
 # ------------------------------------------------------------------ numba kernels
 @numba.njit(cache=True, nogil=True)
-def _interp_weights(pos, n):  # pragma: no cover - compiled
+def _interp_weights(pos):  # pragma: no cover - compiled
     i0 = int(math.floor(pos))
     f = pos - i0
     return i0, 1.0 - f, f
@@ -202,7 +202,7 @@ def _view_step(
 ):  # pragma: no cover - compiled
     """One Dremel view step in place; fills ``z`` (model projection) and returns ``||z - y_k||^2``.
 
-    Pass ``indices`` as unsigned integers (:func:`~nanoct.recon.kaczmarz.unsigned_indices`).
+    Pass ``indices`` as unsigned integers (:func:`~nanoct.recon.rowaction.unsigned_indices`).
     The forward projection accumulates in float32 (:func:`~nanoct.recon.rowaction.row_dot`)
     and each pixel's increment ``c * a_rj / C_j`` is formed in float32.
     """
@@ -212,7 +212,7 @@ def _view_step(
     for l in range(n_det):
         g[l] = 0.0
     for l in range(n_det):
-        i0, w0, w1 = _interp_weights(l + d, n_det)
+        i0, w0, w1 = _interp_weights(l + d)
         zz = 0.0
         rs = 0.0
         if 0 <= i0 < n_det:
@@ -366,7 +366,7 @@ def _shifted_residual(indptr, indices, data, y, x, n_det, dshift, p):  # pragma:
         base = k * n_det
         _project_view(indptr, indices, data, x, base, n_det, p)
         for l in range(n_det):
-            i0, w0, w1 = _interp_weights(l + dshift[k], n_det)
+            i0, w0, w1 = _interp_weights(l + dshift[k])
             zz = 0.0
             if 0 <= i0 < n_det:
                 zz += w0 * p[i0]

@@ -34,7 +34,6 @@ __all__ = [
     "MethodSpec",
     "check_method_params",
     "method_help",
-    "method_names",
     "method_spec",
     "methods_with_eta",
     "methods_with_motion",
@@ -144,11 +143,6 @@ METHODS: dict[str, MethodSpec] = {
         batch_checker="nanoct.recon.eta_source:check_eta_param",
     ),
 }
-
-
-def method_names() -> tuple[str, ...]:
-    """Registered method names, in registry order."""
-    return tuple(METHODS)
 
 
 def methods_with_eta() -> tuple[str, ...]:

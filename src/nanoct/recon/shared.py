@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import NanoctError
 from ..geometry import Geometry
 from ..operators import RayTransform
+from .registry import methods_with_motion
 from .rowaction import resolve_geometry
 
 __all__ = [
@@ -185,6 +186,9 @@ def write_store_shifts(
     store = DataStore.open(path)
     if name not in store.reconstruction_names():
         raise NanoctError(f"{store.path} has no reconstruction '{name}'; present: {store.reconstruction_names()}")
+    method = store.reconstruction_params(name).get("method")
+    if method not in methods_with_motion():
+        raise NanoctError(f"reconstructions/{name} ({method}) has no estimated shifts; export a Dremel result")
     shifts = store.recons.shared_shifts(name)
     if shifts is None:
         if sample is None and store.n != 1:
