@@ -38,7 +38,15 @@ from .data import check_input
 from .models import model_class
 from .train import resolve_device
 
-__all__ = ["CALIBRATION_FILE", "CALIBRATION_FORMAT", "calibrate", "fit_scales", "load_calibration", "sample_outputs"]
+__all__ = [
+    "CALIBRATION_FILE",
+    "CALIBRATION_FORMAT",
+    "Inference",
+    "calibrate",
+    "fit_scales",
+    "load_calibration",
+    "sample_outputs",
+]
 
 CALIBRATION_FILE = "calibration.json"
 CALIBRATION_FORMAT = 1
@@ -58,6 +66,35 @@ def _n_samples(model_name: str, kwargs: dict[str, Any]) -> int | None:
         return int(kwargs["n_samples"])
     param = inspect.signature(model_class(model_name).reconstruct).parameters.get("n_samples")
     return None if param is None or param.default is inspect.Parameter.empty else int(param.default)
+
+
+class Inference:
+    """A model on its device (channels-last on CPU), called on a batch: (mean, scaled std or None) as numpy.
+
+    A sampling model is called one image at a time with ``seed`` = the sample's index, so a
+    prediction does not depend on batching or resumption; its std is multiplied by ``scale``.
+    :func:`nanoct.learn.predict.predict` and :func:`sample_outputs` both use it, so the calibration
+    sees exactly the std that predict stores.
+    """
+
+    def __init__(
+        self, model: Any, kwargs: dict[str, Any], sampling: bool, scale: float, device: str | torch.device | None
+    ) -> None:
+        self.dev = resolve_device(device)
+        self.channels_last = self.dev.type == "cpu"
+        model = model.to(self.dev, memory_format=torch.channels_last) if self.channels_last else model.to(self.dev)
+        model.eval()
+        self.model, self.kwargs, self.sampling, self.scale = model, kwargs, sampling, np.float32(scale)
+
+    def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
+        if self.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
+        call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
+        with torch.no_grad():
+            mean, std = self.model.reconstruct(x, **call)
+        std_np = None if std is None else std.float().cpu().numpy()[:, 0] * self.scale
+        return mean.float().cpu().numpy()[:, 0], std_np
 
 
 def sample_outputs(
@@ -80,22 +117,14 @@ def sample_outputs(
     """
     from tqdm.auto import tqdm
 
-    dev = resolve_device(device)
-    use_cl = dev.type == "cpu"
-    model = model.to(dev, memory_format=torch.channels_last) if use_cl else model.to(dev)
-    model.eval()
+    infer = Inference(model, dict(reconstruct_kwargs or {}), True, 1.0, device)
     n = store.geometry.n
     means, stds = np.empty((len(indices), n, n), np.float32), np.empty((len(indices), n, n), np.float32)
     for j, i in enumerate(tqdm(indices, desc="calibrate", unit="img", disable=not progress)):
-        x = torch.from_numpy(np.ascontiguousarray(store.read_reconstruction(input_name, [int(i)]), np.float32))[:, None]
-        x = x.to(dev)
-        if use_cl:
-            x = x.contiguous(memory_format=torch.channels_last)
-        with torch.no_grad():
-            mean, std = model.reconstruct(x, **{"seed": int(i), **(reconstruct_kwargs or {})})
+        mean, std = infer(store.read_reconstruction(input_name, [int(i)]), int(i))
         if std is None:
             raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
-        means[j], stds[j] = mean.float().cpu().numpy()[0, 0], std.float().cpu().numpy()[0, 0]
+        means[j], stds[j] = mean[0], std[0]
     return means, stds
 
 

@@ -25,11 +25,11 @@ import torch
 
 from ..errors import NanoctError, StoreError
 from ..store import SPLITS, DataStore
+from .calibration import Inference
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
-from .train import resolve_device
 
 __all__ = ["output_name", "predict"]
 
@@ -172,40 +172,13 @@ def predict(
         return out
 
     model = model_from_checkpoint(ckpt, ckpt_path)
-    infer = _Inference(model, kwargs, sampling, scale, device)
+    infer = Inference(model, kwargs, sampling, scale, device)
     _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
     return out
 
 
-class _Inference:
-    """A model on its device, called on a batch of inputs: (mean, scaled std or None) as numpy arrays.
-
-    A sampling model is called one image at a time with ``seed`` = the sample's index, so a
-    prediction does not depend on batching or resumption; its std is multiplied by ``scale``.
-    """
-
-    def __init__(
-        self, model: Any, kwargs: dict[str, Any], sampling: bool, scale: float, device: str | torch.device | None
-    ) -> None:
-        self.dev = resolve_device(device)
-        self.channels_last = self.dev.type == "cpu"
-        model = model.to(self.dev, memory_format=torch.channels_last) if self.channels_last else model.to(self.dev)
-        model.eval()
-        self.model, self.kwargs, self.sampling, self.scale = model, kwargs, sampling, np.float32(scale)
-
-    def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
-        x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
-        if self.channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
-        call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
-        with torch.no_grad():
-            mean, std = self.model.reconstruct(x, **call)
-        std_np = None if std is None else std.float().cpu().numpy()[:, 0] * self.scale
-        return mean.float().cpu().numpy()[:, 0], std_np
-
-
 def _write_outputs(
-    store: DataStore, infer: _Inference, input_name: str, out: str, todo: np.ndarray, step: int, progress: bool
+    store: DataStore, infer: Inference, input_name: str, out: str, todo: np.ndarray, step: int, progress: bool
 ) -> None:
     """Post-process ``reconstructions/<input_name>`` of the samples ``todo``, ``step`` at a time, into ``<out>``."""
     from tqdm.auto import tqdm
