@@ -371,8 +371,8 @@ def _config(s: _Settings, model: PostProcessor, train_ds: ReconDataset, val_ds: 
     return json.loads(json.dumps(config))
 
 
-def _previous(s: _Settings, config: dict[str, Any]) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """(last checkpoint, its request) of an existing run in the directory, (None, None) for a new one.
+def _previous(s: _Settings, config: dict[str, Any]) -> dict[str, Any] | None:
+    """The last checkpoint of an existing run in the directory, None for a new one.
 
     Raises
     ------
@@ -380,19 +380,18 @@ def _previous(s: _Settings, config: dict[str, Any]) -> tuple[dict[str, Any] | No
         If the directory holds a run of another request.
     """
     last_path = s.path("last.pt")
-    ckpt, old = None, None
-    if last_path.exists():
-        ckpt = load_checkpoint(
-            last_path, model_name=s.model_name, image_size=config["image_size"], hparams=config["hparams"]
-        )
-        old = ckpt.get("config") or {}
-    # a config.json without last.pt holds no training state (e.g. a run that diverged): it is redone
-    if old is not None and _diff(config, old):
+    if not last_path.exists():  # a config.json without last.pt holds no training state (a diverged run): redo
+        return None
+    ckpt = load_checkpoint(
+        last_path, model_name=s.model_name, image_size=config["image_size"], hparams=config["hparams"]
+    )
+    old = ckpt.get("config") or {}
+    if _diff(config, old):
         raise NanoctError(
             f"{s.out} holds a run made with other settings (differs in: {', '.join(_diff(config, old))}); "
             "choose another --out, or repeat the original command to resume it"
         )
-    return ckpt, old
+    return ckpt
 
 
 def _resume(s: _Settings, state: _State, ckpt: dict[str, Any]) -> None:
@@ -417,7 +416,7 @@ def _start(s: _Settings, train_ds: ReconDataset, val_ds: ReconDataset) -> tuple[
     seed_everything(s.seed, 0x5EED)
     model = build_model(s.model_name, **s.model_kwargs)
     config = _config(s, model, train_ds, val_ds)
-    ckpt, _ = _previous(s, config)
+    ckpt = _previous(s, config)
     model = model.to(s.dev, memory_format=torch.channels_last) if s.use_cl else model.to(s.dev)
     optimizer = torch.optim.Adam(model.parameters(), lr=s.lr)
     lr_sched = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, **PLATEAU) if s.sched == "plateau" else None
