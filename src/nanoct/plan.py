@@ -17,7 +17,7 @@ import numpy as np
 from .errors import NanoctError
 from .geometry import get_preset
 from .learn.models import model_class
-from .reproduce import STUDIES, Setting, Study, preset_setting, preset_study, scale_settings, setting_jobs
+from .reproduce import STUDIES, Setting, Study, check_models, preset_setting, preset_study, scale_settings, setting_jobs
 from .store import split_assignment
 
 __all__ = ["COST_SOURCES", "STAGES", "StagePlan", "format_plan", "plan_study"]
@@ -178,9 +178,7 @@ def plan_study(
     """
     if cores < 1 or gpus < 0 or (gpu_speedup is not None and not gpu_speedup > 0):
         raise NanoctError(f"--cores {cores} must be >= 1, --gpus {gpus} >= 0 and --gpu-speedup {gpu_speedup} > 0")
-    from .learn.models import table_order
-
-    models = table_order() if models is None else tuple(models)
+    models = check_models(models)
     if scale is None:
         study = study or preset_study(preset)
         settings = [preset_setting(preset, perturbed, None, study.mixing)]

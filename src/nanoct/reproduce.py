@@ -42,8 +42,7 @@ from .figures import compare_reconstructions, show_sample, uncertainty_report
 from .fileio import atomic_write_text, remove_stale_temporaries
 from .generate import generate_dataset
 from .geometry import get_preset, preset_names
-from .learn.models import model_class, table_order
-from .learn.predict import output_name as prediction_name
+from .learn.models import model_class, prediction_name, table_order
 from .paper import format_comparison, format_mixing_comparison
 from .provenance import environment_info, format_environment
 from .recon.batch import reconstruct_dataset
@@ -57,6 +56,7 @@ __all__ = [
     "DEFAULT_SEED",
     "SCALE_SETTINGS",
     "STUDIES",
+    "check_models",
     "Jobs",
     "Setting",
     "Study",
@@ -470,8 +470,9 @@ def report_stage(setting: Setting, study: Study, models: tuple[str, ...], jobs: 
     store = DataStore.open(setting.out / "data")
     report_dir = setting.out / "report"
     names, extra_names = _result_names(setting, models, jobs)
-    results = evaluate_store(store, "test", names=names)
-    extra = evaluate_store(store, "test", names=extra_names) if extra_names else {}
+    scored = evaluate_store(store, "test", names=names + extra_names)  # one pass over the ground truth
+    results = {n: scored[n] for n in names if n in scored}
+    extra = {n: scored[n] for n in extra_names if n in scored}
     checks = []
     if setting.paper is not None:
         checks = check_conclusions(_conclusion_values(results, extra), setting.paper, k=CONCLUSION_K)
@@ -500,7 +501,8 @@ def report_stage(setting: Setting, study: Study, models: tuple[str, ...], jobs: 
     return md, sections
 
 
-def _check_models(models: tuple[str, ...] | None) -> tuple[str, ...]:
+def check_models(models: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The networks of a study (default all, in the paper's order); NanoctError for unknown names."""
     models = table_order() if models is None else tuple(models)
     unknown = [m for m in models if m not in table_order()]
     if unknown:
@@ -568,7 +570,7 @@ def reproduce_study(
     workers, scheduler, progress
         See :func:`nanoct.fanout.run_tasks`.
     """
-    models = _check_models(models)
+    models = check_models(models)
     study = study or preset_study(preset)
     setting = preset_setting(preset, perturbed, None if out is None else Path(out), study.mixing, seed)
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}
@@ -598,7 +600,7 @@ def reproduce_scale(
     and the conclusion checks, ``<out>/report.json`` their results, mixing tables and checks
     per setting with the environment. Other arguments as :func:`reproduce_study`.
     """
-    models = _check_models(models)
+    models = check_models(models)
     settings = scale_settings(scale, None if out is None else Path(out), seed)
     study = study or STUDIES[scale]
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}

@@ -11,12 +11,23 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import NanoctError
-from .base import PostProcessor
 
-__all__ = ["MODELS", "ModelSpec", "build_model", "model_class", "model_names", "model_spec", "table_order"]
+if TYPE_CHECKING:  # the registry itself does not import torch (the study planner reads it)
+    from .base import PostProcessor
+
+__all__ = [
+    "MODELS",
+    "ModelSpec",
+    "build_model",
+    "model_class",
+    "model_names",
+    "model_spec",
+    "prediction_name",
+    "table_order",
+]
 
 
 @dataclass(frozen=True)
@@ -74,8 +85,16 @@ def model_spec(name: str) -> ModelSpec:
     return MODELS[name]
 
 
+def prediction_name(input_name: str, model_name: str, train_input: str) -> str:
+    """Store name of a prediction: ``<input>+<model>``, or ``<input>+<model>@<train_input>`` for another input."""
+    name = f"{input_name}+{model_name}"
+    return name if input_name == train_input else f"{name}@{train_input}"
+
+
 def model_class(name: str) -> type[PostProcessor]:
-    """The PostProcessor subclass registered as ``name``."""
+    """The PostProcessor subclass registered as ``name`` (imports its module, and torch)."""
+    from .base import PostProcessor
+
     module, _, attr = model_spec(name).target.partition(":")
     cls = getattr(importlib.import_module(module), attr)
     if not (isinstance(cls, type) and issubclass(cls, PostProcessor)):  # pragma: no cover - registry bug

@@ -29,15 +29,13 @@ from .calibration import Inference
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
-from .models import model_class
+from .models import model_class, prediction_name
 
 __all__ = ["output_name", "predict"]
 
 
-def output_name(input_name: str, model_name: str, train_input: str) -> str:
-    """``<input>+<model>``, or ``<input>+<model>@<train_input>`` when the inputs differ."""
-    name = f"{input_name}+{model_name}"
-    return name if input_name == train_input else f"{name}@{train_input}"
+#: The store name of a prediction (:func:`nanoct.learn.models.prediction_name`).
+output_name = prediction_name
 
 
 def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[str, Any], overwrite: bool) -> dict:
