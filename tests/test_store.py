@@ -235,3 +235,13 @@ def test_bad_reconstruction_names(tmp_path, name):
     with pytest.raises(NanoctError, match="--name"):
         store.delete_reconstruction(name)
     assert "reconstructions" not in [p.name for p in store.path.iterdir()]
+
+
+def test_read_array_matches_read_sample_and_names_missing_arrays(tiny_store, tmp_path):
+    from nanoct.store import create_scan
+
+    idx = [1, 4]
+    np.testing.assert_array_equal(tiny_store.read_array("eta", idx), [tiny_store.read_sample(i).eta for i in idx])
+    scan = create_scan(tmp_path / "scan", tiny_store.geometry, tiny_store.read_array("sinograms", idx), {"file": "x"})
+    with pytest.raises(StoreError, match="has no 'eta' array"):
+        scan.read_array("eta", [0])

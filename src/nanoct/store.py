@@ -370,12 +370,25 @@ class DataStore:
                 f"{self.path} is an imported scan without ground truth; PSNR/SSIM need a simulated data set "
                 "('nanoct generate') — look at the images with 'nanoct export' instead"
             )
+        return self.read_array("phantoms", indices)
+
+    def read_array(self, name: str, indices: Iterable[int]) -> np.ndarray:
+        """One data array (``sinograms``, ``eta``, ...) of the given samples, in one checked read.
+
+        Raises
+        ------
+        StoreError
+            If the data set has no such array (an imported scan has only ``sinograms``), or a
+            requested sample is not generated yet or damaged.
+        """
+        if name not in _data_arrays(self.meta):
+            raise StoreError(f"{self.path} has no '{name}' array; it has {', '.join(_data_arrays(self.meta))}")
         idx = np.asarray(list(indices), dtype=int)
         if not read_flags(self._group, "done", idx).all():
             raise StoreError(
                 f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again"
             )
-        return self._read_done("phantoms", idx)
+        return self._read_done(name, idx)
 
     # ------------------------------------------------------------------ reconstructions (see store_recon)
     def reconstruction_names(self) -> list[str]:

@@ -121,7 +121,7 @@ def _shared_shifts(
     """The stored joint estimate of ``name``, or estimated now from ``slices`` and stored."""
     shifts = store.recons.shared_shifts(name)
     if shifts is None:
-        sinograms = np.stack([store.read_sample(int(i)).sinogram for i in slices])
+        sinograms = store.read_array("sinograms", slices)
         shifts, _ = joint_shifts(store.geometry, sinograms, solver_params, shifts0)
         store.recons.set_shared_shifts(name, shifts)
     return shifts

@@ -115,7 +115,7 @@ def _reference_eta(path: str, geometry: Geometry) -> np.ndarray:
     done = np.flatnonzero(ref.done)
     if done.size == 0:
         raise NanoctError(f"--eta estimate:reference={path} has no generated samples; finish 'nanoct generate' first")
-    return eta_from_reference(np.stack([ref.read_sample(int(i)).eta for i in done]))
+    return eta_from_reference(ref.read_array("eta", done))
 
 
 def plan_eta(store: Any, eta: str, indices: np.ndarray) -> EtaPlan:
