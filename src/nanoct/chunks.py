@@ -20,7 +20,15 @@ import zarr
 
 from .errors import StoreError
 
-__all__ = ["chunk_file", "damaged_samples", "missing_chunks", "read_flags", "read_samples", "remove_partial_writes"]
+__all__ = [
+    "chunk_file",
+    "damaged_samples",
+    "find_damaged",
+    "missing_chunks",
+    "read_flags",
+    "read_samples",
+    "remove_partial_writes",
+]
 
 # Zarr's LocalStore writes a chunk to path.with_suffix(".<uuid4 hex>.partial"), then renames it
 _PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
@@ -162,3 +170,16 @@ def read_samples(array: zarr.Array, indices: np.ndarray, *, what: str, repair: s
             f"run '{repair}' again with the same arguments to rewrite them"
         )
     return data
+
+
+def find_damaged(group: zarr.Group, root: Path, keys: Iterable[str], done: np.ndarray, full: bool) -> np.ndarray:
+    """Samples among ``done`` with a lost (or, with ``full``, unreadable) chunk in any array ``keys`` of ``group``.
+
+    ``full`` reads every such chunk (:func:`damaged_samples`); without it only the chunk files'
+    names are looked up (:func:`missing_chunks`). Keys absent from the group are skipped.
+    """
+    bad = [np.zeros(0, int)]
+    for key in (k for k in keys if k in group):
+        array = group[key]
+        bad.append(damaged_samples(array, done) if full else missing_chunks(root / key, done, array.ndim))
+    return np.unique(np.concatenate(bad))

@@ -46,7 +46,7 @@ import numpy as np
 import zarr
 
 from . import __version__
-from .chunks import damaged_samples, missing_chunks, read_flags, read_samples, remove_partial_writes
+from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
 from .errors import StoreError
 from .geometry import Geometry
 from .store_recon import ReconstructionArrays
@@ -304,13 +304,7 @@ class DataStore:
 
         ``full`` reads every such chunk; without it only the chunk files' names are looked up.
         """
-        done = np.flatnonzero(self.done)
-        names = _data_arrays(self.meta)
-        if full:
-            bad = [damaged_samples(self._array(name), done) for name in names]
-        else:
-            bad = [missing_chunks(self.path / name, done, self._array(name).ndim) for name in names]
-        return np.unique(np.concatenate(bad))
+        return find_damaged(self._group, self.path, _data_arrays(self.meta), np.flatnonzero(self.done), full)
 
     def repair_samples(self) -> np.ndarray:
         """Clear temporaries of killed writes and the ``done`` flags of samples whose chunk files are lost."""

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import zarr
 
-from .chunks import damaged_samples, missing_chunks, read_flags, read_samples, remove_partial_writes
+from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
 from .errors import NanoctError, StoreError
 
 __all__ = ["ReconstructionArrays", "check_name"]
@@ -132,12 +132,7 @@ class ReconstructionArrays:
 
         ``full`` reads every such chunk; without it only the chunk files' names are looked up.
         """
-        done = np.flatnonzero(self.done(name))
-        bad = []
-        for key in (k for k in _keys(name)[:3] if k in self._group):
-            array = self._group[key]
-            bad.append(damaged_samples(array, done) if full else missing_chunks(self.path / key, done, array.ndim))  # type: ignore[arg-type, union-attr]
-        return np.unique(np.concatenate(bad)) if bad else np.zeros(0, int)
+        return find_damaged(self._group, self.path, _keys(name)[:3], np.flatnonzero(self.done(name)), full)
 
     def repair(self, name: str) -> np.ndarray:
         """Clear the progress flags of samples of ``name`` whose chunk files are lost, so that a rerun rewrites them."""
