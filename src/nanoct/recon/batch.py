@@ -92,7 +92,7 @@ def _motion_slices(store: DataStore, value: str) -> np.ndarray:
     if value == "all":
         return done
     chosen = np.array([int(v) for v in value.split(",")])
-    bad = chosen[(chosen >= store.n) | ~np.isin(chosen, done)]
+    bad = chosen[~np.isin(chosen, done)]  # done holds indices below n only
     if bad.size:
         raise NanoctError(
             f"--param motion_slices: sample(s) {bad.tolist()} are not generated samples of {store.path} "
@@ -197,9 +197,10 @@ def reconstruct_dataset(
     if slices is not None:
         shifts0 = _shared_shifts(store, name, solver_params, slices, shifts0)
     if shifts0 is not None:
-        if slices is not None or checked["fix_shifts"]:
+        fixed = slices is not None or checked["fix_shifts"]
+        if checked["fix_shifts"]:  # a joint estimate was stored by _shared_shifts already
             store.recons.set_shared_shifts(name, shifts0)
-        inputs = _Inputs(shifts0=shifts0, fixed=slices is not None or checked["fix_shifts"])
+        inputs = _Inputs(shifts0=shifts0, fixed=fixed)
     pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
     task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
