@@ -4,9 +4,13 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from nanoct.metrics import (
     GAUSSIAN_COVERAGE,
+    STD_MAP_MIN_SLOPE,
+    apply_std_map,
     coverage,
     edge_std,
+    fit_std_map,
     fit_std_scale,
+    invert_std_map,
     psnr,
     reliability,
     sparsification,
@@ -71,6 +75,12 @@ def test_uncertainty_summary_on_a_calibrated_gaussian(rng):
     assert over["coverage"]["raw"]["1"] > 0.95
     assert over["coverage"]["calibrated"] == pytest.approx(u["coverage"]["raw"])
     assert over["ause"] == pytest.approx(u["ause"])  # the ordering does not depend on the scale
+    assert over["coverage"]["scaled"] == over["coverage"]["calibrated"] and over["calibration"] == "scale"
+    m = fit_std_map(recos - gts, std * 3)
+    mapped = uncertainty_summary(std * 3, recos, gts, scale=1 / 3, std_map=m)
+    assert mapped["calibration"] == "map" and mapped["coverage"]["scaled"] == over["coverage"]["scaled"]
+    assert mapped["coverage"]["calibrated"] == coverage(recos - gts, apply_std_map(std * 3, m))
+    assert mapped["coverage"]["calibrated"]["2"] == pytest.approx(GAUSSIAN_COVERAGE["2"], abs=0.01)
     unrelated = uncertainty_summary(rng.permutation(std.ravel()).reshape(std.shape), recos, gts)
     assert abs(unrelated["std_error_corr"]) < 0.1
     with pytest.raises(ValueError, match="negative"):
@@ -110,6 +120,72 @@ def test_fit_std_scale(rng):
     assert fit_std_scale(err, std, level=0.9545) == pytest.approx(2.0, rel=0.02)
     with pytest.raises(ValueError, match="no finite positive"):
         fit_std_scale(err, np.where(np.arange(std.size) < 50_000, 0.0, std))  # zero std on half the pixels
+
+
+def _spread_case(rng, n=100_000):
+    """Raw std log-uniform on [0.1, 1] and errors drawn from N(0, f(s)^2) with f(s) = s^2 (faster than linear)."""
+    s = np.exp(rng.uniform(np.log(0.1), np.log(1.0), n))
+    return rng.normal(0, 1, n) * s**2, s
+
+
+def test_fit_std_map_recovers_a_known_spread(rng):
+    err, s = _spread_case(rng)
+    m = fit_std_map(err, s)
+    x, y = np.array(m["std"]), np.array(m["calibrated"])
+    assert x.size == 16 and (np.diff(x) > 0).all() and (np.diff(y) > 0).all()
+    assert x[0] > 0.1 and x[-1] < 1.0  # the bins' median raw std
+    np.testing.assert_allclose(y, x**2, rtol=0.05)  # the true spread f at the knots
+    fresh_err, fresh_s = _spread_case(rng)  # calibrated on new draws: the Gaussian levels at 1, 2 and 3 std
+    cov = coverage(fresh_err, apply_std_map(fresh_s, m))
+    for k, tol in (("1", 0.01), ("2", 0.005), ("3", 0.002)):
+        assert cov[k] == pytest.approx(GAUSSIAN_COVERAGE[k], abs=tol)
+    scale = fit_std_scale(err, s)  # one factor: right at 1 std, far too narrow at 2 std
+    one = coverage(fresh_err, scale * fresh_s)
+    assert one["1"] == pytest.approx(GAUSSIAN_COVERAGE["1"], abs=0.01) and one["2"] < 0.92
+    # a std proportional to the spread: the map is the factor (slope 1 in log-log)
+    m1 = fit_std_map(err, 3 * s**2)
+    np.testing.assert_allclose(np.array(m1["calibrated"]) / np.array(m1["std"]), 1 / 3, rtol=0.05)
+
+
+def test_std_map_bin_value_is_the_least_squares_optimum(rng):
+    """One bin: the fitted value beats every other candidate on the summed squared coverage error."""
+    from scipy.special import erf
+
+    err = np.abs(rng.standard_t(3, 400))
+    m = fit_std_map(err, np.ones(err.size), n_bins=1)
+    assert m["std"] == [1.0]
+
+    def loss(c):
+        return sum((np.mean(err <= k * c * (1 + 1e-12)) - erf(k / np.sqrt(2))) ** 2 for k in (1, 2, 3))
+
+    best = m["calibrated"][0]
+    grid = np.concatenate([err / k for k in (1, 2, 3)])
+    assert loss(best) <= min(loss(c) for c in grid) + 1e-15
+    assert apply_std_map(np.array([0.5, 2.0]), m) == pytest.approx([best / 2, best * 2])  # one knot: proportional
+
+
+def test_std_map_is_strictly_increasing_and_inverts(rng):
+    s = rng.uniform(0.1, 1.0, 50_000)
+    err = rng.normal(0, 1, s.size) * (1.1 - s)  # errors that fall as the std rises: a flat map, still increasing
+    m = fit_std_map(err, s)
+    lx, ly = np.log(m["std"]), np.log(m["calibrated"])
+    assert (np.diff(ly) / np.diff(lx) >= STD_MAP_MIN_SLOPE * (1 - 1e-9)).all()
+    grid = np.concatenate([[0.0], np.geomspace(1e-4, 10, 2000)])  # beyond both end knots too
+    out = apply_std_map(grid, m)
+    assert out[0] == 0 and (np.diff(out) > 0).all()
+    np.testing.assert_allclose(invert_std_map(out, m), grid, rtol=1e-9)
+    stored = apply_std_map(grid, m).astype(np.float32)  # as predict stores it
+    np.testing.assert_allclose(invert_std_map(stored, m), grid, rtol=1e-5)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        apply_std_map(grid, {"std": [1.0, 2.0], "calibrated": [1.0, 1.0]})
+    with pytest.raises(ValueError, match="lists"):
+        invert_std_map(grid, {"std": [1.0]})
+    with pytest.raises(ValueError, match="negative"):
+        apply_std_map(-grid[1:], m)
+    with pytest.raises(ValueError, match="cannot fill"):
+        fit_std_map(err[:10], np.r_[np.zeros(5), s[:5]], n_bins=8)
+    with pytest.raises(ValueError, match="every error is zero"):
+        fit_std_map(np.zeros(100), s[:100])
 
 
 def _brute_force_mae_curve(err, key, fractions):

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage
-from scipy.special import erfinv
+from scipy.special import erf, erfinv
 from skimage.metrics import structural_similarity
 
 from .validation import check_array
@@ -25,10 +25,15 @@ __all__ = [
     "EDGE_SIGMA",
     "GAUSSIAN_COVERAGE",
     "SPARSIFICATION_FRACTIONS",
+    "STD_MAP_BINS",
+    "STD_MAP_MIN_SLOPE",
     "SUPPORT_RADIUS",
+    "apply_std_map",
     "coverage",
     "edge_std",
+    "fit_std_map",
     "fit_std_scale",
+    "invert_std_map",
     "psnr",
     "reliability",
     "sparsification",
@@ -46,6 +51,10 @@ SPARSIFICATION_FRACTIONS = np.round(np.arange(100) / 100, 2)
 SUPPORT_RADIUS = 2
 #: Gaussian sigma in pixels of the edge baseline (smoothed Sobel gradient magnitude).
 EDGE_SIGMA = 1.0
+#: Number of equal-count bins of the raw std in each of which :func:`fit_std_map` fits one value.
+STD_MAP_BINS = 16
+#: Smallest slope of the calibration map in log(raw std) -> log(calibrated std); it keeps the map invertible.
+STD_MAP_MIN_SLOPE = 0.05
 
 
 def _data_range(gt: np.ndarray) -> float:
@@ -171,6 +180,146 @@ def fit_std_scale(err: np.ndarray, std: np.ndarray, level: float = GAUSSIAN_COVE
     return s
 
 
+def _bin_value(err: np.ndarray, ks: tuple[float, ...]) -> float:
+    """The std c > 0 whose coverages within k c are closest to the Gaussian's (least squares over ``ks``).
+
+    The coverage within k c only changes at c = |err_i| / k, so these values are the
+    candidates; the smallest minimiser is taken. NaN when every error is zero.
+    """
+    positive = np.sort(err[err > 0])
+    if positive.size == 0:
+        return float("nan")
+    n_zero = err.size - positive.size
+    ratios = {k: positive / k for k in ks}
+    candidates = np.unique(np.concatenate(list(ratios.values())))
+    loss = np.zeros(candidates.size)
+    for k, r in ratios.items():
+        covered = (n_zero + np.searchsorted(r, candidates, side="right")) / err.size
+        loss += (covered - erf(k / np.sqrt(2))) ** 2
+    return float(candidates[int(np.argmin(loss))])
+
+
+def fit_std_map(
+    err: np.ndarray, std: np.ndarray, n_bins: int = STD_MAP_BINS, ks: tuple[float, ...] = (1, 2, 3)
+) -> dict[str, list[float]]:
+    """A strictly increasing map from raw std to calibrated std, fitted bin by bin.
+
+    The pixels with a positive std are sorted by std and split into ``n_bins`` bins of equal
+    count (bins whose median std is equal are merged). In each bin one calibrated std c is fitted
+    so that the coverages within k c for k in ``ks`` are as close as possible to the Gaussian
+    levels (:data:`GAUSSIAN_COVERAGE`), in least squares; its knot is (median raw std of the
+    bin, c). The knots' values are then made increasing with at least the slope
+    :data:`STD_MAP_MIN_SLOPE` in log-log from each knot to the next (a running maximum with a
+    floor on the slope), so the map keeps the order of the std and can be inverted
+    (:func:`invert_std_map`). Unlike one factor (:func:`fit_std_scale`) the map can widen the
+    large std more than the small ones, where the error grows faster than linearly with the std.
+
+    Parameters
+    ----------
+    err, std : array
+        Errors (their absolute value is used) and raw std, any equal shapes.
+    n_bins : int
+        Number of bins (knots before merging).
+    ks : tuple of float
+        Multiples of the std whose coverage is fitted.
+
+    Returns
+    -------
+    dict
+        ``std``: the knots' raw std, ``calibrated``: their calibrated std (lists of floats,
+        both strictly increasing); :func:`apply_std_map` interpolates between them.
+
+    Raises
+    ------
+    ValueError
+        Fewer pixels with a positive std than bins, bad ``n_bins`` or ``ks``, or no bin with a
+        non-zero error.
+    """
+    err, std = _err_std(err, std)
+    if n_bins < 1 or not ks or min(ks) <= 0:
+        raise ValueError(f"need n_bins >= 1 and positive multiples ks, got n_bins={n_bins}, ks={ks}")
+    keep = std > 0
+    order = np.argsort(std[keep], kind="stable")
+    s_sorted, e_sorted = std[keep][order], err[keep][order]
+    if s_sorted.size < n_bins:
+        raise ValueError(f"{s_sorted.size} pixels with a positive std cannot fill {n_bins} bins")
+    groups: list[tuple[float, list[np.ndarray]]] = []
+    for s_bin, e_bin in zip(np.array_split(s_sorted, n_bins), np.array_split(e_sorted, n_bins)):
+        median = float(np.median(s_bin))
+        if groups and median <= groups[-1][0]:
+            groups[-1][1].append(e_bin)  # the same median std as the bin before: one knot
+        else:
+            groups.append((median, [e_bin]))
+    knots = [(x, _bin_value(np.concatenate(e), ks)) for x, e in groups]
+    knots = [(x, y) for x, y in knots if np.isfinite(y)]
+    if not knots:
+        raise ValueError("every error is zero; there is no std to calibrate")
+    lx, ly = np.log([x for x, _ in knots]), np.log([y for _, y in knots])
+    for i in range(1, ly.size):
+        ly[i] = max(ly[i], ly[i - 1] + STD_MAP_MIN_SLOPE * (lx[i] - lx[i - 1]))
+    return {"std": np.exp(lx).tolist(), "calibrated": np.exp(ly).tolist()}
+
+
+def _map_knots(std_map: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The log knots (x, y) of a map, checked: positive, finite, strictly increasing, of equal length."""
+    try:
+        x, y = (np.asarray(std_map[key], dtype=np.float64) for key in ("std", "calibrated"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"a std map needs lists 'std' and 'calibrated' of numbers, got {std_map!r}") from exc
+    ok = x.ndim == 1 and x.shape == y.shape and x.size >= 1
+    ok = ok and bool(np.isfinite(x).all() and np.isfinite(y).all() and (x > 0).all() and (y > 0).all())
+    if not ok or (np.diff(x) <= 0).any() or (np.diff(y) <= 0).any():
+        raise ValueError(f"a std map needs strictly increasing positive knots of equal length, got {std_map!r}")
+    return np.log(x), np.log(y)
+
+
+def _loglog(values: np.ndarray, lx: np.ndarray, ly: np.ndarray) -> np.ndarray:
+    """Piecewise-linear interpolation in log-log through (lx, ly), extended by the end segments; 0 maps to 0."""
+    v = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(v).all() or (v < 0).any():
+        raise ValueError("the std to map contains negative, NaN or infinite values")
+    out = np.zeros_like(v)
+    pos = v > 0
+    lv = np.log(v[pos])
+    if lx.size == 1:  # one knot: proportional
+        lo = hi = 1.0
+    else:
+        lo, hi = (ly[1] - ly[0]) / (lx[1] - lx[0]), (ly[-1] - ly[-2]) / (lx[-1] - lx[-2])
+    mapped = np.interp(lv, lx, ly)
+    mapped = np.where(lv < lx[0], ly[0] + lo * (lv - lx[0]), mapped)
+    mapped = np.where(lv > lx[-1], ly[-1] + hi * (lv - lx[-1]), mapped)
+    out[pos] = np.exp(mapped)
+    return out
+
+
+def apply_std_map(std: np.ndarray, std_map: dict[str, Any]) -> np.ndarray:
+    """Calibrated std of a raw std under a map of :func:`fit_std_map` (float64, same shape).
+
+    Piecewise linear in log(raw std) - log(calibrated std) between the knots, continued
+    linearly (in log-log) beyond the end knots with the slopes of the end segments (a single
+    knot: proportional); a zero std stays zero. Strictly increasing.
+
+    Raises
+    ------
+    ValueError
+        A malformed map, or a negative or non-finite std.
+    """
+    lx, ly = _map_knots(std_map)
+    return _loglog(std, lx, ly)
+
+
+def invert_std_map(calibrated: np.ndarray, std_map: dict[str, Any]) -> np.ndarray:
+    """Raw std of a calibrated std: the inverse of :func:`apply_std_map` (float64, same shape).
+
+    Raises
+    ------
+    ValueError
+        A malformed map, or a negative or non-finite std.
+    """
+    lx, ly = _map_knots(std_map)
+    return _loglog(calibrated, ly, lx)
+
+
 def sparsification(err: np.ndarray, std: np.ndarray, fractions: np.ndarray | None = None) -> dict[str, object]:
     """Sparsification curves of a std map and their areas (Ilg et al., ECCV 2018).
 
@@ -272,6 +421,7 @@ def uncertainty_summary(
     gts: np.ndarray,
     *,
     scale: float | None = None,
+    std_map: dict[str, Any] | None = None,
     mask: np.ndarray | None = None,
 ) -> dict[str, object]:
     """How well a pixel-wise std predicts the actual error, over all (or the masked) pixels.
@@ -281,7 +431,9 @@ def uncertainty_summary(
     stds, recos, gts : array (n, H, W)
         Raw (uncalibrated) std, reconstructions and ground truths.
     scale : float, optional
-        Calibration factor: the calibrated std is ``scale * stds``.
+        One-factor calibration (:func:`fit_std_scale`): the scaled std is ``scale * stds``.
+    std_map : dict, optional
+        Calibration map (:func:`fit_std_map`): the calibrated std is ``apply_std_map(stds, std_map)``.
     mask : bool array (n, H, W), optional
         Pixels to score (e.g. :func:`support_mask`); default all.
 
@@ -289,8 +441,10 @@ def uncertainty_summary(
     -------
     dict
         ``std_error_corr``: Pearson correlation between std and absolute error (NaN when
-        either is constant); ``coverage``: ``raw`` and ``calibrated`` (None without ``scale``)
-        fractions of pixels within k = 1, 2, 3 std, next to the Gaussian ``expected``;
+        either is constant); ``coverage``: fractions of pixels within k = 1, 2, 3 std of the
+        ``raw``, the ``scaled`` (``scale * stds``; None without ``scale``) and the ``calibrated``
+        std (the map's, else the scaled std's; None without either), next to the Gaussian
+        ``expected``; ``calibration``: what ``calibrated`` used (``"map"``, ``"scale"`` or None);
         ``scale``; ``ause``, ``ause_random``, ``ause_ratio`` (:func:`sparsification`);
         ``mean_std`` (raw), ``mean_abs_error`` and ``n_pixels``.
     """
@@ -308,13 +462,17 @@ def uncertainty_summary(
     err, std = _err_std(err, std)
     corr = float(np.corrcoef(std, err)[0, 1]) if std.std() > 0 and err.std() > 0 else float("nan")
     sp = sparsification(err, std)
+    scaled = None if scale is None else coverage(err, scale * std)
+    calibrated = scaled if std_map is None else coverage(err, apply_std_map(std, std_map))
     return {
         "std_error_corr": corr,
         "coverage": {
             "expected": dict(GAUSSIAN_COVERAGE),
             "raw": coverage(err, std),
-            "calibrated": None if scale is None else coverage(err, scale * std),
+            "scaled": scaled,
+            "calibrated": calibrated,
         },
+        "calibration": "map" if std_map is not None else None if scale is None else "scale",
         "scale": scale,
         "ause": sp["ause"],
         "ause_random": sp["ause_random"],
