@@ -13,10 +13,11 @@ from nanoct.evaluate import (
     mixing_matrices,
     parse_name,
     per_image_values,
+    read_std,
     store_setting,
     write_report_tables,
 )
-from nanoct.metrics import coverage, edge_std, psnr, ssim, support_mask
+from nanoct.metrics import apply_std_map, coverage, edge_std, psnr, ssim, support_mask
 from nanoct.store import DataStore
 
 
@@ -52,7 +53,7 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     store = DataStore.open(tiny_store.path, mode="r+")
     test = store.indices("test")
     gts = store.read_phantoms(test)
-    scale = 0.5  # as predict stores it: calibrated std = scale * raw, scale in the parameters
+    scale = 0.5  # as predict stored it before the map: calibrated std = scale * raw, scale in the parameters
     store.prepare_reconstruction(
         "eval_truth+fake", {"calibration": {"scale": scale, "edge_scale": 3.0, "edge_sigma": 1.5}}, uncertainty=True
     )
@@ -71,6 +72,7 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     assert u["all"]["coverage"]["calibrated"]["1"] == pytest.approx(
         coverage(recos - gts, store.read_uncertainty("eval_truth+fake", test))["1"]
     )
+    assert u["all"]["calibration"] == "scale" and u["all"]["coverage"]["scaled"] == u["all"]["coverage"]["calibrated"]
     mask = support_mask(gts)
     assert u["support"]["n_pixels"] == mask.sum() < u["all"]["n_pixels"]
     edge = r["edge_baseline"]
@@ -98,6 +100,47 @@ def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
     assert not store.has_uncertainty("eval_truth+fake")
 
 
+def test_evaluate_store_with_a_std_map(tiny_store, tmp_path):
+    """Predict stores the raw std through the map: read_std inverts it, the report has all three coverages."""
+    store = DataStore.open(tiny_store.path, mode="r+")
+    test = store.indices("test")
+    gts = store.read_phantoms(test)
+    std_map = {"std": [0.03, 0.06], "calibrated": [0.01, 0.05]}  # slope log(5)/log(2) in log-log
+    cal = {"std_map": std_map, "scale": 0.5, "edge_scale": 3.0, "edge_sigma": 1.0}
+    store.prepare_reconstruction("eval_map+fake", {"calibration": cal}, uncertainty=True)
+    rng = np.random.default_rng(1)
+    raws = []
+    for i, g in zip(test, gts):
+        raw = rng.uniform(0.02, 0.08, g.shape).astype(np.float32)
+        true = apply_std_map(raw, std_map)  # the errors follow the mapped std
+        store.write_reconstruction("eval_map+fake", int(i), g + rng.normal(0, 1, g.shape) * true, std=true)
+        raws.append(raw)
+    recovered, got = read_std(store, "eval_map+fake", test)
+    np.testing.assert_allclose(recovered, np.stack(raws), rtol=1e-5)
+    assert got == cal
+    r = evaluate_store(store, "test", names=["eval_map+fake"])["eval_map+fake"]
+    recos = store.read_reconstruction("eval_map+fake", test)
+    u = r["uncertainty"]["all"]
+    assert u["calibration"] == "map" and u["mean_std"] == pytest.approx(0.05, rel=0.01)
+    assert u["coverage"]["calibrated"] == pytest.approx(
+        coverage(recos - gts, store.read_uncertainty("eval_map+fake", test))
+    )
+    assert u["coverage"]["calibrated"]["2"] == pytest.approx(0.9545, abs=0.01)
+    assert u["coverage"]["scaled"] == pytest.approx(coverage(recos - gts, 0.5 * np.stack(raws)))
+    assert r["edge_baseline"]["all"]["calibration"] == "scale"  # the edge baseline keeps its one factor
+    _, js = write_report_tables(store, {"eval_map+fake": r}, tmp_path)
+    payload = json.loads(js.read_text())["results"]["eval_map+fake"]["uncertainty"]["all"]["coverage"]
+    assert set(payload) == {"expected", "raw", "scaled", "calibrated"}
+    text = (tmp_path / "evaluation.md").read_text()
+    cells = [_pct(u["coverage"][k]) for k in ("raw", "scaled")] + ["0.5", _pct(u["coverage"]["calibrated"])]
+    assert "| eval_map+fake | all | " in text and " | ".join(cells) in text
+    store.delete_reconstruction("eval_map+fake")
+
+
+def _pct(cov):
+    return " / ".join(f"{cov[k] * 100:.0f}" for k in ("1", "2", "3"))
+
+
 def test_uncertainty_table_without_calibration():
     u = {
         "std_error_corr": 0.5,
@@ -113,7 +156,7 @@ def test_uncertainty_table_without_calibration():
         "fbp+cinn": _scores(21) | {"uncertainty": {"all": u, "support": u}} | {"edge_baseline": edge},
     }
     table = format_uncertainty_table(results)
-    assert "| fbp+cinn | all | 0.500 | 90 / 95 / 100 | - | - | 0.100 / 0.400 (0.25) | 0.500 | - |" in table
+    assert "| fbp+cinn | all | 0.500 | 90 / 95 / 100 | - | - | - | 0.100 / 0.400 (0.25) | 0.500 | - |" in table
     assert "| fbp |" not in table and format_uncertainty_table({"fbp": _scores(20)}) == ""
 
 

@@ -11,6 +11,7 @@ from nanoct.figures import (
     uncertainty_maps,
     uncertainty_report,
 )
+from nanoct.metrics import apply_std_map
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.store import DataStore
 
@@ -24,11 +25,16 @@ def test_figures(tiny_store, tmp_path):
     reconstruct_dataset(store.path, "fbp", split="test", name="fig_fbp", workers=0, progress=False)
     test = [int(i) for i in store.indices("test")]
     rng = np.random.default_rng(0)
-    params = {"input": "fig_fbp", "calibration": {"scale": 0.5, "edge_scale": 2.0, "edge_sigma": 1.0}}
+    std_map = {"std": [0.02, 0.08], "calibrated": [0.01, 0.06]}
+    params = {
+        "input": "fig_fbp",
+        "calibration": {"std_map": std_map, "scale": 0.5, "edge_scale": 2.0, "edge_sigma": 1.0},
+    }
     store.prepare_reconstruction("fig_fbp+fake", params, uncertainty=True)
     for i, gt in zip(test, store.read_phantoms(test)):
         std = rng.uniform(0.01, 0.1, gt.shape).astype(np.float32)
-        store.write_reconstruction("fig_fbp+fake", i, gt + rng.normal(0, 1, gt.shape) * std, std=0.5 * std)
+        calibrated = apply_std_map(std, std_map)
+        store.write_reconstruction("fig_fbp+fake", i, gt + rng.normal(0, 1, gt.shape) * calibrated, std=calibrated)
     runs = tmp_path / "runs"
     (runs / "fake-fig_fbp").mkdir(parents=True)
     (runs / "fake-fig_fbp" / "log.csv").write_text("epoch,train_loss,val_loss\n1,2.0,1.5\n2,1.2,1.1\n3,1.0,1.05\n")

@@ -19,7 +19,7 @@ import numpy as np
 from .conclusions import format_conclusions
 from .errors import NanoctError
 from .fileio import atomic_write_text
-from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, invert_std_map, summarize, support_mask, uncertainty_summary
 from .provenance import environment_info
 from .store import DataStore
 
@@ -50,13 +50,18 @@ def parse_name(name: str) -> tuple[str, str | None, str]:
 def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
     """Raw (uncalibrated) std of reconstruction ``name`` and the calibration stored with it.
 
-    :func:`nanoct.learn.predict.predict` stores the calibrated std ``scale * raw`` and records
-    ``{"scale", "edge_scale", "edge_sigma", ...}`` under ``calibration`` in the parameters of the
-    result; the raw std is recovered as stored / scale. Without a calibration the stored std is
-    the raw one and the returned dict is empty.
+    :func:`nanoct.learn.predict.predict` stores the calibrated std (the raw std through the
+    strictly increasing map ``std_map``, :func:`nanoct.metrics.apply_std_map`) and records
+    ``{"std_map", "scale", "edge_scale", "edge_sigma", ...}`` under ``calibration`` in the
+    parameters of the result; the raw std is recovered by inverting the map
+    (:func:`nanoct.metrics.invert_std_map`). A result of an earlier version, calibrated by the
+    one factor only (no ``std_map``), stores ``scale * raw``: raw = stored / scale. Without a
+    calibration the stored std is the raw one and the returned dict is empty.
     """
     cal = dict(store.reconstruction_params(name).get("calibration") or {})
     std = store.read_uncertainty(name, indices)
+    if cal.get("std_map"):
+        return invert_std_map(std, cal["std_map"]).astype(np.float32), cal
     return (std / cal["scale"] if cal.get("scale") else std), cal
 
 
@@ -74,8 +79,10 @@ def uncertainty_scores(
     stds, recos, gts : array (n, H, W)
         Raw std, reconstructions (the network's mean) and ground truths.
     calibration : dict, optional
-        ``scale`` of the std and ``edge_scale`` / ``edge_sigma`` of the edge baseline, fitted on
-        validation data (:mod:`nanoct.learn.calibration`); without them calibrated coverages are None.
+        ``std_map`` and ``scale`` of the std and ``edge_scale`` / ``edge_sigma`` of the edge
+        baseline, fitted on validation data (:mod:`nanoct.learn.calibration`); without them the
+        scaled and calibrated coverages are None. The edge baseline is calibrated by its one
+        factor only.
     support : bool array (n, H, W), optional
         The object's support (default :func:`nanoct.metrics.support_mask` of ``gts``).
 
@@ -91,13 +98,13 @@ def uncertainty_scores(
     sigma = float(cal.get("edge_sigma", EDGE_SIGMA))
     edges = edge_std(recos, sigma)
 
-    def both(std: np.ndarray, scale: float | None) -> dict[str, Any]:
+    def both(std: np.ndarray, scale: float | None, std_map: dict[str, Any] | None = None) -> dict[str, Any]:
         return {
-            "all": uncertainty_summary(std, recos, gts, scale=scale),
-            "support": uncertainty_summary(std, recos, gts, scale=scale, mask=support),
+            "all": uncertainty_summary(std, recos, gts, scale=scale, std_map=std_map),
+            "support": uncertainty_summary(std, recos, gts, scale=scale, std_map=std_map, mask=support),
         }
 
-    own = both(stds, cal.get("scale"))
+    own = both(stds, cal.get("scale"), cal.get("std_map"))
     return {
         "std_error_corr": own["all"]["std_error_corr"],
         "uncertainty": own,
@@ -206,18 +213,20 @@ def _num(x: float | None, fmt: str = ".3f") -> str:
 def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
     """Markdown table of the uncertainty scores: two rows (all pixels, support) per reconstruction with a std.
 
-    Columns: std/error correlation; coverage within 1/2/3 std, raw and calibrated side by side,
-    with the calibration factor; AUSE next to the random order's; the same for the edge
-    baseline (coverage after its validation scaling). Empty string when no result has a std.
+    Columns: std/error correlation; coverage within 1/2/3 std side by side for the raw std, the
+    one-factor std (with its factor s) and the calibrated std (the map predict applied); AUSE
+    next to the random order's; the same for the edge baseline (coverage after its validation
+    scaling). Empty string when no result has a std.
     """
     names = [n for n, r in results.items() if "uncertainty" in r]
     if not names:
         return ""
     lines = [f"### {title}", ""] if title else []
     lines += [
-        "| reconstruction | pixels | std/error corr | within 1/2/3 std, raw [%] | calibrated [%] | scale s "
-        "| AUSE / random (ratio) | edge: corr | edge: within 1/2/3 [%] | edge: AUSE / random (ratio) |",
-        "|---" * 10 + "|",
+        "| reconstruction | pixels | std/error corr | within 1/2/3 std, raw [%] | one factor [%] | factor s "
+        "| calibrated (map) [%] | AUSE / random (ratio) | edge: corr | edge: within 1/2/3 [%] "
+        "| edge: AUSE / random (ratio) |",
+        "|---" * 11 + "|",
     ]
     for name in names:
         r, edge = results[name]["uncertainty"], results[name]["edge_baseline"]
@@ -225,7 +234,8 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
             u, e = r[region], edge[region]
             lines.append(
                 f"| {name} | {region} | {_num(u['std_error_corr'])} | {_percent(u['coverage']['raw'])} "
-                f"| {_percent(u['coverage']['calibrated'])} | {_num(u['scale'], '.3g')} "
+                f"| {_percent(u['coverage'].get('scaled'))} | {_num(u['scale'], '.3g')} "
+                f"| {_percent(u['coverage']['calibrated'])} "
                 f"| {_num(u['ause'])} / {_num(u['ause_random'])} ({_num(u['ause_ratio'], '.2f')}) "
                 f"| {_num(e['std_error_corr'])} | {_percent(e['coverage']['calibrated'])} "
                 f"| {_num(e['ause'])} / {_num(e['ause_random'])} ({_num(e['ause_ratio'], '.2f')}) |"
@@ -234,7 +244,9 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
     lines += [
         "",
         "A calibrated Gaussian std has 68 / 95 / 100 % (68.3 / 95.4 / 99.7) of the pixels within 1 / 2 / 3 std. "
-        "Calibrated = raw std times s, fitted on the validation split. AUSE: area between the sparsification "
+        "One factor = raw std times s; calibrated = the raw std through the increasing map from raw to "
+        "calibrated std that predict applies (fitted per bin of the raw std at 1, 2 and 3 std); both fitted "
+        "on the validation split. AUSE: area between the sparsification "
         "curve (mean absolute error of the pixels left after removing those of largest std) and the oracle's, "
         "normalised by the MAE of all pixels; random = the area of removing pixels in random order; ratio < 0.5 "
         f"is 'below random by >= 50 %'. Edge: Gaussian(sigma = {sigma:g} px)-smoothed Sobel magnitude of the "

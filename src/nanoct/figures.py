@@ -12,7 +12,7 @@ import numpy as np
 
 from .evaluate import format_uncertainty_table, parse_name, read_std
 from .fileio import atomic_write_bytes
-from .metrics import reliability
+from .metrics import apply_std_map, reliability
 from .motion import plot_motion
 from .recon.fbp import fbp
 from .store import DataStore
@@ -139,7 +139,8 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
 
     One row per (name, sample). The input is ``reconstructions/<input>`` of the name
     (:func:`nanoct.evaluate.parse_name`; an empty panel if absent); the std is the stored one
-    (calibrated where predict calibrated it, the factor in the title). Error and std share a
+    (calibrated where predict calibrated it, by the map or, for results of an earlier version, by
+    a factor, said in the title). Error and std share a
     colour scale per row so they can be compared directly.
     """
     from matplotlib.figure import Figure
@@ -153,7 +154,7 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         input_name = str(store.reconstruction_params(name).get("input") or parse_name(name)[0])
         reco = store.read_reconstruction(name, [index])[0]
         std = store.read_uncertainty(name, [index])[0]
-        scale = (store.reconstruction_params(name).get("calibration") or {}).get("scale")
+        cal = store.reconstruction_params(name).get("calibration") or {}
         err = np.abs(reco - gt)
         top = float(max(err.max(), std.max())) or 1.0
         if input_name in present and input_name != name:
@@ -164,7 +165,14 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         ax_row[2].imshow(err, cmap="magma", vmin=0, vmax=top)
         ax_row[2].set_title("|mean - gt|", fontsize=9)
         im = ax_row[3].imshow(std, cmap="magma", vmin=0, vmax=top)
-        ax_row[3].set_title("std" + ("" if scale is None else f" (calibrated, s = {scale:.3g})"), fontsize=9)
+        how = (
+            " (calibrated, map)"
+            if cal.get("std_map")
+            else f" (calibrated, s = {cal['scale']:.3g})"
+            if cal.get("scale")
+            else ""
+        )
+        ax_row[3].set_title("std" + how, fontsize=9)
         fig.colorbar(im, ax=ax_row[3], shrink=0.8)
         for ax in ax_row:
             ax.set_xticks([])
@@ -182,7 +190,9 @@ def reliability_diagram(
     """Reliability diagram: observed vs nominal coverage of central Gaussian intervals, raw and calibrated.
 
     One column per panel (e.g. per model), one line per reconstruction name; the top row uses
-    the raw std (stored / calibration factor), the bottom row the calibrated std (as stored).
+    the raw std (:func:`nanoct.evaluate.read_std`), the middle row the raw std times the one
+    factor s, the bottom row the calibrated std (the map predict applied, or the factor for a
+    result calibrated without a map).
     Pixels of all ``indices`` are pooled; the interval of level p is ``|err| <= k_p std`` with
     ``k_p`` the two-sided Gaussian quantile (:func:`nanoct.metrics.reliability`). A calibrated
     Gaussian std lies on the diagonal; above it the std is too wide, below too narrow.
@@ -190,8 +200,9 @@ def reliability_diagram(
     from matplotlib.figure import Figure
 
     gts = store.read_phantoms(indices).astype(np.float64)
-    fig = Figure(figsize=(3.2 * len(panels), 6.2), layout="constrained")
-    axes = fig.subplots(2, len(panels), squeeze=False, sharex=True, sharey=True)
+    kinds = ("raw std", "one factor s", "calibrated std")
+    fig = Figure(figsize=(3.2 * len(panels), 9.0), layout="constrained")
+    axes = fig.subplots(len(kinds), len(panels), squeeze=False, sharex=True, sharey=True)
     for col, (title, names) in enumerate(panels.items()):
         for name in names:
             err = store.read_reconstruction(name, indices) - gts
@@ -199,7 +210,9 @@ def reliability_diagram(
             axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
             if cal.get("scale"):
                 axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
-        for row, kind in enumerate(("raw std", "calibrated std")):
+                calibrated = apply_std_map(raw, cal["std_map"]) if cal.get("std_map") else raw * cal["scale"]
+                axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
+        for row, kind in enumerate(kinds):
             ax = axes[row, col]
             ax.plot([0, 1], [0, 1], color="0.5", ls="--", lw=1)
             ax.set_title(f"{title}: {kind}", fontsize=9)
@@ -208,8 +221,8 @@ def reliability_diagram(
             ax.grid(alpha=0.3)
             ax.set_xlabel("nominal coverage")
         axes[0, col].legend(fontsize=7, loc="lower right")
-    axes[0, 0].set_ylabel("observed coverage")
-    axes[1, 0].set_ylabel("observed coverage")
+    for row in range(len(kinds)):
+        axes[row, 0].set_ylabel("observed coverage")
     return _save(fig, out, dpi=90)
 
 
@@ -281,7 +294,7 @@ def uncertainty_report(
         uncertainty_maps(store, ns, [int(idx[0])], report / f"uncertainty_{m}.png")
         text.append(f"### {m}: input, mean, |error|, std\n\n![{m}](uncertainty_{m}.png)\n")
     reliability_diagram(store, names, idx, report / "reliability.png")
-    text.append("### Reliability diagram (raw and calibrated std)\n\n![reliability](reliability.png)\n")
+    text.append("### Reliability diagram (raw, one-factor and calibrated std)\n\n![reliability](reliability.png)\n")
     runs = {m: {i: Path(runs_dir) / f"{m}-{i}" for i in inputs} for m in names}
     training_curves(runs, report / "training_curves.png")
     text.append("### Validation NLL per epoch\n\n![training curves](training_curves.png)\n")

@@ -14,10 +14,11 @@ from nanoct.errors import NanoctError
 from nanoct.evaluate import read_std
 from nanoct.generate import generate_dataset
 from nanoct.geometry import get_preset
-from nanoct.learn.calibration import CALIBRATION_FILE, calibrate, load_calibration
+from nanoct.learn.calibration import CALIBRATION_FILE, CALIBRATION_FORMAT, calibrate, load_calibration
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 from nanoct.learn.predict import predict
 from nanoct.learn.train import train
+from nanoct.metrics import GAUSSIAN_COVERAGE, apply_std_map, coverage, fit_std_map
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.store import DataStore
 
@@ -76,10 +77,18 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
         mean, std = model.reconstruct(x, n_samples=4, seed=int(i))
         errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
         stds.append(std[0, 0].numpy().astype(np.float64))
-    ratio = np.concatenate([e.ravel() for e in errs]) / np.concatenate([s.ravel() for s in stds])
+    err, std = np.concatenate([e.ravel() for e in errs]), np.concatenate([s.ravel() for s in stds])
+    ratio = err / std
     assert entry["scale"] == pytest.approx(np.quantile(ratio, 0.6827, method="inverted_cdf"), rel=1e-4)
-    assert entry["coverage_calibrated"]["1"] == pytest.approx(0.6827, abs=2e-3)
+    assert entry["coverage_scaled"]["1"] == pytest.approx(0.6827, abs=2e-3)
     assert entry["coverage_raw"]["1"] == pytest.approx(np.mean(ratio <= 1), abs=2e-3)
+    assert entry["format"] == CALIBRATION_FORMAT == 2
+    ref = fit_std_map(err, std)  # the map: on the same validation outputs, fitted independently
+    np.testing.assert_allclose(entry["std_map"]["std"], ref["std"], rtol=1e-4)
+    np.testing.assert_allclose(entry["std_map"]["calibrated"], ref["calibrated"], rtol=1e-3)
+    cov = coverage(err, apply_std_map(std, entry["std_map"]))
+    assert entry["coverage_calibrated"] == pytest.approx(cov, abs=2e-3)
+    assert entry["coverage_calibrated"]["2"] == pytest.approx(GAUSSIAN_COVERAGE["2"], abs=0.03)
     # a second call reuses the stored fit; other sampling arguments or another checkpoint file refit
     calls = []
     real = cal_mod.sample_outputs
@@ -90,8 +99,12 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     ckpt = torch.load(run / "best.pt", weights_only=True)
     ckpt["step"] += 1  # another checkpoint file
     torch.save(ckpt, run / "best.pt")
-    calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
+    refit = calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
     assert calls == [1, 1]
+    # an entry of the earlier format (one factor, no map) is fitted again, not reused
+    old = {k: v for k, v in refit.items() if k not in ("std_map", "coverage_scaled")} | {"format": 1}
+    (run / CALIBRATION_FILE).write_text(json.dumps({"best": old}))
+    assert calibrate(path, run, reconstruct_kwargs={"n_samples": 5}) == refit and calls == [1, 1, 1]
 
 
 def test_fit_reads_validation_data_only(setup, tmp_path):
@@ -105,27 +118,33 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
             store._group["reconstructions/fbp"][int(i)] = rng.random((63, 63)).astype(np.float32)
     after = calibrate(path, run, reconstruct_kwargs=M, refit=True)
     assert after["scale"] == before["scale"] and after["edge_scale"] == before["edge_scale"]
+    assert after["std_map"] == before["std_map"]
     for i in store.indices("val"):  # alter the validation input: the factor changes
         x = store.read_reconstruction("fbp", [int(i)])[0]
         store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
     assert changed["scale"] != pytest.approx(before["scale"], rel=1e-3)
+    assert changed["std_map"]["calibrated"] != pytest.approx(before["std_map"]["calibrated"], rel=1e-3)
 
 
-def test_predict_applies_the_factor(setup, tmp_path):
+def test_predict_applies_the_map(setup, tmp_path):
     path, run = _copy(setup, tmp_path)
-    name = predict(path, run, progress=False, reconstruct_kwargs=M)
+    (run / CALIBRATION_FILE).write_text(json.dumps({"best": {"format": 1, "checkpoint": "best", "scale": 1.0}}))
+    name = predict(path, run, progress=False, reconstruct_kwargs=M)  # the old-format entry is refitted
     predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", calibrate=False)
     entry = load_calibration(run)["best"]
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert params["calibration"]["scale"] == entry["scale"] and "calibration" not in store.reconstruction_params("raw")
+    assert entry["format"] == 2 and params["calibration"] == entry
+    assert "calibration" not in store.reconstruction_params("raw")
     raw = store.read_uncertainty("raw", test)
-    np.testing.assert_allclose(store.read_uncertainty(name, test), entry["scale"] * raw, rtol=1e-6)
+    stored = store.read_uncertainty(name, test)
+    np.testing.assert_allclose(stored, apply_std_map(raw, entry["std_map"]), rtol=1e-6)
+    assert not np.allclose(stored, entry["scale"] * raw, rtol=1e-2)  # the map, not the one factor
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
     recovered, cal = read_std(store, name, test)
-    np.testing.assert_allclose(recovered, raw, rtol=1e-6)
+    np.testing.assert_allclose(recovered, raw, rtol=1e-5)
     assert cal["edge_scale"] == entry["edge_scale"]
     with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
         predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")

@@ -1,10 +1,12 @@
 """Calibration of a sampling network's std on the validation split, stored with its run.
 
 The std of a conditional invertible network (over M latent samples) is rarely calibrated: far
-more (or fewer) than 68 % of the pixels fall within one std of the mean. One factor ``s`` per
-run and checkpoint, fitted on the validation split of the data set and input the network was
-trained on, makes ``s * std`` cover 68.27 % of the validation pixels (temperature scaling for a
-regression std; the test split is never read). On the same validation outputs the factor of the
+more (or fewer) than 68 % of the pixels fall within one std of the mean. Per run and checkpoint,
+on the validation split of the data set and input the network was trained on (the test split is
+never read), two calibrations are fitted: a strictly increasing map from raw to calibrated std
+(:func:`nanoct.metrics.fit_std_map`, fitted bin by bin of the raw std at 1, 2 and 3 std), which
+is the one applied, and, for comparison, one factor ``s`` making ``s * std`` cover 68.27 % of
+the validation pixels (temperature scaling). On the same validation outputs the factor of the
 edge baseline (:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its
 coverage can be compared at equal footing.
 
@@ -30,7 +32,15 @@ import torch
 
 from ..errors import NanoctError
 from ..fileio import atomic_write_text
-from ..metrics import EDGE_SIGMA, GAUSSIAN_COVERAGE, coverage, edge_std, fit_std_scale
+from ..metrics import (
+    EDGE_SIGMA,
+    GAUSSIAN_COVERAGE,
+    apply_std_map,
+    coverage,
+    edge_std,
+    fit_std_map,
+    fit_std_scale,
+)
 from ..store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -49,7 +59,8 @@ __all__ = [
 ]
 
 CALIBRATION_FILE = "calibration.json"
-CALIBRATION_FORMAT = 1
+#: Version of a calibration entry; entries of another version are fitted again (2: the std map).
+CALIBRATION_FORMAT = 2
 
 
 def _sha256(path: Path) -> str:
@@ -69,22 +80,28 @@ def _n_samples(model_name: str, kwargs: dict[str, Any]) -> int | None:
 
 
 class Inference:
-    """A model on its device (channels-last on CPU), called on a batch: (mean, scaled std or None) as numpy.
+    """A model on its device (channels-last on CPU), called on a batch: (mean, calibrated std or None) as numpy.
 
     A sampling model is called one image at a time with ``seed`` = the sample's index, so a
-    prediction does not depend on batching or resumption; its std is multiplied by ``scale``.
+    prediction does not depend on batching or resumption; its std goes through ``std_map``
+    (:func:`nanoct.metrics.apply_std_map`; None keeps the raw std).
     :func:`nanoct.learn.predict.predict` and :func:`sample_outputs` both use it, so the calibration
     sees exactly the std that predict stores.
     """
 
     def __init__(
-        self, model: Any, kwargs: dict[str, Any], sampling: bool, scale: float, device: str | torch.device | None
+        self,
+        model: Any,
+        kwargs: dict[str, Any],
+        sampling: bool,
+        std_map: dict[str, Any] | None,
+        device: str | torch.device | None,
     ) -> None:
         self.dev = resolve_device(device)
         self.channels_last = self.dev.type == "cpu"
         model = model.to(self.dev, memory_format=torch.channels_last) if self.channels_last else model.to(self.dev)
         model.eval()
-        self.model, self.kwargs, self.sampling, self.scale = model, kwargs, sampling, np.float32(scale)
+        self.model, self.kwargs, self.sampling, self.std_map = model, kwargs, sampling, std_map
 
     def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
         x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
@@ -93,7 +110,9 @@ class Inference:
         call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
         with torch.no_grad():
             mean, std = self.model.reconstruct(x, **call)
-        std_np = None if std is None else std.float().cpu().numpy()[:, 0] * self.scale
+        std_np = None if std is None else std.float().cpu().numpy()[:, 0]
+        if std_np is not None and self.std_map is not None:
+            std_np = apply_std_map(std_np, self.std_map).astype(np.float32)
         return mean.float().cpu().numpy()[:, 0], std_np
 
 
@@ -117,7 +136,7 @@ def sample_outputs(
     """
     from tqdm.auto import tqdm
 
-    infer = Inference(model, dict(reconstruct_kwargs or {}), True, 1.0, device)
+    infer = Inference(model, dict(reconstruct_kwargs or {}), True, None, device)
     n = store.geometry.n
     means, stds = np.empty((len(indices), n, n), np.float32), np.empty((len(indices), n, n), np.float32)
     for j, i in enumerate(tqdm(indices, desc="calibrate", unit="img", disable=not progress)):
@@ -129,34 +148,41 @@ def sample_outputs(
 
 
 def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma: float = EDGE_SIGMA) -> dict[str, Any]:
-    """Fit the std's factor and the edge baseline's on validation outputs.
+    """Fit the std's calibration map, its one factor and the edge baseline's factor on validation outputs.
 
-    Each factor is :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %)
-    over all pixels of all images.
+    The map is :func:`nanoct.metrics.fit_std_map` (coverage at 1, 2 and 3 std, bin by bin of
+    the raw std); each factor is :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std
+    level (68.27 %). All pixels of all images are pooled.
 
     Returns
     -------
     dict
-        ``level``, ``scale``, ``coverage_raw`` and ``coverage_calibrated`` (1/2/3 std) of the
-        network's std; ``edge_sigma``, ``edge_scale``, ``edge_coverage`` (after scaling).
+        ``std_map`` (the knots, applied by predict), ``level``, ``scale`` (the one factor), and
+        the validation coverages at 1/2/3 std ``coverage_raw``, ``coverage_scaled`` (one factor)
+        and ``coverage_calibrated`` (map) of the network's std; ``edge_sigma``, ``edge_scale``,
+        ``edge_coverage`` (after scaling).
 
     Raises
     ------
     NanoctError
-        If no positive finite factor exists (e.g. a std that is zero where the error is not).
+        If no positive finite factor or map exists (e.g. a std that is zero where the error is not).
     """
     err = np.abs(np.asarray(means, np.float64) - np.asarray(gts, np.float64))
+    stds = np.asarray(stds, np.float64)
     edges = edge_std(means, edge_sigma)
     level = GAUSSIAN_COVERAGE["1"]
     try:
         scale, edge_scale = fit_std_scale(err, stds, level), fit_std_scale(err, edges, level)
+        std_map = fit_std_map(err, stds)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
+        "std_map": std_map,
         "level": level,
         "scale": scale,
         "coverage_raw": coverage(err, stds),
-        "coverage_calibrated": coverage(err, scale * np.asarray(stds, np.float64)),
+        "coverage_scaled": coverage(err, scale * stds),
+        "coverage_calibrated": coverage(err, apply_std_map(stds, std_map)),
         "edge_sigma": float(edge_sigma),
         "edge_scale": edge_scale,
         "edge_coverage": coverage(err, edge_scale * edges),

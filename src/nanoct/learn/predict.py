@@ -5,8 +5,8 @@ network was trained on, and to ``reconstructions/<input>+<model>@<train_input>``
 network trained on one method is applied to another (the paper's input-mixing tables).
 Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
 latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
-not depend on batching or on interruptions; their std is stored calibrated, times the factor
-fitted on the validation split (:mod:`nanoct.learn.calibration`).
+not depend on batching or on interruptions; their std is stored calibrated, through the map
+from raw to calibrated std fitted on the validation split (:mod:`nanoct.learn.calibration`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
@@ -104,11 +104,12 @@ def predict(
         Passed to the model's ``reconstruct`` (e.g. the number of samples of a CiNN); stored
         with the result.
     calibrate : bool
-        For networks with a std: store ``s * std`` with the factor ``s`` of the run's
-        calibration on the validation split (:func:`nanoct.learn.calibration.calibrate`, fitted
-        first if the run has none for this checkpoint and these sampling arguments) and record
-        the calibration under ``calibration`` in the stored parameters (raw std = stored / s).
-        False stores the raw std.
+        For networks with a std: store the calibrated std, the raw std through the map of the
+        run's calibration on the validation split (:func:`nanoct.learn.calibration.calibrate`,
+        fitted first if the run has none for this checkpoint and these sampling arguments;
+        :func:`nanoct.metrics.apply_std_map`), and record the calibration under ``calibration``
+        in the stored parameters (raw std = :func:`nanoct.metrics.invert_std_map` of the stored
+        one). False stores the raw std.
 
     Returns
     -------
@@ -153,10 +154,10 @@ def predict(
         "reconstruct": kwargs,
     }
     sampling = model_class(str(ckpt["model"])).has_uncertainty
-    scale = 1.0
+    std_map = None
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
-        params["calibration"], scale = cal, float(cal["scale"])
+        params["calibration"], std_map = cal, cal["std_map"]
     params = _provenance(store, out, json.loads(json.dumps(params)), ckpt, overwrite)
     try:
         store.prepare_reconstruction(out, params, uncertainty=sampling)
@@ -170,7 +171,7 @@ def predict(
         return out
 
     model = model_from_checkpoint(ckpt, ckpt_path)
-    infer = Inference(model, kwargs, sampling, scale, device)
+    infer = Inference(model, kwargs, sampling, std_map, device)
     _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
     return out
 
