@@ -237,7 +237,7 @@ def calibrate(
     ------
     NanoctError
         A missing or bad checkpoint, a network without std, an empty validation split or an
-        incomplete input, or validation outputs that admit no factor.
+        incomplete input, or validation outputs that admit no factor or map.
     """
     store = store if isinstance(store, DataStore) else DataStore.open(store)
     run = Path(run_dir)
