@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import signal
 import subprocess
@@ -304,3 +305,16 @@ def test_ddp_two_processes_gloo(store, tmp_path):
     assert last["step"] == 3 and last["epoch"] == 1 and last["config"]["world_size"] == 2
     assert sorted(p.name for p in run.iterdir()) == ["best.pt", "config.json", "last.pt", "log.csv"]
     assert len(_log(run)) == 1
+
+
+def test_bf16_precision_trains_records_and_is_part_of_the_request(store, tmp_path):
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=2, precision="bf16", **FAST)
+    config = json.loads((run / "config.json").read_text())
+    assert config["precision"] == "bf16"
+    rows = _log(run)
+    assert len(rows) == 2 and all(math.isfinite(float(r["val_loss"])) for r in rows)
+    with pytest.raises(NanoctError, match="differs in: precision"):
+        train(store, "unet", "fbp", run, epochs=3, **FAST)
+    with pytest.raises(NanoctError, match="precision 'fp16' is unknown"):
+        train(store, "unet", "fbp", tmp_path / "other", epochs=1, precision="fp16", **FAST)
+    assert not (tmp_path / "other").exists()

@@ -50,13 +50,29 @@ from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_spec
 
-__all__ = ["cosine_lr", "main", "resolve_device", "seed_everything", "train"]
+__all__ = ["PRECISIONS", "cosine_lr", "main", "resolve_device", "seed_everything", "train"]
 
 SCHEDULERS = ("none", "plateau", "cosine")
 PLATEAU = {"factor": 0.5, "patience": 10, "min_lr": 1e-7}
 COSINE_MIN_FRACTION = 0.1  # cosine annealing ends at lr / 10 (dival's UNet: 1e-3 -> 1e-4)
 # keys of config.json that must agree for a run to be resumed
-MATCH_KEYS = ("model", "hparams", "input", "data", "image_size", "batch_size", "lr", "seed", "clip_grad", "scheduler")
+MATCH_KEYS = (
+    "model",
+    "hparams",
+    "input",
+    "data",
+    "image_size",
+    "batch_size",
+    "lr",
+    "seed",
+    "clip_grad",
+    "scheduler",
+    "precision",
+)
+#: Value of a request key in runs recorded before the key existed.
+_MATCH_DEFAULTS = {"precision": "fp32"}
+#: Arithmetic of the training steps: "fp32", or "bf16" (forward pass under bfloat16 autocast).
+PRECISIONS = ("fp32", "bf16")
 
 
 def resolve_device(device: str | torch.device | None = None, local_rank: int = 0) -> torch.device:
@@ -135,7 +151,7 @@ def _write_log(path: Path, history: list[dict[str, Any]]) -> None:
 
 
 def _diff(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    return [k for k in MATCH_KEYS if a.get(k) != b.get(k)]
+    return [k for k in MATCH_KEYS if a.get(k, _MATCH_DEFAULTS.get(k)) != b.get(k, _MATCH_DEFAULTS.get(k))]
 
 
 def _to(t: torch.Tensor, device: torch.device, channels_last: bool) -> torch.Tensor:
@@ -162,6 +178,7 @@ def train(
     num_workers: int = 0,
     in_memory: bool | None = None,
     channels_last: bool | None = None,
+    precision: str = "fp32",
     on_epoch_end: Callable[[int, dict[str, Any]], None] | None = None,
 ) -> Path:
     """Train a post-processing network on ``reconstructions/<input_name>`` -> phantoms.
@@ -204,6 +221,11 @@ def train(
         See :class:`~nanoct.learn.data.ReconDataset`.
     channels_last : bool, optional
         Default: True on CPU (faster convolutions there), False on CUDA.
+    precision : {"fp32", "bf16"}
+        "bf16" runs the training steps' forward pass under ``torch.autocast`` with bfloat16
+        (convolutions in bfloat16, reductions and the loss in float32; weights, optimiser and
+        validation stay float32). About twice the steps per second on a CPU with native
+        bfloat16 (AVX512-BF16 / AMX) or a recent GPU; slower where bfloat16 is emulated.
     on_epoch_end : callable, optional
         ``f(epoch, row)`` after each epoch's checkpoint and log are written (rank 0).
 
@@ -230,6 +252,8 @@ def train(
         )
     if sched not in SCHEDULERS:
         raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")
+    if precision not in PRECISIONS:
+        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISIONS)}")
 
     # ---------------------------------------------------------------- processes and device
     world = int(os.environ.get("WORLD_SIZE", "1"))
@@ -260,6 +284,7 @@ def train(
         seed=int(seed),
         dev=dev,
         use_cl=use_cl,
+        precision=precision,
         progress=progress and main_rank,
         max_steps=max_steps,
         model_kwargs=dict(model_kwargs or {}),
@@ -296,6 +321,7 @@ class _Settings:
     seed: int
     dev: torch.device
     use_cl: bool
+    precision: str
     progress: bool
     max_steps: int | None
     model_kwargs: dict[str, Any]
@@ -363,6 +389,7 @@ def _config(s: _Settings, model: PostProcessor, train_ds: ReconDataset, val_ds: 
         "world_size": s.world,
         "device": str(s.dev),
         "channels_last": s.use_cl,
+        "precision": s.precision,
         "nanoct_version": __version__,
         # what the weights depend on beyond the request (library versions, threads, CPU kernels);
         # recorded, not compared on resume
@@ -489,7 +516,8 @@ def _train_epoch(s: _Settings, state: _State, loaders: _Loaders, step_model: nn.
     for x_tilde, x in tqdm(loaders.train, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not s.progress):
         x_tilde, x = _to(x_tilde, s.dev, s.use_cl), _to(x, s.dev, s.use_cl)
         optimizer.zero_grad(set_to_none=True)
-        loss, logs = step_model(x_tilde, x)
+        with torch.autocast(s.dev.type, dtype=torch.bfloat16, enabled=s.precision == "bf16"):
+            loss, logs = step_model(x_tilde, x)
         loss.backward()
         if s.clip:
             torch.nn.utils.clip_grad_norm_(model.parameters(), s.clip)
@@ -642,6 +670,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clip-grad", type=float)
     p.add_argument("--scheduler", choices=SCHEDULERS)
     p.add_argument("--num-workers", type=int, default=0)
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     try:
@@ -661,6 +690,7 @@ def main(argv: list[str] | None = None) -> int:
             clip_grad=a.clip_grad,
             scheduler=a.scheduler,
             num_workers=a.num_workers,
+            precision=a.precision,
         )
     except NanoctError as exc:
         print(f"error: {exc}", file=sys.stderr)
