@@ -131,12 +131,17 @@ def test_reproduce_toy_scale_matches_plan(tmp_path):
     assert any(c["seeds"] == 2 for check in seeded for c in check["comparisons"])
     summary = json.loads((out / "report.json").read_text())
     assert list(summary["settings"]) == ["parallel", "fan", "unperturbed"] and summary["environment"]["packages"]
+    stages = ["data", "reconstructions", "training", "prediction", "report"]
+    for entry in summary["settings"].values():  # every stage timed; the whole run takes at least their sum
+        assert list(entry["stage_seconds"]) == stages and all(v >= 0 for v in entry["stage_seconds"].values())
+    assert summary["seconds"] >= sum(sum(e["stage_seconds"].values()) for e in summary["settings"].values())
     assert (
         summary["settings"]["fan"]["conclusions"]
         == json.loads((out / "fan" / "report" / "evaluation.json").read_text())["conclusions"]
     )
     text = report.read_text()
     assert "Environment: Python" in text and "torch" in text
+    assert "Wall time of this run: " in text and text.count("Wall time of the stages in this run: data ") == 3
     for heading in ("## tiny-parallel", "## tiny-fan", "## tiny-parallel (no motion)", "unet: PSNR [dB], ours (paper)"):
         assert heading in text
     assert "| resesop+unet | " in text and "38.17 ± 3.36" in text  # the paper's RESESOP + UNet next to ours

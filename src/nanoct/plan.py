@@ -126,10 +126,11 @@ def _setting_plan(
     core_s = sum(study.epochs[m] * n_train * _per_size(_TRAIN, g.n, m) for m, _, _ in jobs.train)
     out.append(StagePlan(name, "training", len(jobs.train), 0, core_s))
     core_s = disk = 0.0
-    for m, *_ in jobs.predict:
+    for m, train_input, input_name, _ in jobs.predict:
         inn = model_class(m).has_uncertainty
         per_image = _per_size(_PREDICT, g.n, m) * (study.n_samples if inn else 1)
-        core_s += per_image * (n_test + (n_val if inn else 0))
+        calibrates = inn and input_name == train_input  # once per run; mixing predictions reuse the fit
+        core_s += per_image * (n_test + (n_val if calibrates else 0))
         disk += n_test * image * (2 if inn else 1)
     out.append(StagePlan(name, "prediction", len(jobs.predict), int(disk), core_s))
     out.append(StagePlan(name, "report", 1, 0, 0.0))

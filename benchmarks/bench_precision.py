@@ -1,0 +1,80 @@
+"""Benchmark of training-step speed in float32 vs bfloat16 autocast, the tiny study's networks.
+
+For the UNet and each invertible network (the tiny study's ``model_kwargs`` in
+:data:`nanoct.reproduce.STUDIES`) one run measures, with the same threads and inputs, the median
+seconds of one training step (the model's loss, backward, gradient clipping, Adam; batch 16,
+63 x 63, channels_last as the trainer uses on CPU) with ``precision="fp32"`` and with the forward
+pass under ``torch.autocast(dtype=torch.bfloat16)`` as :func:`nanoct.learn.train.train` runs it
+for ``precision="bf16"``, and prints the ratio of the step rates.
+
+    PYTHONPATH=src .venv/bin/python benchmarks/bench_precision.py --threads 2 --repeat 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from typing import Any
+
+import torch
+
+from nanoct.learn.models import build_model
+from nanoct.reproduce import STUDIES
+
+NETWORKS = ("unet", "cinn", "cinn-res", "ciunet", "ciunet-res")
+
+
+def bench_step(name: str, kwargs: dict[str, Any], bf16: bool, size: int, batch: int, repeat: int) -> float:
+    """Median seconds of one training step of ``name`` built with ``kwargs``."""
+    torch.manual_seed(0)
+    model = build_model(name, **kwargs).to(memory_format=torch.channels_last)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(batch, 1, size, size, generator=g).contiguous(memory_format=torch.channels_last)
+    x_tilde = (x + 0.05 * torch.randn(x.shape, generator=g)).contiguous(memory_format=torch.channels_last)
+    model.train()
+    if hasattr(model, "data_init"):  # the flows' data-dependent ActNorm start
+        model.data_init(x_tilde, x)
+
+    def step() -> None:
+        opt.zero_grad(set_to_none=True)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            loss, _ = model.loss(x_tilde, x)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+
+    for _ in range(2):  # warm-up (oneDNN picks its kernels on the first calls)
+        step()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", type=int, default=63)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--repeat", type=int, default=10)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--networks", nargs="+", default=list(NETWORKS))
+    a = p.parse_args()
+    torch.set_num_threads(a.threads)
+    study = STUDIES["tiny"]
+    bf16_native = torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    print(f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, {a.threads} thread(s)")
+    print(f"# oneDNN native bfloat16: {bf16_native}; {a.size} x {a.size}, batch {a.batch}, median of {a.repeat} steps")
+    print("network     | fp32 steps/s | bf16 steps/s | bf16/fp32")
+    for name in a.networks:
+        kwargs = dict(study.model_kwargs.get(name, {}))
+        t32, t16 = (bench_step(name, kwargs, bf16, a.size, a.batch, a.repeat) for bf16 in (False, True))
+        print(f"{name:11s} | {1 / t32:12.2f} | {1 / t16:12.2f} | {t32 / t16:9.2f}")
+
+
+if __name__ == "__main__":
+    main()
