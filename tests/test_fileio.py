@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 import nanoct.fileio as fileio
-from nanoct.fileio import atomic_write_bytes, atomic_write_text, remove_stale_temporaries
+from nanoct.fileio import atomic_link, atomic_write_bytes, atomic_write_text, remove_stale_temporaries
 
 
 def test_atomic_write_replaces_whole_file(tmp_path):
@@ -40,3 +42,14 @@ def test_remove_stale_temporaries(tmp_path):
     assert sorted(remove_stale_temporaries(tmp_path)) == sorted(stale)
     assert sorted(tmp_path.iterdir()) == sorted(keep)
     assert remove_stale_temporaries(tmp_path / "missing") == []
+
+
+def test_atomic_link_shares_content_until_the_source_is_rewritten(tmp_path):
+    src, dst = tmp_path / "best.pt", tmp_path / "last.pt"
+    atomic_write_bytes(src, b"epoch 3")
+    atomic_write_bytes(dst, b"epoch 2")
+    assert atomic_link(src, dst) == dst
+    assert dst.read_bytes() == b"epoch 3" and os.path.samefile(src, dst)
+    atomic_write_bytes(src, b"epoch 5")  # an atomic rewrite of the source leaves the link's content alone
+    assert dst.read_bytes() == b"epoch 3" and src.read_bytes() == b"epoch 5"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["best.pt", "last.pt"]

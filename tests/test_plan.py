@@ -86,3 +86,19 @@ def test_cli_scale_rejects_preset_options(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     code, _, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "tiny", "--no-motion", "--plan")
     assert code == 2 and "--no-motion" in err
+
+
+def test_prediction_cost_counts_one_calibration_per_invertible_run():
+    """Test images for every prediction, validation images once per invertible run (mixing reuses the fit)."""
+    from nanoct.plan import _PREDICT
+    from nanoct.reproduce import Study
+
+    study = Study(n=200, split_fractions=(0.8, 0.1, 0.1), n_samples=10, mixing=("cinn-res",))
+    (pred,) = [
+        p
+        for p in plan_study(None, preset="tiny-parallel", models=("cinn-res",), study=study, cores=1)
+        if p.stage == "prediction"
+    ]
+    assert pred.jobs == 25  # 5 inputs x 5 inputs
+    per_image = _PREDICT[63]["inn"] * study.n_samples
+    assert pred.seconds == pytest.approx(per_image * (25 * 20 + 5 * 20))

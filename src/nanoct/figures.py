@@ -210,6 +210,7 @@ def reliability_diagram(
             axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
             if cal.get("scale"):
                 axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
+            if cal.get("scale") or cal.get("std_map"):
                 calibrated = apply_std_map(raw, cal["std_map"]) if cal.get("std_map") else raw * cal["scale"]
                 axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
         for row, kind in enumerate(kinds):

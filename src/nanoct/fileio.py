@@ -10,12 +10,13 @@ behind; :func:`remove_stale_temporaries` clears those when a job resumes in the 
 from __future__ import annotations
 
 import os
+import shutil
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_target", "atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
+__all__ = ["atomic_link", "atomic_target", "atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
 
 _TMP_TAG = ".tmp-"
 
@@ -57,6 +58,21 @@ def atomic_target(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def atomic_link(src: str | os.PathLike[str], path: str | os.PathLike[str]) -> Path:
+    """Make ``path`` the same file as ``src`` (a hard link, else a copy), replacing ``path`` atomically.
+
+    A later atomic write of ``src`` replaces its directory entry with a new file, so ``path``
+    keeps the content it was linked to. Saves writing the same bytes twice (a training run's
+    ``best.pt`` and ``last.pt`` after an improving epoch).
+    """
+    with atomic_target(path) as tmp:
+        try:
+            os.link(src, tmp)
+        except OSError:  # a file system without hard links
+            shutil.copyfile(src, tmp)
+    return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:

@@ -8,10 +8,9 @@ come from :func:`setting_jobs`, which :mod:`nanoct.plan` uses to plan a run with
 
 Every stage is cached in the output directory: the data set, each reconstruction, each
 training run and each prediction resume where they stopped and are skipped when complete;
-tables and figures are cheap and redone. Training runs and predictions are independent jobs
-fanned out over the same Dask workers as the per-sample work (one torch thread each), except
-the UNet runs on a local machine: they run one after another in this process with all its
-torch threads (the UNet's convolutions scale with threads, the invertible networks' less).
+tables and figures are cheap and redone. Training runs and predictions are independent jobs: on
+a local machine they run one after another in this process with all its cores as torch threads;
+with a Dask scheduler (a cluster) they go to its workers, one torch thread each.
 """
 
 from __future__ import annotations
@@ -115,8 +114,8 @@ class Study:
     precision: str = "fp32"
 
 
-# tiny: the one-setting study in under 25 minutes and the three settings in under 45 on a 2-core
-# machine (measured in docs/results.md); the invertible networks get a 100x larger learning rate
+# tiny: meant for the one-setting study in under 25 minutes and the three settings in under 45 on
+# a 2-core machine (what the fresh runs took: docs/results.md); the invertible networks get a 100x larger learning rate
 # than the paper's 1e-5 because they train for tens of epochs instead of 500, lighter coupling
 # stacks (same architecture family) at 63 x 63, a narrower conditioning UNet for CiUNet (16-64
 # channels: half the step time) and the pixel-wise conditional scale (additive couplings for the
@@ -126,7 +125,7 @@ class Study:
 # every invertible network, M = 50 latent samples) is what fits the three settings' 45 runs and
 # 152 sampling passes into 45 minutes on that machine; the paper's M = 100 and the epochs
 # measured before (UNet 70, CiNN 24, CiUNet 18) gave better numbers, docs/results.md.
-# The UNet (cosine learning rate, 70 epochs = 700 steps) was set for this budget on the
+# The UNet's architecture arguments were set for the previous budget (70 epochs) on the
 # validation split, Dremel input (the hardest to improve; val MSE of the input 4.93e-4;
 # numbers below with 32-channel skips, 60 epochs unless said):
 # - output bias -7 (sigmoid 0.0009, near the zero background): with PyTorch's default start the
@@ -392,9 +391,9 @@ def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
 
     With a scheduler (a cluster) the jobs go to its workers, one torch thread each. On the local
     machine they run one after another in this process with all its cores as torch threads:
-    two torch jobs side by side in separate processes measured 2.4-14x slower each on the
-    2-core machine of docs/results.md (not the 25 % of an earlier machine), one at a time is
-    never slower than that.
+    two torch jobs side by side in separate processes were much slower than one after another
+    on the 2-core machine the tiny study is timed on (``benchmarks/bench_concurrency.py``,
+    benchmarks/README.md).
     """
     if fan.get("scheduler") is not None:
         return fan, 1

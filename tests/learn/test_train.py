@@ -318,3 +318,14 @@ def test_bf16_precision_trains_records_and_is_part_of_the_request(store, tmp_pat
     with pytest.raises(NanoctError, match="precision 'fp16' is unknown"):
         train(store, "unet", "fbp", tmp_path / "other", epochs=1, precision="fp16", **FAST)
     assert not (tmp_path / "other").exists()
+
+
+def test_run_recorded_before_precision_existed_resumes_as_fp32(store, tmp_path):
+    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
+    ckpt = torch.load(run / "last.pt", weights_only=False)
+    del ckpt["config"]["precision"]  # a run directory of an earlier version
+    torch.save(ckpt, run / "last.pt")
+    train(store, "unet", "fbp", run, epochs=2, **FAST)
+    assert [int(r["epoch"]) for r in _log(run)] == [1, 2]
+    with pytest.raises(NanoctError, match="differs in: precision"):
+        train(store, "unet", "fbp", run, epochs=3, precision="bf16", **FAST)

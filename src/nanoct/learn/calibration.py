@@ -112,6 +112,11 @@ class Inference:
             mean, std = self.model.reconstruct(x, **call)
         std_np = None if std is None else std.float().cpu().numpy()[:, 0]
         if std_np is not None and self.std_map is not None:
+            if not np.isfinite(std_np).all():
+                raise NanoctError(
+                    f"the {self.model.name} network gave a non-finite std for sample {first_index}; "
+                    "its checkpoint is damaged or training diverged: train it again"
+                )
             std_np = apply_std_map(std_np, self.std_map).astype(np.float32)
         return mean.float().cpu().numpy()[:, 0], std_np
 

@@ -42,7 +42,8 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[s
     """``params`` plus what the prediction is made from (geometry, input fingerprint).
 
     Refuses a run trained on another geometry; deletes an earlier ``out`` made with other
-    settings (with ``overwrite``) or with the same settings from an input that has changed since.
+    settings (with ``overwrite``) or with the same settings from an input that has changed since
+    or under another calibration of the same run (refitted after a format change).
     """
     trained = (ckpt.get("config") or {}).get("data", {}).get("geometry")
     here = json.loads(json.dumps(store.geometry.to_dict()))
@@ -55,7 +56,10 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[s
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        same_request = {k: v for k, v in old.items() if k not in made_from} == params
+        # the calibration is refitted when its format or the checkpoint changes: the same request
+        same_request = {k: v for k, v in old.items() if k not in made_from and k != "calibration"} == {
+            k: v for k, v in params.items() if k != "calibration"
+        }
         if old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
     return new

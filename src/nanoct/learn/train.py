@@ -42,7 +42,7 @@ from torch.utils.data import DataLoader, DistributedSampler, Subset
 
 from .. import __version__
 from ..errors import NanoctError
-from ..fileio import atomic_write_bytes, remove_stale_temporaries
+from ..fileio import atomic_link, atomic_write_bytes, remove_stale_temporaries
 from ..provenance import environment_info
 from ..store import DataStore
 from .base import PostProcessor
@@ -223,8 +223,9 @@ def train(
         Default: True on CPU (faster convolutions there), False on CUDA.
     precision : {"fp32", "bf16"}
         "bf16" runs the training steps' forward pass under ``torch.autocast`` with bfloat16
-        (convolutions in bfloat16, reductions and the loss in float32; weights, optimiser and
-        validation stay float32). About twice the steps per second on a CPU with native
+        (convolutions and what follows them in bfloat16, ``mse_loss`` and the ops autocast
+        lists as float32 in float32; weights, optimiser state, gradients and validation stay
+        float32). About twice the steps per second on a CPU with native
         bfloat16 (AVX512-BF16 / AMX) or a recent GPU; slower where bfloat16 is emulated.
     on_epoch_end : callable, optional
         ``f(epoch, row)`` after each epoch's checkpoint and log are written (rank 0).
@@ -591,9 +592,11 @@ def _save(s: _Settings, state: _State, epoch: int, improved: bool) -> None:
         history=state.history,
         config=state.config,
     )
-    if improved:
+    if improved:  # best first, then last.pt as a link to it: a kill in between replays this epoch
         save_checkpoint(s.path("best.pt"), **kw)
-    save_checkpoint(s.path("last.pt"), **kw)
+        atomic_link(s.path("best.pt"), s.path("last.pt"))
+    else:
+        save_checkpoint(s.path("last.pt"), **kw)
     _write_log(s.path("log.csv"), state.history)
     if s.on_epoch_end is not None:
         s.on_epoch_end(epoch, state.history[-1])
