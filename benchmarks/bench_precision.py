@@ -14,46 +14,13 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
-from typing import Any
 
 import torch
 
-from nanoct.learn.models import build_model
+from bench_flows import bench_train  # the same step, timed the same way
 from nanoct.reproduce import STUDIES
 
 NETWORKS = ("unet", "cinn", "cinn-res", "ciunet", "ciunet-res")
-
-
-def bench_step(name: str, kwargs: dict[str, Any], bf16: bool, size: int, batch: int, repeat: int) -> float:
-    """Median seconds of one training step of ``name`` built with ``kwargs``."""
-    torch.manual_seed(0)
-    model = build_model(name, **kwargs).to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    g = torch.Generator().manual_seed(0)
-    x = torch.rand(batch, 1, size, size, generator=g).contiguous(memory_format=torch.channels_last)
-    x_tilde = (x + 0.05 * torch.randn(x.shape, generator=g)).contiguous(memory_format=torch.channels_last)
-    model.train()
-    if hasattr(model, "data_init"):  # the flows' data-dependent ActNorm start
-        model.data_init(x_tilde, x)
-
-    def step() -> None:
-        opt.zero_grad(set_to_none=True)
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            loss, _ = model.loss(x_tilde, x)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        opt.step()
-
-    for _ in range(2):  # warm-up (oneDNN picks its kernels on the first calls)
-        step()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        step()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -72,7 +39,7 @@ def main() -> None:
     print("network     | fp32 steps/s | bf16 steps/s | bf16/fp32")
     for name in a.networks:
         kwargs = dict(study.model_kwargs.get(name, {}))
-        t32, t16 = (bench_step(name, kwargs, bf16, a.size, a.batch, a.repeat) for bf16 in (False, True))
+        t32, t16 = (bench_train(name, kwargs, a.size, a.batch, a.repeat, bf16=bf16) for bf16 in (False, True))
         print(f"{name:11s} | {1 / t32:12.2f} | {1 / t16:12.2f} | {t32 / t16:9.2f}")
 
 

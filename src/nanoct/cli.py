@@ -210,7 +210,7 @@ def train(
     ),
     param: list[str] = typer.Option([], "--param", help="Model architecture argument name=value (repeatable)."),
     precision: str = typer.Option(
-        "fp32", "--precision", help="fp32 | bf16 (training steps in bfloat16 autocast; 1.4-2x faster on CPUs with it)."
+        "fp32", "--precision", help="fp32 | bf16 (training steps in bfloat16 autocast; up to 2x faster on such CPUs)."
     ),
     quiet: bool = QUIET,
 ) -> None:

@@ -120,8 +120,9 @@ class Study:
 # stacks (same architecture family) at 63 x 63, a narrower conditioning UNet for CiUNet (16-64
 # channels: half the step time) and the pixel-wise conditional scale (additive couplings for the
 # mean, a conditional ActNorm for the spread), chosen on the validation split: docs/learn.md.
-# Training steps run under bfloat16 autocast (1.4-2x the steps per second on an AVX512-BF16 CPU,
-# the same quality within run-to-run spread, docs/learn.md). The budget (40 UNet epochs, 16 for
+# Training steps run under bfloat16 autocast (on an AVX512-BF16 CPU the UNet makes 2x, the
+# invertible networks 0.9-1.4x the steps per second, with the same quality within run-to-run
+# spread, docs/learn.md). The budget (40 UNet epochs, 16 for
 # every invertible network, M = 50 latent samples) is what fits the three settings' 45 runs and
 # 152 sampling passes into 45 minutes on that machine; the paper's M = 100 and the epochs
 # measured before (UNet 70, CiNN 24, CiUNet 18) gave better numbers, docs/results.md.

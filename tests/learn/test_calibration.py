@@ -160,3 +160,18 @@ def test_bad_input(setup, tmp_path):
         calibrate(no_val, run, reconstruct_kwargs=M)
     with pytest.raises(NanoctError, match="does not exist"):
         calibrate(path, tmp_path, reconstruct_kwargs=M)
+
+
+def test_prediction_under_a_refitted_calibration_is_redone(setup, tmp_path):
+    """A calibrated result of an older calibration (e.g. format 1) is redone, not refused: the same request."""
+    path, run = _copy(setup, tmp_path)
+    name = predict(path, run, progress=False, reconstruct_kwargs=M)
+    store = DataStore.open(path, mode="r+")
+    old = {"format": 1, "checkpoint": "best", "scale": 2.0}  # what an earlier version stored
+    params = {**store.reconstruction_params(name), "calibration": old}
+    for key in (f"reconstructions/{name}", f"uncertainty/{name}"):
+        if key in store._group:
+            store._group[key].attrs["params"] = params
+    assert store.reconstruction_params(name)["calibration"] == old
+    assert predict(path, run, progress=False, reconstruct_kwargs=M) == name
+    assert DataStore.open(path).reconstruction_params(name)["calibration"] == load_calibration(run)["best"]

@@ -56,10 +56,11 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[s
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        # the calibration is refitted when its format or the checkpoint changes: the same request
+        # a calibrated result under a refitted calibration (new format, same run) is the same request;
+        # a raw result and a calibrated one are not
         same_request = {k: v for k, v in old.items() if k not in made_from and k != "calibration"} == {
             k: v for k, v in params.items() if k != "calibration"
-        }
+        } and ("calibration" in old) == ("calibration" in params)
         if old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
     return new

@@ -247,14 +247,7 @@ def train(
     lr = spec.lr if lr is None else float(lr)
     clip = spec.clip_grad if clip_grad is None else (float(clip_grad) or None)
     sched = (spec.scheduler or "none") if scheduler is None else str(scheduler)
-    if epochs < 1 or batch_size < 1 or not lr > 0 or (max_steps is not None and max_steps < 1):
-        raise NanoctError(
-            f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive"
-        )
-    if sched not in SCHEDULERS:
-        raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")
-    if precision not in PRECISIONS:
-        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISIONS)}")
+    _check_request(epochs, batch_size, lr, max_steps, sched, precision)
 
     # ---------------------------------------------------------------- processes and device
     world = int(os.environ.get("WORLD_SIZE", "1"))
@@ -305,6 +298,18 @@ def train(
     finally:
         if own_group and dist.is_initialized():
             dist.destroy_process_group()
+
+
+def _check_request(epochs: int, batch_size: int, lr: float, max_steps: int | None, sched: str, precision: str) -> None:
+    """NanoctError for a non-positive count or rate, an unknown schedule or precision."""
+    if epochs < 1 or batch_size < 1 or not lr > 0 or (max_steps is not None and max_steps < 1):
+        raise NanoctError(
+            f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive"
+        )
+    if sched not in SCHEDULERS:
+        raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")
+    if precision not in PRECISIONS:
+        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISIONS)}")
 
 
 @dataclass(frozen=True)
