@@ -38,6 +38,14 @@ __all__ = ["output_name", "predict"]
 output_name = prediction_name
 
 
+def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any]:
+    """What a prediction's parameters ask for: without what it was made from and without the
+    calibration's fitted values (a refit of the same run's calibration is the same request),
+    but with whether it is calibrated (a raw and a calibrated result are not)."""
+    kept = {k: v for k, v in params.items() if k not in made_from and k != "calibration"}
+    return kept | {"calibrated": "calibration" in params}
+
+
 def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[str, Any], overwrite: bool) -> dict:
     """``params`` plus what the prediction is made from (geometry, input fingerprint).
 
@@ -56,11 +64,7 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[s
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        # a calibrated result under a refitted calibration (new format, same run) is the same request;
-        # a raw result and a calibrated one are not
-        same_request = {k: v for k, v in old.items() if k not in made_from and k != "calibration"} == {
-            k: v for k, v in params.items() if k != "calibration"
-        } and ("calibration" in old) == ("calibration" in params)
+        same_request = _request(old, made_from) == _request(params, made_from)
         if old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
     return new
