@@ -18,9 +18,10 @@ import platform
 import torch
 
 from bench_flows import bench_train  # the same step, timed the same way
+from nanoct.learn.models import table_order
 from nanoct.reproduce import STUDIES
 
-NETWORKS = ("unet", "cinn", "cinn-res", "ciunet", "ciunet-res")
+NETWORKS = table_order()
 
 
 def main() -> None:

@@ -6,12 +6,14 @@ from nanoct.metrics import (
     GAUSSIAN_COVERAGE,
     STD_MAP_MIN_SLOPE,
     apply_std_map,
+    calibrated_std,
     coverage,
     edge_std,
     fit_std_map,
     fit_std_scale,
     invert_std_map,
     psnr,
+    raw_std,
     reliability,
     sparsification,
     ssim,
@@ -253,3 +255,14 @@ def test_edge_std():
     stack = np.stack([img, img.T])
     np.testing.assert_allclose(edge_std(stack), np.stack([smooth, edge_std(img.T)]))  # image by image
     assert not edge_std(np.ones((8, 8))).any()
+
+
+def test_calibrated_and_raw_std_follow_the_stored_calibration():
+    raw = np.linspace(0.01, 0.2, 50, dtype=np.float32)
+    std_map = {"std": [0.02, 0.1], "calibrated": [0.01, 0.3]}
+    cases = (({"std_map": std_map, "scale": 2.0}, apply_std_map(raw, std_map)), ({"scale": 2.0}, 2.0 * raw))
+    for cal, expected in cases:
+        stored = calibrated_std(raw, cal)
+        np.testing.assert_allclose(stored, expected, rtol=1e-12)  # the map wins over the one factor
+        np.testing.assert_allclose(raw_std(stored.astype(np.float32), cal), raw, rtol=1e-5)
+    assert calibrated_std(raw, {}) is None and raw_std(raw, {}) is raw

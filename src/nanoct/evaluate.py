@@ -19,7 +19,7 @@ import numpy as np
 from .conclusions import format_conclusions
 from .errors import NanoctError
 from .fileio import atomic_write_text
-from .metrics import EDGE_SIGMA, edge_std, invert_std_map, summarize, support_mask, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, raw_std, summarize, support_mask, uncertainty_summary
 from .provenance import environment_info
 from .store import DataStore
 
@@ -59,10 +59,7 @@ def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarr
     calibration the stored std is the raw one and the returned dict is empty.
     """
     cal = dict(store.reconstruction_params(name).get("calibration") or {})
-    std = store.read_uncertainty(name, indices)
-    if cal.get("std_map"):
-        return invert_std_map(std, cal["std_map"]).astype(np.float32), cal
-    return (std / cal["scale"] if cal.get("scale") else std), cal
+    return raw_std(store.read_uncertainty(name, indices), cal), cal
 
 
 def uncertainty_scores(

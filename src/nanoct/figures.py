@@ -12,7 +12,7 @@ import numpy as np
 
 from .evaluate import format_uncertainty_table, parse_name, read_std
 from .fileio import atomic_write_bytes
-from .metrics import apply_std_map, reliability
+from .metrics import calibrated_std, reliability
 from .motion import plot_motion
 from .recon.fbp import fbp
 from .store import DataStore
@@ -210,8 +210,8 @@ def reliability_diagram(
             axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
             if cal.get("scale"):
                 axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
-            if cal.get("scale") or cal.get("std_map"):
-                calibrated = apply_std_map(raw, cal["std_map"]) if cal.get("std_map") else raw * cal["scale"]
+            calibrated = calibrated_std(raw, cal)
+            if calibrated is not None:
                 axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
         for row, kind in enumerate(kinds):
             ax = axes[row, col]

@@ -38,7 +38,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """
     with atomic_target(path) as tmp, open(tmp, "wb") as f:
         f.write(data)
-    return path
+    return Path(path)
 
 
 @contextmanager

@@ -29,11 +29,13 @@ __all__ = [
     "STD_MAP_MIN_SLOPE",
     "SUPPORT_RADIUS",
     "apply_std_map",
+    "calibrated_std",
     "coverage",
     "edge_std",
     "fit_std_map",
     "fit_std_scale",
     "invert_std_map",
+    "raw_std",
     "psnr",
     "reliability",
     "sparsification",
@@ -318,6 +320,26 @@ def invert_std_map(calibrated: np.ndarray, std_map: dict[str, Any]) -> np.ndarra
     """
     lx, ly = _map_knots(std_map)
     return _loglog(calibrated, ly, lx)
+
+
+def calibrated_std(raw: np.ndarray, calibration: dict[str, Any]) -> np.ndarray | None:
+    """The calibrated std of a raw std under a stored calibration (:mod:`nanoct.learn.calibration`).
+
+    Its ``std_map`` if it has one (:func:`apply_std_map`), else its one factor ``scale`` (results
+    of earlier versions); None for a calibration with neither (an empty dict: not calibrated).
+    """
+    if calibration.get("std_map"):
+        return apply_std_map(raw, calibration["std_map"])
+    if calibration.get("scale"):
+        return np.asarray(raw, dtype=np.float64) * calibration["scale"]
+    return None
+
+
+def raw_std(stored: np.ndarray, calibration: dict[str, Any]) -> np.ndarray:
+    """The raw std behind a stored one: the inverse of :func:`calibrated_std` (unchanged if not calibrated)."""
+    if calibration.get("std_map"):
+        return invert_std_map(stored, calibration["std_map"]).astype(np.float32)
+    return stored / calibration["scale"] if calibration.get("scale") else stored
 
 
 def sparsification(err: np.ndarray, std: np.ndarray, fractions: np.ndarray | None = None) -> dict[str, object]:

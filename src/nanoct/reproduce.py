@@ -49,7 +49,7 @@ from .recon.batch import reconstruct_dataset
 from .recon.registry import method_spec, output_name
 from .report_html import write_html_report
 from .simulate import SimulationConfig
-from .store import DataStore
+from .store import SPLITS, DataStore
 
 __all__ = [
     "CONCLUSION_K",
@@ -401,35 +401,31 @@ def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
     return fan | {"workers": 0}, _cores()
 
 
+def _torch_stage(job: Callable[..., int], jobs: list, desc: str, setting: Setting, study: Study, fan: dict) -> None:
+    """Run ``job`` for every entry of ``jobs`` where :func:`_torch_fan` puts torch jobs."""
+    if jobs:
+        torch_fan, threads = _torch_fan(fan)
+        run_tasks(
+            partial(job, str(setting.out / "data"), str(setting.out / "runs"), study, jobs, threads),
+            range(len(jobs)),
+            desc=desc,
+            unit="run",
+            **torch_fan,
+        )
+
+
 def training_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
     """One network per (model, input, seed); finished runs are skipped, killed ones resume.
 
     Torch threads are set explicitly per job (torch may have been imported under
     ``OMP_NUM_THREADS=1``); where the jobs run: :func:`_torch_fan`.
     """
-    data, runs = str(setting.out / "data"), str(setting.out / "runs")
-    torch_fan, threads = _torch_fan(fan)
-    if jobs.train:
-        run_tasks(
-            partial(_train_job, data, runs, study, jobs.train, threads),
-            range(len(jobs.train)),
-            desc="train",
-            unit="run",
-            **torch_fan,
-        )
+    _torch_stage(_train_job, jobs.train, "train", setting, study, fan)
 
 
 def prediction_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
     """Every prediction on the test split (done ones are skipped by :func:`nanoct.learn.predict.predict`)."""
-    torch_fan, threads = _torch_fan(fan)
-    if jobs.predict:
-        run_tasks(
-            partial(_predict_job, str(setting.out / "data"), str(setting.out / "runs"), study, jobs.predict, threads),
-            range(len(jobs.predict)),
-            desc="predict",
-            unit="run",
-            **torch_fan,
-        )
+    _torch_stage(_predict_job, jobs.predict, "predict", setting, study, fan)
 
 
 def _result_names(setting: Setting, models: tuple[str, ...], jobs: Jobs) -> tuple[list[str], list[str]]:
@@ -508,7 +504,7 @@ def report_stage(
     sections = [
         f"## {setting.preset}{'' if setting.perturbed else ' (no motion)'}",
         "",
-        f"{store.n} samples (train/val/test {store.info()['splits']}), seed {store.seed}; "
+        f"{store.n} samples (train/val/test { ({s: int(store.indices(s).size) for s in SPLITS}) }), seed {store.seed}; "
         f"networks: {', '.join(models) or 'none'}; epochs {', '.join(f'{m} {study.epochs[m]}' for m in models)}"
         + (f"; {seeds} training seeds per network row (tables: seed 0)" if seeds > 1 else "")
         + ".",

@@ -46,20 +46,25 @@ def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any
     return kept | {"calibrated": "calibration" in params}
 
 
-def _provenance(store: DataStore, out: str, params: dict[str, Any], ckpt: dict[str, Any], overwrite: bool) -> dict:
-    """``params`` plus what the prediction is made from (geometry, input fingerprint).
-
-    Refuses a run trained on another geometry; deletes an earlier ``out`` made with other
-    settings (with ``overwrite``) or with the same settings from an input that has changed since
-    or under another calibration of the same run (refitted after a format change).
-    """
+def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any]) -> None:
+    """Refuse a run trained on another geometry than the data set's (before any work is done)."""
     trained = (ckpt.get("config") or {}).get("data", {}).get("geometry")
     here = json.loads(json.dumps(store.geometry.to_dict()))
     if trained is not None and trained != here:
         raise NanoctError(
-            f"the run {params['run']} was trained on another geometry ({trained}) than the data set {store.path} "
+            f"the run {run.resolve()} was trained on another geometry ({trained}) than the data set {store.path} "
             f"({here}); train a network on this data set"
         )
+
+
+def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: bool) -> dict:
+    """``params`` plus what the prediction is made from (geometry, input fingerprint).
+
+    Deletes an earlier ``out`` made with other settings (with ``overwrite``) or with the same
+    settings from an input that has changed since or under another calibration of the same run
+    (refitted after a format change).
+    """
+    here = json.loads(json.dumps(store.geometry.to_dict()))
     made_from = {"geometry": here, "input_fingerprint": store.recons.fingerprint(params["input"])}
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
@@ -144,6 +149,7 @@ def predict(
     store = DataStore.open(store_path, mode="r+")
     ckpt_path = run / f"{checkpoint}.pt"
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
+    _check_geometry(store, run, ckpt)
     train_input = str(ckpt["input"])
     input_name = train_input if input_name is None else input_name
     indices = store.indices(split)
@@ -167,7 +173,7 @@ def predict(
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
         params["calibration"], std_map = cal, cal["std_map"]
-    params = _provenance(store, out, json.loads(json.dumps(params)), ckpt, overwrite)
+    params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
     try:
         store.prepare_reconstruction(out, params, uncertainty=sampling)
     except StoreError as exc:

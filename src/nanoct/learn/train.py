@@ -418,10 +418,10 @@ def _previous(s: _Settings, config: dict[str, Any]) -> dict[str, Any] | None:
     ckpt = load_checkpoint(
         last_path, model_name=s.model_name, image_size=config["image_size"], hparams=config["hparams"]
     )
-    old = ckpt.get("config") or {}
-    if _diff(config, old):
+    differs = _diff(config, ckpt.get("config") or {})
+    if differs:
         raise NanoctError(
-            f"{s.out} holds a run made with other settings (differs in: {', '.join(_diff(config, old))}); "
+            f"{s.out} holds a run made with other settings (differs in: {', '.join(differs)}); "
             "choose another --out, or repeat the original command to resume it"
         )
     return ckpt
