@@ -210,7 +210,9 @@ def train(
     ),
     param: list[str] = typer.Option([], "--param", help="Model architecture argument name=value (repeatable)."),
     precision: str = typer.Option(
-        "fp32", "--precision", help="fp32 | bf16 (training steps in bfloat16 autocast; up to 2x faster on such CPUs)."
+        "fp32",
+        "--precision",
+        help="fp32 | bf16 (bfloat16 autocast; up to 2x faster on CPUs with native bfloat16).",
     ),
     quiet: bool = QUIET,
 ) -> None:
