@@ -27,6 +27,7 @@ TOY = Study(
     },
     n_samples=3,
     mixing=("unet",),
+    antithetic=True,
 )
 
 
@@ -50,6 +51,8 @@ def test_reproduce_toy_study(tmp_path):
             == json.loads((out / "runs" / f"cinn-res-{i}" / "calibration.json").read_text())["best"]["scale"]
         )
         assert r["edge_baseline"]["all"]["coverage"]["calibrated"] is not None
+    cal = json.loads((out / "runs" / "cinn-res-fbp" / "calibration.json").read_text())["best"]
+    assert cal["reconstruct"] == {"n_samples": 3, "antithetic": True}  # the study's sampling, also in calibration
     for png in (
         "reconstructions.png",
         "reconstructions_unet.png",

@@ -256,6 +256,11 @@ def predict(
     samples: int | None = typer.Option(
         None, "--samples", "-M", help="Latent samples per image for invertible nets (default 100)."
     ),
+    antithetic: bool = typer.Option(
+        False,
+        "--antithetic",
+        help="Invertible nets: latent samples in antithetic pairs (z, -z); less noise in the mean.",
+    ),
     device: str | None = typer.Option(None, "--device", help="cpu, cuda, ... (default: CUDA when present)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result made with other parameters."),
     no_calibrate: bool = typer.Option(
@@ -276,7 +281,7 @@ def predict(
     _check_device(device)
     if samples is not None and samples <= 0:
         raise NanoctError(f"--samples {samples} must be a positive number of latent samples")
-    kwargs = None if samples is None else {"n_samples": samples}
+    kwargs = ({} if samples is None else {"n_samples": samples}) | ({"antithetic": True} if antithetic else {})
     name = predict_model(
         directory,
         run,
@@ -286,7 +291,7 @@ def predict(
         device=device,
         progress=not quiet,
         overwrite=overwrite,
-        reconstruct_kwargs=kwargs,
+        reconstruct_kwargs=kwargs or None,
         calibrate=not no_calibrate,
     )
     typer.echo(f"wrote reconstructions/{name}")

@@ -12,6 +12,7 @@ from torch.autograd.functional import jacobian
 from nanoct.learn.invertible import (
     ActNorm,
     ConditionalNICECoupling,
+    ConditionalScale,
     OrthogonalDownsampling,
     OrthogonalUpsampling,
     RunningMoments,
@@ -20,6 +21,7 @@ from nanoct.learn.invertible import (
     haar_matrix,
     pad_to_multiple,
     preserve_numpy_rng,
+    scale_form,
 )
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -179,3 +181,48 @@ def test_running_moments_match_direct_computation_for_any_chunking():
         mean, std = rm.result()
         torch.testing.assert_close(mean, values.double().mean(1))
         torch.testing.assert_close(std, values.double().std(1, unbiased=False))
+
+
+@pytest.mark.parametrize("form", ["location", "shift"])
+def test_conditional_scale_inverts_and_logdet_matches_brute_force(form):
+    torch.manual_seed(5)
+    layer = ConditionalScale([(2, 3, 3)], [(4, 3, 3)], form=form)
+    c = torch.randn(2, 4, 3, 3, dtype=torch.float64)
+    x = torch.randn(2, 2, 3, 3, dtype=torch.float64)
+    (y,), log_det = layer([x], c=[c])
+    (back,), log_det_rev = layer([y], c=[c], rev=True)
+    torch.testing.assert_close(back, x, rtol=0, atol=1e-12)
+    torch.testing.assert_close(log_det_rev, -log_det)
+    for i in range(2):
+        ci = c[i : i + 1]
+        jmat = jacobian(lambda v, ci=ci: layer([v.view(1, 2, 3, 3)], c=[ci])[0][0].reshape(-1), x[i].reshape(-1))
+        assert abs(torch.linalg.slogdet(jmat)[1].item() - log_det[i].item()) < 1e-10
+
+
+def test_conditional_scale_location_form_has_the_head_output_as_location_and_spread():
+    # inverse of a standard normal y: x = y * exp(-s) + mu, so mean mu and std exp(-s) per pixel
+    layer = ConditionalScale([(1, 2, 2)], [(2, 2, 2)], clamp=3.0, form="location")
+    raw_s = torch.tensor([0.0, 0.5, -0.5, 1.0]).view(1, 1, 2, 2)
+    mu = torch.tensor([0.3, -2.0, 5.0, 0.0]).view(1, 1, 2, 2)
+    c = torch.cat([raw_s, mu], dim=1)
+    y = torch.randn(20000, 1, 2, 2, generator=torch.Generator().manual_seed(0))
+    (x,), _ = layer([y], c=[c.expand(20000, -1, -1, -1)], rev=True)
+    s = 3.0 * 0.636 * torch.atan(raw_s)
+    torch.testing.assert_close(x.mean(0), mu[0], atol=0.05, rtol=0)
+    torch.testing.assert_close(x.std(0), torch.exp(-s)[0], atol=0, rtol=0.03)
+    # the shift form puts its location at -t * exp(-s) instead
+    (x_shift,), _ = ConditionalScale([(1, 2, 2)], [(2, 2, 2)], form="shift")(
+        [y], c=[c.expand(20000, -1, -1, -1)], rev=True
+    )
+    torch.testing.assert_close(x_shift.mean(0), (-mu * torch.exp(-s))[0], atol=0.05, rtol=0)
+
+
+def test_scale_form_reads_the_networks_argument():
+    assert scale_form(False) is None and scale_form("none") is None
+    assert scale_form(True) == "shift" and scale_form("shift") == "shift"
+    assert scale_form("location") == "location"
+    for bad in ("loc", 1, None):
+        with pytest.raises(ValueError, match="conditional_scale"):
+            scale_form(bad)
+    with pytest.raises(ValueError, match="form"):
+        ConditionalScale([(1, 2, 2)], [(2, 2, 2)], form="scale")

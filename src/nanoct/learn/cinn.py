@@ -39,6 +39,7 @@ from nanoct.learn.invertible import (
     OrthogonalDownsampling,
     coupling_block,
     preserve_numpy_rng,
+    scale_form,
     scale_head,
 )
 
@@ -128,8 +129,10 @@ class CiNN(ConditionalFlow):
         Bound of the affine couplings' log-scales (unused for additive couplings).
     conditional_scale: False
         A pixel-wise conditional affine layer
-        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
-        conditioner's full-resolution stem features) after the input ActNorm.
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, log-scale and location from a head
+        on the conditioner's full-resolution stem features) after the input ActNorm: ``"location"``
+        (``(v - mu) * exp(s)``, the tiny study's), ``"shift"`` or ``True`` (``v * exp(s) + t``,
+        the earlier form), ``False`` / ``"none"`` (the paper's architecture).
     """
 
     name = "cinn"
@@ -151,7 +154,7 @@ class CiNN(ConditionalFlow):
         seed: int = 0,
         coupling: str = "additive",
         clamp: float = 2.0,
-        conditional_scale: bool = False,
+        conditional_scale: bool | str = False,
     ) -> None:
         if int(n_scales) < 1:
             raise ValueError(f"n_scales must be >= 1, got {n_scales}")
@@ -173,6 +176,7 @@ class CiNN(ConditionalFlow):
         if any(c < 1 for c in cond_channels):
             raise ValueError(f"cond_channels must be positive, got {cond_channels}")
         coupling_block(str(coupling), float(clamp))  # checks the kind
+        form = scale_form(conditional_scale)  # checks the value
         super().__init__(
             n_scales=int(n_scales),
             blocks_per_scale=int(blocks_per_scale),
@@ -188,7 +192,7 @@ class CiNN(ConditionalFlow):
             seed=int(seed),
             coupling=str(coupling),
             clamp=float(clamp),
-            conditional_scale=bool(conditional_scale),
+            conditional_scale=conditional_scale,
         )
         self.multiple = 2 ** int(n_scales)
         coarse_channels = 2 ** (int(n_scales) + 1)
@@ -198,7 +202,7 @@ class CiNN(ConditionalFlow):
                 f"2^(n_scales+1) values), got {fc_dim}"
             )
         self.cond_net = ResNetConditioner(cond_channels, int(cond_width), int(fc_cond_dim))
-        self.scale_head = scale_head(int(cond_width)) if conditional_scale else None
+        self.scale_head = scale_head(int(cond_width)) if form else None
         # FrEIA needs concrete sizes to build a graph; the convolutional graph is built for the
         # smallest valid size and runs at any multiple of it (its layers are size-agnostic), and
         # the fully-connected graph has the fixed size fc_dim. Flattening, the split of the
@@ -219,9 +223,10 @@ class CiNN(ConditionalFlow):
         if hp["actnorm"]:
             nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
         cond_full = []
-        if hp["conditional_scale"]:
+        form = scale_form(hp["conditional_scale"])
+        if form:
             cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
-            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
+            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {"form": form}, conditions=cond_full[0], name="scale_in"))
         nodes.append(
             Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name="down_0")
         )

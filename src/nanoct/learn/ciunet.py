@@ -39,6 +39,7 @@ from nanoct.learn.invertible import (
     OrthogonalUpsampling,
     coupling_block,
     preserve_numpy_rng,
+    scale_form,
     scale_head,
 )
 from nanoct.learn.unet import PAPER_CHANNELS, UNet
@@ -84,8 +85,10 @@ class CiUNet(ConditionalFlow):
         Bound of the affine couplings' log-scales (unused for additive couplings).
     conditional_scale: False
         A pixel-wise conditional affine layer
-        (:class:`~nanoct.learn.invertible.ConditionalScale`, scale and shift from a head on the
-        UNet's full-resolution decoder features) after the input ActNorm.
+        (:class:`~nanoct.learn.invertible.ConditionalScale`, log-scale and location from a head
+        on the UNet's full-resolution decoder features) after the input ActNorm: ``"location"``
+        (``(v - mu) * exp(s)``, the tiny study's), ``"shift"`` or ``True`` (``v * exp(s) + t``,
+        the earlier form), ``False`` / ``"none"`` (the paper's architecture).
     """
 
     name = "ciunet"
@@ -105,7 +108,7 @@ class CiUNet(ConditionalFlow):
         orthogonal_map: str = "cayley",
         coupling: str = "additive",
         clamp: float = 2.0,
-        conditional_scale: bool = False,
+        conditional_scale: bool | str = False,
     ) -> None:
         n_scales = int(n_scales)
         if n_scales < 2:
@@ -118,6 +121,7 @@ class CiUNet(ConditionalFlow):
         if int(kernel_size) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
         coupling_block(str(coupling), float(clamp))  # checks the kind
+        form = scale_form(conditional_scale)  # checks the value
         super().__init__(
             n_scales=n_scales,
             blocks_per_scale=int(blocks_per_scale),
@@ -131,7 +135,7 @@ class CiUNet(ConditionalFlow):
             orthogonal_map=str(orthogonal_map),
             coupling=str(coupling),
             clamp=float(clamp),
-            conditional_scale=bool(conditional_scale),
+            conditional_scale=conditional_scale,
         )
         self.multiple = 2 ** (n_scales - 1)
         self.cond_net = UNet(
@@ -140,7 +144,7 @@ class CiUNet(ConditionalFlow):
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)
         self.cond_net.outc = nn.Identity()
-        self.scale_head = scale_head(cond_channels[0]) if conditional_scale else None
+        self.scale_head = scale_head(cond_channels[0]) if form else None
         with preserve_numpy_rng():
             self.flow = self._build(self.multiple, self.multiple)
 
@@ -163,9 +167,10 @@ class CiUNet(ConditionalFlow):
 
         nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
         cond_full = []
-        if hp["conditional_scale"]:
+        form = scale_form(hp["conditional_scale"])
+        if form:
             cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
-            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {}, conditions=cond_full[0], name="scale_in"))
+            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {"form": form}, conditions=cond_full[0], name="scale_in"))
         nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name="pre_down"))
         couplings(hp["pre_blocks"], cond_dec[1], "pre")
         nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="pre_up"))

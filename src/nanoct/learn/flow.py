@@ -185,25 +185,40 @@ class ConditionalFlow(PostProcessor):
         self.forward(self._target(x_tilde, x), x_tilde)
 
     def _sample_rows(
-        self, x_tilde: torch.Tensor, n_samples: int, chunk: int, generator: torch.Generator | None
+        self,
+        x_tilde: torch.Tensor,
+        n_samples: int,
+        chunk: int,
+        generator: torch.Generator | None,
+        antithetic: bool = False,
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-        """Yield (image index per row, v samples) in passes of at most ``chunk`` rows."""
+        """Yield (image index per row, v samples) in passes of at most ``chunk`` rows.
+
+        Row ``r`` is sample ``m = r % n_samples`` of image ``r // n_samples``. With
+        ``antithetic`` the latent of every odd ``m`` is the negated latent of ``m - 1`` (the
+        draws are made as without it, so the even samples are the same in both modes).
+        """
         b, _, h, w = x_tilde.shape
         d = self.latent_dim(h, w)
         conds = self.condition(x_tilde)
         total = b * n_samples
+        previous: torch.Tensor | None = None
         for r0 in range(0, total, chunk):
-            rows = torch.arange(r0, min(r0 + chunk, total), device=x_tilde.device)
-            img = torch.div(rows, n_samples, rounding_mode="floor")
+            rows = torch.arange(r0, min(r0 + chunk, total))
+            img = torch.div(rows, n_samples, rounding_mode="floor").to(x_tilde.device)
             z = torch.randn(
                 len(rows),
                 d,
                 generator=generator,
                 dtype=x_tilde.dtype,
                 device="cpu" if generator is None else generator.device,
-            ).to(x_tilde.device)
+            )
+            if antithetic:
+                for j in torch.nonzero(rows % n_samples % 2 == 1).flatten().tolist():
+                    z[j] = -(z[j - 1] if j > 0 else previous)
+                previous = z[-1].clone()
             cs = [c.index_select(0, img) for c in conds]
-            yield img, self._inverse_with(z, cs, (h, w))
+            yield img, self._inverse_with(z.to(x_tilde.device), cs, (h, w))
 
     @staticmethod
     def _generator(generator: torch.Generator | None, seed: int | None) -> torch.Generator | None:
@@ -248,6 +263,7 @@ class ConditionalFlow(PostProcessor):
         chunk: int = 32,
         generator: torch.Generator | None = None,
         seed: int | None = None,
+        antithetic: bool = False,
         **kwargs: Any,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and pixel-wise standard deviation over ``n_samples`` latent samples per input.
@@ -259,6 +275,12 @@ class ConditionalFlow(PostProcessor):
         float64, so memory does not grow with ``n_samples``. The latent draws come from
         ``generator`` if given, else from a generator seeded with ``seed`` if given, else from
         torch's global RNG.
+
+        With ``antithetic`` the samples come in pairs ``G^-1(z), G^-1(-z)`` (antithetic
+        variates; an odd ``n_samples`` leaves the last sample unpaired). Every sample still has
+        the model's distribution, so mean and std estimate the same quantities; the part of
+        ``G^-1`` that is odd in z (all of it for an affine map) cancels in the mean, which
+        removes most of the Monte-Carlo error of the mean of a near-affine flow at no cost.
         """
         if kwargs:
             raise TypeError(f"{self.name}.reconstruct got unexpected arguments {sorted(kwargs)}")
@@ -268,7 +290,7 @@ class ConditionalFlow(PostProcessor):
         b, _, h, w = x_tilde.shape
         moments = RunningMoments(b, (1, h, w), device=x_tilde.device)
         with parametrize_cached():
-            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator):
+            for img, v in self._sample_rows(x_tilde, n_samples, chunk, generator, bool(antithetic)):
                 moments.update(v, img)
         mean_v, std = moments.result()
         mean_v, std = mean_v.to(x_tilde.dtype), std.to(x_tilde.dtype)

@@ -14,8 +14,8 @@ plain FrEIA graphs (``GraphINN`` of ``Node``/``ConditionNode``):
   coupling is the identity at initialisation.
 * :class:`ConditionalAffineCoupling` -- the same with FrEIA's affine (GLOW) coupling and
   soft-clamped log-scales; :data:`COUPLINGS` / :func:`coupling_block` select the kind.
-* :class:`ConditionalScale` -- a pixel-wise affine map whose scale and shift come from the
-  condition (a conditional ActNorm).
+* :class:`ConditionalScale` -- a pixel-wise affine map whose scale and location come from the
+  condition (a conditional ActNorm); :func:`scale_form` reads a network's choice of it.
 * :class:`ActNorm` -- FrEIA's activation normalisation (data-dependent initialisation on the
   first forward batch) made safe for constant channels and for a first call in reverse.
 * :func:`pad_to_multiple` / :func:`crop` -- the padding convention of the networks.
@@ -47,6 +47,7 @@ __all__ = [
     "ConditionalAffineCoupling",
     "ConditionalScale",
     "scale_head",
+    "scale_form",
     "COUPLINGS",
     "coupling_block",
     "ActNorm",
@@ -292,41 +293,78 @@ def coupling_block(kind: str, clamp: float) -> tuple[type[Fm.InvertibleModule], 
 
 
 class ConditionalScale(Fm.InvertibleModule):
-    """Pixel-wise conditional affine map ``y = x * exp(s) + t`` (a conditional ActNorm).
+    """Pixel-wise conditional affine map (a conditional ActNorm) in one of two forms.
 
-    The condition is the raw ``(s, t)`` map itself, ``(2C, H, W)``, computed by the network's
-    conditioner from ``x_tilde`` alone (see :func:`scale_head`), so the map is elementwise, its
-    inverse is ``(y - t) * exp(-s)`` and log|det J| is the sum of s; and a sampler computes it
-    once per image, not once per sample. Placed at the data end of a flow, ``exp(-s)`` is the
-    pixel-wise spread of the modelled distribution before the rest of the flow acts: one layer
-    that lets a flow with volume-preserving (additive) couplings make its std depend on the input
-    and the position. The log-scale is soft-clamped to ``(-clamp, clamp)`` like the affine
-    couplings'.
+    * ``form="location"``: ``y = (x - mu) * exp(s)``, inverse ``x = y * exp(-s) + mu``. Placed
+      at the data end of a flow whose remaining layers map a centred ``y`` to a centred latent,
+      ``mu`` is the pixel-wise location of the modelled distribution and ``exp(-s)`` its spread,
+      each its own output of the head, so the head learns the location on the scale of the
+      data whatever spread it has learned.
+    * ``form="shift"``: ``y = x * exp(s) + t``, inverse ``(y - t) * exp(-s)`` (the first form;
+      its location ``-t * exp(-s)`` is coupled to the scale, so a sharp, far-from-zero location
+      needs a large ``t``). Kept so that runs trained with it keep their meaning.
+
+    The condition is the raw ``(s, mu)`` or ``(s, t)`` map itself, ``(2C, H, W)``, computed by
+    the network's conditioner from ``x_tilde`` alone (see :func:`scale_head`), so the map is
+    elementwise, log|det J| is the sum of s, and a sampler computes it once per image, not once
+    per sample. It lets a flow with volume-preserving (additive) couplings make its spread depend
+    on the input and the position. The log-scale is soft-clamped to ``(-clamp, clamp)`` like the
+    affine couplings'.
 
     Args:
         dims_in: ``[(C, H, W)]``.
         dims_c: one condition ``[(2C, H, W)]``.
         clamp: bound of the log-scale.
+        form: ``"location"`` or ``"shift"``.
     """
 
-    def __init__(self, dims_in, dims_c=None, clamp: float = 3.0) -> None:
+    FORMS = ("location", "shift")
+
+    def __init__(self, dims_in, dims_c=None, clamp: float = 3.0, form: str = "location") -> None:
         super().__init__(dims_in, dims_c)
         c, *spatial = dims_in[0]
         if not dims_c or len(dims_c) != 1 or tuple(dims_c[0]) != (2 * c, *spatial):
             raise ValueError(f"ConditionalScale of {dims_in[0]} needs one condition of shape {(2 * c, *spatial)}")
+        if form not in self.FORMS:
+            raise ValueError(f"ConditionalScale form must be one of {self.FORMS}, got {form!r}")
         self.channels = c
         self.clamp = float(clamp)
+        self.form = form
 
     def forward(self, x, c=None, rev: bool = False, jac: bool = True):
         s = self.clamp * 0.636 * torch.atan(c[0][:, : self.channels])
         t = c[0][:, self.channels :]
         log_det = s.sum(dim=(1, 2, 3))
+        if self.form == "location":
+            if not rev:
+                return ((x[0] - t) * torch.exp(s),), log_det
+            return (x[0] * torch.exp(-s) + t,), -log_det
         if not rev:
             return (x[0] * torch.exp(s) + t,), log_det
         return ((x[0] - t) * torch.exp(-s),), -log_det
 
     def output_dims(self, input_dims):
         return input_dims
+
+
+def scale_form(value: bool | str) -> str | None:
+    """The :class:`ConditionalScale` form a network's ``conditional_scale`` argument names.
+
+    ``False`` / ``"none"``: no conditional scale (None); ``"location"``; ``"shift"``, also
+    ``True`` (the meaning of ``True`` in runs trained before the location form existed).
+
+    Raises
+    ------
+    ValueError
+        For any other value.
+    """
+    if value is False or value == "none":
+        return None
+    if value is True:
+        return "shift"
+    if value in ConditionalScale.FORMS:
+        return str(value)
+    raise ValueError(f"conditional_scale must be false/'none', 'location' or 'shift' (true: 'shift'), got {value!r}")
 
 
 def scale_head(c_in: int, channels: int = 1, hidden: int = 8) -> nn.Module:
