@@ -155,3 +155,14 @@ def test_reproduce_toy_scale_matches_plan(tmp_path):
         assert tags.count("table") >= 3
         assert all(a["src"].startswith("data:image/png;base64,") for t, a in page.tags if t == "img")
     assert "img" in [t for t, _ in parse((out / "parallel" / "report" / "report.html").read_text()).tags]
+
+
+def test_scale_study_differs_from_the_one_setting_study_only_where_declared():
+    from dataclasses import replace
+
+    from nanoct.reproduce import SCALE_STUDIES, STUDIES, scale_study
+
+    tiny = scale_study("tiny")
+    assert tiny is SCALE_STUDIES["tiny"] and scale_study("paper") is STUDIES["paper"]
+    assert tiny.epochs["cinn-res"] < STUDIES["tiny"].epochs["cinn-res"]
+    assert replace(tiny, epochs=STUDIES["tiny"].epochs) == STUDIES["tiny"]

@@ -17,7 +17,16 @@ import numpy as np
 from .errors import NanoctError
 from .geometry import get_preset
 from .learn.models import model_class
-from .reproduce import STUDIES, Setting, Study, check_models, preset_setting, preset_study, scale_settings, setting_jobs
+from .reproduce import (
+    Setting,
+    Study,
+    check_models,
+    preset_setting,
+    preset_study,
+    scale_settings,
+    scale_study,
+    setting_jobs,
+)
 from .store import split_assignment
 
 __all__ = ["COST_SOURCES", "STAGES", "StagePlan", "format_plan", "plan_study"]
@@ -161,7 +170,8 @@ def plan_study(
     Parameters
     ----------
     scale : str or None
-        A key of :data:`nanoct.reproduce.STUDIES`, or None for one preset.
+        A key of :data:`nanoct.reproduce.STUDIES` (its study: :func:`nanoct.reproduce.scale_study`), or None for one
+        preset.
     preset, perturbed, n
         The single setting when ``scale`` is None (``n`` only applies there).
     models, study, seeds
@@ -186,7 +196,7 @@ def plan_study(
         settings = [preset_setting(preset, perturbed, None, study.mixing)]
     else:
         settings = scale_settings(scale)
-        study = study or STUDIES[scale]
+        study = study or scale_study(scale)
     learn = float(cores) if gpus == 0 else (None if gpu_speedup is None else gpus * gpu_speedup)
     speed = {
         "data": float(cores),
