@@ -41,17 +41,18 @@ _PAPER_FAN = {"generate": 2 / 7.82 * 146.1 / 306.4, "fbp": 0.0496, "dremel": 1.9
 #: study's generation + 5 reconstructions of 200 samples take the measured ~60 s on 2 cores.
 _OVERHEAD = 0.077
 #: Core-seconds per training image (one image of one epoch) at N = 63 and N = 255. N = 63: the tiny
-#: study of docs/results.md on 2 cores (bfloat16 training steps, one run at a time with 2 threads):
-#: 5 UNet runs (32,000 images) in 271 s, 20 invertible runs (51,200 images) in 573 s.
+#: study of docs/results.md on 2 cores (bfloat16 training steps, one run at a time with 2 threads;
+#: the 1,081 s training stage split by the runs' epoch seconds): 5 UNet runs (32,000 images) 314 s,
+#: 20 invertible runs (70,400 images) 767 s.
 _TRAIN = {
-    63: {"unet": 2 * 271 / 32000, "inn": 2 * 573 / 51200},
+    63: {"unet": 2 * 314 / 32000, "inn": 2 * 767 / 70400},
     255: {"unet": 2 / 5.5, "cinn": 3 * 0.0901, "ciunet": 3 * 0.3162},
 }
 #: Core-seconds per test image: UNet inference; invertible networks per latent sample (at N = 63
-#: the tiny run: 45 predictions in 111 s on 2 cores, 20 of them invertible on 20 test + 20
-#: validation (calibration) images x 50 samples; the UNet's share is negligible).
+#: the tiny run: 45 predictions in 83 s on 2 cores, 20 of them invertible on 20 test + 20
+#: validation (calibration) images x 32 antithetic samples; the UNet's share is negligible).
 _PREDICT = {
-    63: {"unet": 2 * 0.0018, "inn": 2 * 111 / 40000},
+    63: {"unet": 2 * 0.0018, "inn": 2 * 83 / 25600},
     255: {"unet": 2 * 0.0529, "cinn": 0.0691, "ciunet": 0.2667},
 }
 
@@ -60,13 +61,14 @@ COST_SOURCES = (
     "generation, FBP, Dremel, RESESOP: benchmarks/README.md (paper-parallel measured; paper-fan generation and "
     "RESESOP scaled from the parallel figures by the measured forward-with-motion and Kaczmarz-sweep ratios); "
     "other sizes scaled by N*K*L, plus a per-sample overhead fitted to the tiny study's measured ~1 min",
-    "UNet training: docs/results.md tiny run (5 runs of 40 epochs in 4 min 31 s, bfloat16, 2 threads) at N=63, "
+    "UNet training: docs/results.md tiny run (5 runs of 40 epochs in 5 min 14 s, bfloat16, 2 threads) at N=63, "
     "benchmarks/README.md (5.5 images/s on 2 cores, float32) at N=255; invertible networks at N=63: the tiny run "
-    "(20 runs of 16 epochs in 9 min 33 s, one at a time, bfloat16, the tiny study's light stacks); at N=255: 3 x "
+    "(20 runs of 12-32 epochs, 70,400 images, in 12 min 47 s, one at a time, bfloat16, the tiny study's light "
+    "stacks); at N=255: 3 x "
     "the measured forward pass "
     "(benchmarks/README.md sampling table; backward assumed 2 forward), the paper's architectures",
     "prediction: UNet inference (channels_last, batch 16, benchmarks/README.md) and the per-latent-sample cost of "
-    "the invertible networks (N=63: the tiny run's 45 predictions in 111 s; N=255: benchmarks/README.md), "
+    "the invertible networks (N=63: the tiny run's 45 predictions in 83 s; N=255: benchmarks/README.md), "
     "times the study's latent samples, over the test and validation split "
     "(calibration); sizes between 63 and 255 scaled by pixel count from 255",
     "no GPU figure was measured: with --gpus, training and prediction use --gpu-speedup (one GPU relative to "
