@@ -132,3 +132,27 @@ def test_user_errors(monkeypatch, capsys, tmp_path, args, message):
     assert code == 2
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "X").exists()  # nothing half-written
+
+
+@pytest.mark.parametrize(
+    ("flags", "expected"),
+    [
+        ((), None),
+        (("--samples", 8), {"n_samples": 8}),
+        (("--antithetic",), {"antithetic": True}),
+        (("--samples", 8, "--antithetic"), {"n_samples": 8, "antithetic": True}),
+    ],
+)
+def test_predict_passes_the_sampling_options(monkeypatch, capsys, tmp_path, flags, expected):
+    import nanoct.learn.predict
+
+    seen = {}
+
+    def fake_predict(*args, **kwargs):
+        seen.update(kwargs)
+        return "fbp+cinn-res"
+
+    monkeypatch.setattr(nanoct.learn.predict, "predict", fake_predict)
+    code, out, err = run(monkeypatch, capsys, "predict", tmp_path, "--run", tmp_path / "run", *flags)
+    assert code == 0 and "reconstructions/fbp+cinn-res" in out, err
+    assert seen["reconstruct_kwargs"] == expected
