@@ -6,6 +6,7 @@ import time
 import numpy as np
 import pytest
 
+from nanoct.errors import NanoctError
 from nanoct.reproduce import Study, reproduce_scale, reproduce_study
 
 TOY = Study(
@@ -166,3 +167,5 @@ def test_scale_study_differs_from_the_one_setting_study_only_where_declared():
     assert tiny is SCALE_STUDIES["tiny"] and scale_study("paper") is STUDIES["paper"]
     assert tiny.epochs["cinn-res"] < STUDIES["tiny"].epochs["cinn-res"]
     assert replace(tiny, epochs=STUDIES["tiny"].epochs) == STUDIES["tiny"]
+    with pytest.raises(NanoctError, match="unknown scale 'huge'"):
+        scale_study("huge")

@@ -173,7 +173,15 @@ SCALE_STUDIES: dict[str, Study] = {
 
 
 def scale_study(scale: str) -> Study:
-    """The :class:`Study` of ``reproduce --scale scale`` (:data:`SCALE_STUDIES`, else :data:`STUDIES`)."""
+    """The :class:`Study` of ``reproduce --scale scale`` (:data:`SCALE_STUDIES`, else :data:`STUDIES`).
+
+    Raises
+    ------
+    NanoctError
+        If ``scale`` is not one of :data:`STUDIES`.
+    """
+    if scale not in STUDIES:
+        raise NanoctError(f"unknown scale {scale!r}; choose one of: {', '.join(STUDIES)}")
     return SCALE_STUDIES.get(scale) or STUDIES[scale]
 
 

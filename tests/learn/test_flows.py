@@ -322,6 +322,9 @@ def test_antithetic_sampling_pairs_latents_across_chunks(arch, images, perturb):
     torch.testing.assert_close(z[:, 3], -z[:, 2], rtol=0, atol=0)
     assert not torch.allclose(z[:, 4], -z[:, 3])  # an odd count leaves the last sample unpaired
     assert not torch.allclose(z[0], z[1])
+    seen.clear()
+    m.reconstruct(x_tilde, n_samples=5, chunk=3, seed=1)  # the same draws without pairing
+    torch.testing.assert_close(torch.cat(seen).view(2, 5, -1)[:, ::2], z[:, ::2], rtol=0, atol=0)
     # mean and std are those of the paired samples
     v = inverse_with(z.reshape(10, -1), m.condition(x_tilde.repeat_interleave(5, 0)), (8, 8)).view(2, 5, 1, 8, 8)
     expected = x_tilde - v.mean(1) if m.residual else v.mean(1)

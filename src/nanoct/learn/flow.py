@@ -242,7 +242,8 @@ class ConditionalFlow(PostProcessor):
         seed: int | None = None,
     ) -> torch.Tensor:
         """``n_samples`` reconstructions per input, (B, n_samples, 1, H, W): ``G^-1(z)`` (or
-        ``x_tilde - G^-1(z)`` for the residual variants) with z ~ N(0, I)."""
+        ``x_tilde - G^-1(z)`` for the residual variants) with independent z ~ N(0, I) (for
+        antithetic pairs use :meth:`reconstruct`)."""
         self._check_condition(x_tilde)
         self._check_sampling_args(n_samples, chunk)
         generator = self._generator(generator, seed)

@@ -315,12 +315,13 @@ class ConditionalScale(Fm.InvertibleModule):
         dims_in: ``[(C, H, W)]``.
         dims_c: one condition ``[(2C, H, W)]``.
         clamp: bound of the log-scale.
-        form: ``"location"`` or ``"shift"``.
+        form: ``"location"`` or ``"shift"`` (the default, the layer's behaviour before the
+            location form existed).
     """
 
     FORMS = ("location", "shift")
 
-    def __init__(self, dims_in, dims_c=None, clamp: float = 3.0, form: str = "location") -> None:
+    def __init__(self, dims_in, dims_c=None, clamp: float = 3.0, form: str = "shift") -> None:
         super().__init__(dims_in, dims_c)
         c, *spatial = dims_in[0]
         if not dims_c or len(dims_c) != 1 or tuple(dims_c[0]) != (2 * c, *spatial):
@@ -350,8 +351,18 @@ class ConditionalScale(Fm.InvertibleModule):
 def scale_form(value: bool | str) -> str | None:
     """The :class:`ConditionalScale` form a network's ``conditional_scale`` argument names.
 
-    ``False`` / ``"none"``: no conditional scale (None); ``"location"``; ``"shift"``, also
-    ``True`` (the meaning of ``True`` in runs trained before the location form existed).
+    Parameters
+    ----------
+    value : bool or str
+        ``False`` / ``"none"``: no conditional scale; ``"location"``; ``"shift"``, also ``True``
+        (the meaning of ``True`` in runs trained before the location form existed). The network
+        keeps the value as given in its ``hparams``, so ``True`` and ``"shift"`` build the same
+        architecture but are different hparams (a run is resumed with the value it was made with).
+
+    Returns
+    -------
+    str or None
+        ``"location"``, ``"shift"``, or None for no conditional scale.
 
     Raises
     ------
@@ -369,7 +380,8 @@ def scale_form(value: bool | str) -> str | None:
 
 def scale_head(c_in: int, channels: int = 1, hidden: int = 8) -> nn.Module:
     """Conditioner head for :class:`ConditionalScale`: conv3x3, LeakyReLU, conv3x3 (zero) from
-    ``c_in`` feature channels to the ``2 * channels`` raw (s, t) maps (identity at initialisation)."""
+    ``c_in`` feature channels to the ``2 * channels`` raw (s, mu) or (s, t) maps (identity at
+    initialisation)."""
     return _ZeroLast(
         nn.Conv2d(c_in, hidden, 3, padding=1), nn.LeakyReLU(), nn.Conv2d(hidden, 2 * channels, 3, padding=1)
     )
