@@ -76,15 +76,22 @@ def bench_sample(name: str, kwargs: dict[str, Any], size: int, n_samples: int) -
     return time.perf_counter() - t0
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def step_args(description: str, repeat: int, networks: tuple[str, ...] = NETWORKS) -> argparse.Namespace:
+    """The command line of the training-step benchmarks (size, batch, repeat, threads, networks);
+    sets torch's thread count."""
+    p = argparse.ArgumentParser(description=description)
     p.add_argument("--size", type=int, default=63)
     p.add_argument("--batch", type=int, default=16)
-    p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--repeat", type=int, default=repeat)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--networks", nargs="+", default=list(NETWORKS))
+    p.add_argument("--networks", nargs="+", default=list(networks))
     a = p.parse_args()
     torch.set_num_threads(a.threads)
+    return a
+
+
+def main() -> None:
+    a = step_args(__doc__.splitlines()[0], repeat=5)
     study = STUDIES["tiny"]
     print(f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, {a.threads} thread(s)")
     print(f"# {a.size} x {a.size}, batch {a.batch}, median of {a.repeat} steps; sampling {study.n_samples} samples")

@@ -12,27 +12,17 @@ for ``precision="bf16"``, and prints the ratio of the step rates.
 
 from __future__ import annotations
 
-import argparse
 import platform
 
 import torch
 
-from bench_flows import bench_train  # the same step, timed the same way
+from bench_flows import bench_train, step_args  # the same step, timed the same way
 from nanoct.learn.models import table_order
 from nanoct.reproduce import STUDIES
 
-NETWORKS = table_order()
-
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--size", type=int, default=63)
-    p.add_argument("--batch", type=int, default=16)
-    p.add_argument("--repeat", type=int, default=10)
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--networks", nargs="+", default=list(NETWORKS))
-    a = p.parse_args()
-    torch.set_num_threads(a.threads)
+    a = step_args(__doc__.splitlines()[0], repeat=10, networks=table_order())
     study = STUDIES["tiny"]
     bf16_native = torch.ops.mkldnn._is_mkldnn_bf16_supported()
     print(f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, {a.threads} thread(s)")

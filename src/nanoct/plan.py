@@ -64,8 +64,7 @@ COST_SOURCES = (
     "UNet training: docs/results.md tiny run (5 runs of 40 epochs in 5 min 14 s, bfloat16, 2 threads) at N=63, "
     "benchmarks/README.md (5.5 images/s on 2 cores, float32) at N=255; invertible networks at N=63: the tiny run "
     "(20 runs of 12-32 epochs, 70,400 images, in 12 min 47 s, one at a time, bfloat16, the tiny study's light "
-    "stacks); at N=255: 3 x "
-    "the measured forward pass "
+    "stacks); at N=255: 3 x the measured forward pass "
     "(benchmarks/README.md sampling table; backward assumed 2 forward), the paper's architectures",
     "prediction: UNet inference (channels_last, batch 16, benchmarks/README.md) and the per-latent-sample cost of "
     "the invertible networks (N=63: the tiny run's 45 predictions in 83 s; N=255: benchmarks/README.md), "

@@ -180,9 +180,13 @@ def scale_study(scale: str) -> Study:
     NanoctError
         If ``scale`` is not one of :data:`STUDIES`.
     """
+    _check_scale(scale)
+    return SCALE_STUDIES.get(scale) or STUDIES[scale]
+
+
+def _check_scale(scale: str) -> None:
     if scale not in STUDIES:
         raise NanoctError(f"unknown scale {scale!r}; choose one of: {', '.join(STUDIES)}")
-    return SCALE_STUDIES.get(scale) or STUDIES[scale]
 
 
 #: The paper's reconstructions (method, parameters), in its table order.
@@ -279,8 +283,7 @@ def scale_settings(scale: str, out: Path | None = None, seed: int = DEFAULT_SEED
     NanoctError
         If ``scale`` is not one of :data:`STUDIES`.
     """
-    if scale not in STUDIES:
-        raise NanoctError(f"unknown scale {scale!r}; choose one of: {', '.join(STUDIES)}")
+    _check_scale(scale)
     root = Path(out or Path("runs") / (scale if seed == DEFAULT_SEED else f"{scale}-seed{seed}"))
     perturbed = _recons(True)
     fan = {k: v for k, v in perturbed.items() if k in ("fbp", "dremel", "resesop")}

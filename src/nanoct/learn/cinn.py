@@ -35,11 +35,9 @@ from torch import nn
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalScale,
     OrthogonalDownsampling,
     coupling_block,
     preserve_numpy_rng,
-    scale_form,
     scale_head,
 )
 
@@ -176,7 +174,6 @@ class CiNN(ConditionalFlow):
         if any(c < 1 for c in cond_channels):
             raise ValueError(f"cond_channels must be positive, got {cond_channels}")
         coupling_block(str(coupling), float(clamp))  # checks the kind
-        form = scale_form(conditional_scale)  # checks the value
         super().__init__(
             n_scales=int(n_scales),
             blocks_per_scale=int(blocks_per_scale),
@@ -202,7 +199,7 @@ class CiNN(ConditionalFlow):
                 f"2^(n_scales+1) values), got {fc_dim}"
             )
         self.cond_net = ResNetConditioner(cond_channels, int(cond_width), int(fc_cond_dim))
-        self.scale_head = scale_head(int(cond_width)) if form else None
+        self.scale_head = scale_head(int(cond_width)) if self.conditional_form else None
         # FrEIA needs concrete sizes to build a graph; the convolutional graph is built for the
         # smallest valid size and runs at any multiple of it (its layers are size-agnostic), and
         # the fully-connected graph has the fixed size fc_dim. Flattening, the split of the
@@ -222,11 +219,7 @@ class CiNN(ConditionalFlow):
         nodes: list[Ff.Node] = [Ff.InputNode(1, h, w, name="input")]
         if hp["actnorm"]:
             nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
-        cond_full = []
-        form = scale_form(hp["conditional_scale"])
-        if form:
-            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
-            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {"form": form}, conditions=cond_full[0], name="scale_in"))
+        cond_full = self._append_conditional_scale(nodes, h, w)
         nodes.append(
             Ff.Node(nodes[-1], OrthogonalDownsampling, {"orthogonal_map": hp["orthogonal_map"]}, name="down_0")
         )

@@ -34,12 +34,10 @@ from torch import nn
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
-    ConditionalScale,
     OrthogonalDownsampling,
     OrthogonalUpsampling,
     coupling_block,
     preserve_numpy_rng,
-    scale_form,
     scale_head,
 )
 from nanoct.learn.unet import PAPER_CHANNELS, UNet
@@ -121,7 +119,6 @@ class CiUNet(ConditionalFlow):
         if int(kernel_size) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
         coupling_block(str(coupling), float(clamp))  # checks the kind
-        form = scale_form(conditional_scale)  # checks the value
         super().__init__(
             n_scales=n_scales,
             blocks_per_scale=int(blocks_per_scale),
@@ -144,7 +141,7 @@ class CiUNet(ConditionalFlow):
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)
         self.cond_net.outc = nn.Identity()
-        self.scale_head = scale_head(cond_channels[0]) if form else None
+        self.scale_head = scale_head(cond_channels[0]) if self.conditional_form else None
         with preserve_numpy_rng():
             self.flow = self._build(self.multiple, self.multiple)
 
@@ -166,11 +163,7 @@ class CiUNet(ConditionalFlow):
                     nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name=f"actnorm_{tag}_{k}"))
 
         nodes.append(Ff.Node(nodes[-1], ActNorm, {}, name="actnorm_in"))
-        cond_full = []
-        form = scale_form(hp["conditional_scale"])
-        if form:
-            cond_full = [Ff.ConditionNode(2, h, w, name="cond_full")]
-            nodes.append(Ff.Node(nodes[-1], ConditionalScale, {"form": form}, conditions=cond_full[0], name="scale_in"))
+        cond_full = self._append_conditional_scale(nodes, h, w)
         nodes.append(Ff.Node(nodes[-1], OrthogonalDownsampling, res, name="pre_down"))
         couplings(hp["pre_blocks"], cond_dec[1], "pre")
         nodes.append(Ff.Node(nodes[-1], OrthogonalUpsampling, res, name="pre_up"))

@@ -10,16 +10,19 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import FrEIA.framework as Ff
 import numpy as np
 import torch
 
 from nanoct.learn.base import PostProcessor
 from nanoct.learn.invertible import (
+    ConditionalScale,
     RunningMoments,
     crop,
     finish_actnorm_init,
     gaussian_nll_bpd,
     pad_to_multiple,
+    scale_form,
 )
 
 __all__ = ["CheckpointMismatchError", "ConditionalFlow", "parametrize_cached"]
@@ -73,6 +76,20 @@ class ConditionalFlow(PostProcessor):
         if target_noise < 0:
             raise ValueError(f"target_noise must be >= 0, got {target_noise}")
         self.target_noise = target_noise
+        #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
+        self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
+
+    def _append_conditional_scale(self, nodes: list[Ff.Node], h: int, w: int) -> list[Ff.ConditionNode]:
+        """Append the :class:`ConditionalScale` node to ``nodes`` if the network has one.
+
+        Returns its condition node (the head's (2, h, w) map; empty list without the layer).
+        """
+        if self.conditional_form is None:
+            return []
+        cond = Ff.ConditionNode(2, h, w, name="cond_full")
+        kwargs = {"form": self.conditional_form}
+        nodes.append(Ff.Node(nodes[-1], ConditionalScale, kwargs, conditions=cond, name="scale_in"))
+        return [cond]
 
     # -- to implement -------------------------------------------------------------------------
     def _conditions(self, x_tilde_padded: torch.Tensor) -> list[torch.Tensor]:
