@@ -11,6 +11,7 @@ from nanoct.metrics import (
     edge_std,
     fit_std_map,
     fit_std_scale,
+    fit_value_std_map,
     invert_std_map,
     psnr,
     raw_std,
@@ -188,6 +189,63 @@ def test_std_map_is_strictly_increasing_and_inverts(rng):
         fit_std_map(err[:10], np.r_[np.zeros(5), s[:5]], n_bins=8)
     with pytest.raises(ValueError, match="every error is zero"):
         fit_std_map(np.zeros(100), s[:100])
+
+
+def _mixture_case(rng, n=80_000):
+    """Two kinds of pixel with the same raw std: value 0 with errors 0.1 s, value 1 with errors s."""
+    s = np.exp(rng.uniform(np.log(0.1), np.log(1.0), n))
+    values = (rng.random(n) < 0.5).astype(np.float64)
+    return rng.normal(0, 1, n) * s * np.where(values > 0, 1.0, 0.1), s, values
+
+
+def test_value_std_map_separates_a_mixture_that_one_map_cannot(rng):
+    err, s, values = _mixture_case(rng)
+    m = fit_value_std_map(err, s, values)
+    # quartile edges {0, 1}: bin (-inf, 0) is empty and merged with the next -> bins (-inf, 1), [1, inf)
+    assert m["value_edges"] == [1.0] and len(m["maps"]) == 2
+    for one, factor in zip(m["maps"], (0.1, 1.0)):  # each bin's map is its true spread
+        np.testing.assert_allclose(np.array(one["calibrated"]) / np.array(one["std"]), factor, rtol=0.06)
+        assert one == fit_std_map(err[values == (factor > 0.5)], s[values == (factor > 0.5)])
+    fresh_err, fresh_s, fresh_values = _mixture_case(rng)
+    cov = coverage(fresh_err, apply_std_map(fresh_s, m, fresh_values))
+    for k, tol in (("1", 0.01), ("2", 0.005), ("3", 0.003)):
+        assert cov[k] == pytest.approx(GAUSSIAN_COVERAGE[k], abs=tol)
+    one = coverage(fresh_err, apply_std_map(fresh_s, fit_std_map(err, s)))  # one map: a heavy-tailed mixture
+    assert abs(one["1"] - GAUSSIAN_COVERAGE["1"]) + abs(one["2"] - GAUSSIAN_COVERAGE["2"]) > 0.03
+    # inverse, per bin; float32 as predict stores it
+    calibrated = apply_std_map(fresh_s, m, fresh_values)
+    np.testing.assert_allclose(invert_std_map(calibrated.astype(np.float32), m, fresh_values), fresh_s, rtol=1e-5)
+    cal = {"std_map": m, "scale": 2.0}
+    np.testing.assert_allclose(calibrated_std(fresh_s, cal, fresh_values), calibrated)
+    np.testing.assert_allclose(raw_std(calibrated.astype(np.float32), cal, fresh_values), fresh_s, rtol=1e-5)
+    # uncertainty_summary bins by the reconstructions (here 10 * value + error), over the mask's pixels only
+    recos, gts = 10 * fresh_values + fresh_err, 10 * fresh_values
+    m2 = fit_value_std_map(err, s, 10 * values + err)
+    mask = rng.random(fresh_s.size) < 0.5
+    stds, recos3, gts3, mask3 = (a.reshape(8, 100, 100) for a in (fresh_s, recos, gts, mask))
+    summary = uncertainty_summary(stds, recos3, gts3, std_map=m2, mask=mask3)
+    expected = coverage(fresh_err[mask], apply_std_map(fresh_s[mask], m2, recos[mask]))
+    assert summary["coverage"]["calibrated"] == expected
+
+
+def test_value_std_map_checks_its_input(rng):
+    err, s, _ = _mixture_case(rng, 4000)
+    constant = fit_value_std_map(err, s, np.full(err.size, 0.3))  # one value: one bin, the plain map
+    assert constant == {"value_edges": [], "maps": [fit_std_map(err, s)]}
+    m = fit_value_std_map(err, s, np.linspace(0, 1, err.size), n_value_bins=3)
+    assert len(m["value_edges"]) == 2 and len(m["maps"]) == 3
+    with pytest.raises(ValueError, match="conditioned on the predicted value"):
+        apply_std_map(s, m)
+    with pytest.raises(ValueError, match="shape"):
+        apply_std_map(s, m, s[:-1])
+    with pytest.raises(ValueError, match="one map more than edges"):
+        apply_std_map(s, {"value_edges": [0.5], "maps": m["maps"][:1]}, s)
+    with pytest.raises(ValueError, match="finite predicted values"):
+        fit_value_std_map(err, s, np.r_[s[:-1], np.nan])
+    with pytest.raises(ValueError, match="n_value_bins"):
+        fit_value_std_map(err, s, s, n_value_bins=0)
+    with pytest.raises(ValueError, match="every error is zero"):
+        fit_value_std_map(np.zeros(100), s[:100], s[:100])
 
 
 def _brute_force_mae_curve(err, key, fractions):

@@ -51,15 +51,17 @@ def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarr
     """Raw (uncalibrated) std of reconstruction ``name`` and the calibration stored with it.
 
     :func:`nanoct.learn.predict.predict` stores the calibrated std (the raw std through the
-    strictly increasing map ``std_map``, :func:`nanoct.metrics.apply_std_map`) and records
-    ``{"std_map", "scale", "edge_scale", "edge_sigma", ...}`` under ``calibration`` in the
-    parameters of the result; the raw std is recovered by inverting the map
-    (:func:`nanoct.metrics.invert_std_map`). A result of an earlier version, calibrated by the
-    one factor only (no ``std_map``), stores ``scale * raw``: raw = stored / scale. Without a
-    calibration the stored std is the raw one and the returned dict is empty.
+    map ``std_map`` of each pixel's predicted value, strictly increasing in the std,
+    :func:`nanoct.metrics.apply_std_map`) and records ``{"std_map", "scale", "edge_scale",
+    "edge_sigma", ...}`` under ``calibration`` in the parameters of the result; the raw std is
+    recovered by inverting the map (:func:`nanoct.metrics.invert_std_map`, with the stored
+    reconstruction as the values). A result of an earlier version, calibrated by the one factor
+    only (no ``std_map``), stores ``scale * raw``: raw = stored / scale. Without a calibration
+    the stored std is the raw one and the returned dict is empty.
     """
     cal = dict(store.reconstruction_params(name).get("calibration") or {})
-    return raw_std(store.read_uncertainty(name, indices), cal), cal
+    values = store.read_reconstruction(name, indices) if "maps" in (cal.get("std_map") or {}) else None
+    return raw_std(store.read_uncertainty(name, indices), cal, values), cal
 
 
 def uncertainty_scores(

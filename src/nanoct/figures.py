@@ -205,12 +205,13 @@ def reliability_diagram(
     axes = fig.subplots(len(kinds), len(panels), squeeze=False, sharex=True, sharey=True)
     for col, (title, names) in enumerate(panels.items()):
         for name in names:
-            err = store.read_reconstruction(name, indices) - gts
+            reco = store.read_reconstruction(name, indices)
+            err = reco - gts
             raw, cal = read_std(store, name, indices)
             axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
             if cal.get("scale"):
                 axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
-            calibrated = calibrated_std(raw, cal)
+            calibrated = calibrated_std(raw, cal, reco)
             if calibrated is not None:
                 axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
         for row, kind in enumerate(kinds):

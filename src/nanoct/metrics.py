@@ -27,6 +27,7 @@ __all__ = [
     "SPARSIFICATION_FRACTIONS",
     "STD_MAP_BINS",
     "STD_MAP_MIN_SLOPE",
+    "STD_MAP_VALUE_BINS",
     "SUPPORT_RADIUS",
     "apply_std_map",
     "calibrated_std",
@@ -34,6 +35,7 @@ __all__ = [
     "edge_std",
     "fit_std_map",
     "fit_std_scale",
+    "fit_value_std_map",
     "invert_std_map",
     "raw_std",
     "psnr",
@@ -57,6 +59,9 @@ EDGE_SIGMA = 1.0
 STD_MAP_BINS = 16
 #: Smallest slope of the calibration map in log(raw std) -> log(calibrated std); it keeps the map invertible.
 STD_MAP_MIN_SLOPE = 0.05
+#: Number of equal-count bins of the predicted value in each of which :func:`fit_value_std_map`
+#: fits its own std map (quartiles of the validation means).
+STD_MAP_VALUE_BINS = 4
 
 
 def _data_range(gt: np.ndarray) -> float:
@@ -294,51 +299,144 @@ def _loglog(values: np.ndarray, lx: np.ndarray, ly: np.ndarray) -> np.ndarray:
     return out
 
 
-def apply_std_map(std: np.ndarray, std_map: dict[str, Any]) -> np.ndarray:
-    """Calibrated std of a raw std under a map of :func:`fit_std_map` (float64, same shape).
+def fit_value_std_map(
+    err: np.ndarray,
+    std: np.ndarray,
+    values: np.ndarray,
+    n_value_bins: int = STD_MAP_VALUE_BINS,
+    n_bins: int = STD_MAP_BINS,
+    ks: tuple[float, ...] = (1, 2, 3),
+) -> dict[str, Any]:
+    """A calibration map of the std conditioned on the predicted value: one :func:`fit_std_map` per value bin.
 
-    Piecewise linear in log(raw std) - log(calibrated std) between the knots, continued
-    linearly (in log-log) beyond the end knots with the slopes of the end segments (a single
-    knot: proportional); a zero std stays zero. Strictly increasing.
+    The pixels are split into ``n_value_bins`` equal-count bins of ``values`` (the network's
+    mean at each pixel) and a map from raw to calibrated std is fitted in each. The error of
+    a pixel depends on what the network predicts there, not only on its std: on the empty
+    background most errors are tiny but a few are not, which makes the errors of one std bin a
+    mixture with heavier tails than a Gaussian; conditioning on the value separates the parts
+    of the mixture (``docs/uncertainty.md``). A bin with too few pixels, or without a non-zero
+    error, is merged with the next one (the last with the one before).
+
+    Parameters
+    ----------
+    err, std, values : array
+        Errors (their absolute value is used), raw std and predicted values, equal shapes.
+    n_value_bins : int
+        Number of value bins (before merging); 1 gives one map for all pixels.
+    n_bins, ks
+        As for :func:`fit_std_map`, in each value bin.
+
+    Returns
+    -------
+    dict
+        ``value_edges``: the inner bin edges of the value (increasing list of floats; a value
+        ``v`` lies in bin ``searchsorted(value_edges, v, side="right")``), ``maps``: one
+        :func:`fit_std_map` result per bin. :func:`apply_std_map` with ``values`` applies it.
 
     Raises
     ------
     ValueError
-        A malformed map, or a negative or non-finite std.
+        Bad ``n_value_bins``, unequal shapes, or no bin that can be fitted at all.
     """
-    lx, ly = _map_knots(std_map)
-    return _loglog(std, lx, ly)
+    err, std = _err_std(err, std)
+    values = np.asarray(values, dtype=np.float64).ravel()
+    if values.shape != err.shape or not np.isfinite(values).all():
+        raise ValueError(f"need {err.size} finite predicted values, got {values.size} (or NaN/inf among them)")
+    if n_value_bins < 1:
+        raise ValueError(f"need n_value_bins >= 1, got {n_value_bins}")
+    edges = list(np.unique(np.quantile(values, np.arange(1, n_value_bins) / n_value_bins)))
+    while True:
+        which = np.searchsorted(edges, values, side="right")
+        maps, bad = [], None
+        for j in range(len(edges) + 1):
+            try:
+                maps.append(fit_std_map(err[which == j], std[which == j], n_bins=n_bins, ks=ks))
+            except ValueError:
+                if not edges:
+                    raise
+                bad = j
+                break
+        if bad is None:
+            return {"value_edges": [float(e) for e in edges], "maps": maps}
+        del edges[min(bad, len(edges) - 1)]  # merge bin `bad` with the next one (the last with the one before)
 
 
-def invert_std_map(calibrated: np.ndarray, std_map: dict[str, Any]) -> np.ndarray:
+def _value_bins(std: np.ndarray, std_map: dict[str, Any], values: np.ndarray | None) -> tuple[np.ndarray, list]:
+    """Bin index per pixel and the maps of a value-binned map (checked)."""
+    try:
+        edges = np.asarray(std_map["value_edges"], dtype=np.float64)
+        maps = list(std_map["maps"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"a value-binned std map needs 'value_edges' and 'maps', got {std_map!r}") from exc
+    if edges.ndim != 1 or len(maps) != edges.size + 1 or (np.diff(edges) <= 0).any():
+        raise ValueError(f"a value-binned std map needs increasing edges and one map more than edges, got {std_map!r}")
+    if values is None:
+        raise ValueError("this std map is conditioned on the predicted value: pass the reconstruction as values")
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != np.shape(std):
+        raise ValueError(f"predicted values of shape {values.shape} for a std of shape {np.shape(std)}")
+    return np.searchsorted(edges, values, side="right"), maps
+
+
+def _map_each(std: np.ndarray, std_map: dict[str, Any], values: np.ndarray | None, inverse: bool) -> np.ndarray:
+    """Apply (or invert) a plain or value-binned std map."""
+    if "maps" not in std_map:
+        lx, ly = _map_knots(std_map)
+        return _loglog(std, ly, lx) if inverse else _loglog(std, lx, ly)
+    which, maps = _value_bins(std, std_map, values)
+    std = np.asarray(std, dtype=np.float64)
+    out = np.zeros_like(std)
+    for j, one in enumerate(maps):
+        sel = which == j
+        out[sel] = _map_each(std[sel], one, None, inverse)
+    return out
+
+
+def apply_std_map(std: np.ndarray, std_map: dict[str, Any], values: np.ndarray | None = None) -> np.ndarray:
+    """Calibrated std of a raw std under a :func:`fit_std_map` or :func:`fit_value_std_map` map (float64).
+
+    Piecewise linear in log(raw std) - log(calibrated std) between the knots, continued
+    linearly (in log-log) beyond the end knots with the slopes of the end segments (a single
+    knot: proportional); a zero std stays zero. Strictly increasing. A value-binned map applies
+    the map of each pixel's bin of ``values`` (the predicted values, same shape as ``std``).
+
+    Raises
+    ------
+    ValueError
+        A malformed map, a negative or non-finite std, or a value-binned map without ``values``.
+    """
+    return _map_each(std, std_map, values, inverse=False)
+
+
+def invert_std_map(calibrated: np.ndarray, std_map: dict[str, Any], values: np.ndarray | None = None) -> np.ndarray:
     """Raw std of a calibrated std: the inverse of :func:`apply_std_map` (float64, same shape).
 
     Raises
     ------
     ValueError
-        A malformed map, or a negative or non-finite std.
+        A malformed map, a negative or non-finite std, or a value-binned map without ``values``.
     """
-    lx, ly = _map_knots(std_map)
-    return _loglog(calibrated, ly, lx)
+    return _map_each(calibrated, std_map, values, inverse=True)
 
 
-def calibrated_std(raw: np.ndarray, calibration: dict[str, Any]) -> np.ndarray | None:
+def calibrated_std(raw: np.ndarray, calibration: dict[str, Any], values: np.ndarray | None = None) -> np.ndarray | None:
     """The calibrated std of a raw std under a stored calibration (:mod:`nanoct.learn.calibration`).
 
-    Its ``std_map`` if it has one (:func:`apply_std_map`), else its one factor ``scale`` (results
-    of earlier versions); None for a calibration with neither (an empty dict: not calibrated).
+    Its ``std_map`` if it has one (:func:`apply_std_map`; ``values``, the reconstruction, for a
+    value-binned map), else its one factor ``scale`` (results of earlier versions); None for a
+    calibration with neither (an empty dict: not calibrated).
     """
     if calibration.get("std_map"):
-        return apply_std_map(raw, calibration["std_map"])
+        return apply_std_map(raw, calibration["std_map"], values)
     if calibration.get("scale"):
         return np.asarray(raw, dtype=np.float64) * calibration["scale"]
     return None
 
 
-def raw_std(stored: np.ndarray, calibration: dict[str, Any]) -> np.ndarray:
+def raw_std(stored: np.ndarray, calibration: dict[str, Any], values: np.ndarray | None = None) -> np.ndarray:
     """The raw std behind a stored one: the inverse of :func:`calibrated_std` (unchanged if not calibrated)."""
     if calibration.get("std_map"):
-        return invert_std_map(stored, calibration["std_map"]).astype(np.float32)
+        return invert_std_map(stored, calibration["std_map"], values).astype(np.float32)
     return stored / calibration["scale"] if calibration.get("scale") else stored
 
 
@@ -455,7 +553,8 @@ def uncertainty_summary(
     scale : float, optional
         One-factor calibration (:func:`fit_std_scale`): the scaled std is ``scale * stds``.
     std_map : dict, optional
-        Calibration map (:func:`fit_std_map`): the calibrated std is ``apply_std_map(stds, std_map)``.
+        Calibration map (:func:`fit_std_map` or :func:`fit_value_std_map`): the calibrated std is
+        ``apply_std_map(stds, std_map, recos)``.
     mask : bool array (n, H, W), optional
         Pixels to score (e.g. :func:`support_mask`); default all.
 
@@ -475,17 +574,18 @@ def uncertainty_summary(
     gts = check_array(gts, "ground truths", shape=stds.shape, dtype=np.float64)
     if scale is not None and not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"calibration scale {scale} must be a positive number")
-    err, std = np.abs(recos - gts), stds
+    err, std, values = np.abs(recos - gts), stds, recos
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != stds.shape:
             raise ValueError(f"mask of shape {mask.shape} for images of shape {stds.shape}")
-        err, std = err[mask], std[mask]
+        err, std, values = err[mask], std[mask], values[mask]
     err, std = _err_std(err, std)
+    values = values.ravel()
     corr = float(np.corrcoef(std, err)[0, 1]) if std.std() > 0 and err.std() > 0 else float("nan")
     sp = sparsification(err, std)
     scaled = None if scale is None else coverage(err, scale * std)
-    calibrated = scaled if std_map is None else coverage(err, apply_std_map(std, std_map))
+    calibrated = scaled if std_map is None else coverage(err, apply_std_map(std, std_map, values))
     return {
         "std_error_corr": corr,
         "coverage": {

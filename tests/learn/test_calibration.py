@@ -71,22 +71,29 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     store = DataStore.open(path)
     val = store.indices("val")
     model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
-    errs, stds = [], []
+    errs, stds, means = [], [], []
     for i in val:
         x = torch.from_numpy(store.read_reconstruction("fbp", [i]))[:, None]
         mean, std = model.reconstruct(x, n_samples=4, seed=int(i))
+        means.append(mean[0, 0].numpy())
         errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
         stds.append(std[0, 0].numpy().astype(np.float64))
     err, std = np.concatenate([e.ravel() for e in errs]), np.concatenate([s.ravel() for s in stds])
+    values = np.concatenate([m.ravel() for m in means])
     ratio = err / std
     assert entry["scale"] == pytest.approx(np.quantile(ratio, 0.6827, method="inverted_cdf"), rel=1e-4)
     assert entry["coverage_scaled"]["1"] == pytest.approx(0.6827, abs=2e-3)
     assert entry["coverage_raw"]["1"] == pytest.approx(np.mean(ratio <= 1), abs=2e-3)
-    assert entry["format"] == CALIBRATION_FORMAT == 2
-    ref = fit_std_map(err, std)  # the map: on the same validation outputs, fitted independently
-    np.testing.assert_allclose(entry["std_map"]["std"], ref["std"], rtol=1e-4)
-    np.testing.assert_allclose(entry["std_map"]["calibrated"], ref["calibrated"], rtol=1e-3)
-    cov = coverage(err, apply_std_map(std, entry["std_map"]))
+    assert entry["format"] == CALIBRATION_FORMAT == 3
+    # the map: one per quartile of the mean, on the same validation outputs, fitted independently
+    edges = np.quantile(values, [0.25, 0.5, 0.75])
+    np.testing.assert_allclose(entry["std_map"]["value_edges"], edges, rtol=1e-5)
+    which = np.searchsorted(entry["std_map"]["value_edges"], values, side="right")
+    for j, one in enumerate(entry["std_map"]["maps"]):
+        ref = fit_std_map(err[which == j], std[which == j])
+        np.testing.assert_allclose(one["std"], ref["std"], rtol=1e-4)
+        np.testing.assert_allclose(one["calibrated"], ref["calibrated"], rtol=1e-3)
+    cov = coverage(err, apply_std_map(std, entry["std_map"], values))
     assert entry["coverage_calibrated"] == pytest.approx(cov, abs=2e-3)
     assert entry["coverage_calibrated"]["2"] == pytest.approx(GAUSSIAN_COVERAGE["2"], abs=0.03)
     # a second call reuses the stored fit; other sampling arguments or another checkpoint file refit
@@ -124,7 +131,9 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
         store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
     assert changed["scale"] != pytest.approx(before["scale"], rel=1e-3)
-    assert changed["std_map"]["calibrated"] != pytest.approx(before["std_map"]["calibrated"], rel=1e-3)
+    assert changed["std_map"]["maps"][0]["calibrated"] != pytest.approx(
+        before["std_map"]["maps"][0]["calibrated"], rel=1e-3
+    )
 
 
 def test_predict_applies_the_map(setup, tmp_path):
@@ -136,11 +145,12 @@ def test_predict_applies_the_map(setup, tmp_path):
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert entry["format"] == 2 and params["calibration"] == entry
+    assert entry["format"] == 3 and params["calibration"] == entry
     assert "calibration" not in store.reconstruction_params("raw")
     raw = store.read_uncertainty("raw", test)
     stored = store.read_uncertainty(name, test)
-    np.testing.assert_allclose(stored, apply_std_map(raw, entry["std_map"]), rtol=1e-6)
+    means = store.read_reconstruction(name, test)
+    np.testing.assert_allclose(stored, apply_std_map(raw, entry["std_map"], means), rtol=1e-6)
     assert not np.allclose(stored, entry["scale"] * raw, rtol=1e-2)  # the map, not the one factor
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
     recovered, cal = read_std(store, name, test)

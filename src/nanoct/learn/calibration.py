@@ -3,10 +3,11 @@
 The std of a conditional invertible network (over M latent samples) is rarely calibrated: far
 more (or fewer) than 68 % of the pixels fall within one std of the mean. Per run and checkpoint,
 on the validation split of the data set and input the network was trained on (the test split is
-never read), two calibrations are fitted: a strictly increasing map from raw to calibrated std
-(:func:`nanoct.metrics.fit_std_map`, fitted bin by bin of the raw std at 1, 2 and 3 std), which
-is the one applied, and, for comparison, one factor ``s`` making ``s * std`` cover 68.27 % of
-the validation pixels (temperature scaling). On the same validation outputs the factor of the
+never read), two calibrations are fitted: a map from raw to calibrated std, strictly increasing
+in the std, for each quartile of the predicted value (:func:`nanoct.metrics.fit_value_std_map`,
+fitted bin by bin of the raw std at 1, 2 and 3 std), which is the one applied, and, for
+comparison, one factor ``s`` making ``s * std`` cover 68.27 % of the validation pixels
+(temperature scaling). On the same validation outputs the factor of the
 edge baseline (:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its
 coverage can be compared at equal footing.
 
@@ -38,8 +39,8 @@ from ..metrics import (
     apply_std_map,
     coverage,
     edge_std,
-    fit_std_map,
     fit_std_scale,
+    fit_value_std_map,
 )
 from ..store import DataStore
 from .base import PostProcessor
@@ -59,8 +60,9 @@ __all__ = [
 ]
 
 CALIBRATION_FILE = "calibration.json"
-#: Version of a calibration entry; entries of another version are fitted again (2: the std map).
-CALIBRATION_FORMAT = 2
+#: Version of a calibration entry; entries of another version are fitted again (2: the std map;
+#: 3: one std map per bin of the predicted value).
+CALIBRATION_FORMAT = 3
 
 
 def _sha256(path: Path) -> str:
@@ -84,7 +86,8 @@ class Inference:
 
     A sampling model is called one image at a time with ``seed`` = the sample's index, so a
     prediction does not depend on batching or resumption; its std goes through ``std_map``
-    (:func:`nanoct.metrics.apply_std_map`; None keeps the raw std).
+    (:func:`nanoct.metrics.apply_std_map` with the mean as the predicted values; None keeps the
+    raw std).
     :func:`nanoct.learn.predict.predict` and :func:`sample_outputs` both use it, so the calibration
     sees exactly the std that predict stores.
     """
@@ -110,15 +113,16 @@ class Inference:
         call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
         with torch.no_grad():
             mean, std = self.model.reconstruct(x, **call)
+        mean_np = mean.float().cpu().numpy()[:, 0]
         std_np = None if std is None else std.float().cpu().numpy()[:, 0]
         if std_np is not None and self.std_map is not None:
-            if not np.isfinite(std_np).all():
+            if not (np.isfinite(std_np).all() and np.isfinite(mean_np).all()):
                 raise NanoctError(
-                    f"the {self.model.name} network gave a non-finite std for sample {first_index}; "
+                    f"the {self.model.name} network gave a non-finite mean or std for sample {first_index}; "
                     "its checkpoint is damaged or training diverged: train it again"
                 )
-            std_np = apply_std_map(std_np, self.std_map).astype(np.float32)
-        return mean.float().cpu().numpy()[:, 0], std_np
+            std_np = apply_std_map(std_np, self.std_map, mean_np).astype(np.float32)
+        return mean_np, std_np
 
 
 def sample_outputs(
@@ -155,9 +159,9 @@ def sample_outputs(
 def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma: float = EDGE_SIGMA) -> dict[str, Any]:
     """Fit the std's calibration map, its one factor and the edge baseline's factor on validation outputs.
 
-    The map is :func:`nanoct.metrics.fit_std_map` (coverage at 1, 2 and 3 std, bin by bin of
-    the raw std); each factor is :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std
-    level (68.27 %). All pixels of all images are pooled.
+    The map is :func:`nanoct.metrics.fit_value_std_map` (coverage at 1, 2 and 3 std, bin by bin
+    of the raw std, within each quartile of the mean); each factor is
+    :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of all images are pooled.
 
     Returns
     -------
@@ -178,7 +182,7 @@ def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma:
     level = GAUSSIAN_COVERAGE["1"]
     try:
         scale, edge_scale = fit_std_scale(err, stds, level), fit_std_scale(err, edges, level)
-        std_map = fit_std_map(err, stds)
+        std_map = fit_value_std_map(err, stds, means)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
@@ -187,7 +191,7 @@ def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma:
         "scale": scale,
         "coverage_raw": coverage(err, stds),
         "coverage_scaled": coverage(err, scale * stds),
-        "coverage_calibrated": coverage(err, apply_std_map(stds, std_map)),
+        "coverage_calibrated": coverage(err, apply_std_map(stds, std_map, means)),
         "edge_sigma": float(edge_sigma),
         "edge_scale": edge_scale,
         "edge_coverage": coverage(err, edge_scale * edges),
