@@ -232,8 +232,14 @@ def test_value_std_map_checks_its_input(rng):
     err, s, _ = _mixture_case(rng, 4000)
     constant = fit_value_std_map(err, s, np.full(err.size, 0.3))  # one value: one bin, the plain map
     assert constant == {"value_edges": [], "maps": [fit_std_map(err, s)]}
-    m = fit_value_std_map(err, s, np.linspace(0, 1, err.size), n_value_bins=3)
+    values = np.linspace(0, 1, err.size)
+    m = fit_value_std_map(err, s, values, n_value_bins=3)
     assert len(m["value_edges"]) == 2 and len(m["maps"]) == 3
+    exact = np.where(values >= m["value_edges"][1], 0.0, err)  # the top bin has no error: merged with the one before
+    merged = fit_value_std_map(exact, s, values, n_value_bins=3)
+    assert merged["value_edges"] == m["value_edges"][:1] and merged["maps"][0] == m["maps"][0]
+    upper = values >= m["value_edges"][0]
+    assert merged["maps"][1] == fit_std_map(exact[upper], s[upper])
     with pytest.raises(ValueError, match="conditioned on the predicted value"):
         apply_std_map(s, m)
     with pytest.raises(ValueError, match="shape"):

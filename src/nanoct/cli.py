@@ -273,8 +273,9 @@ def predict(
     Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
     nets), or <input>+<model>@<train input> when applied to another input than it was
     trained on (the paper's input-mixing tables). The std of invertible nets is calibrated by the
-    run's monotone std map, fitted once on the validation split of the data it was trained on
-    (Gaussian coverage at 1, 2 and 3 std; docs/uncertainty.md).
+    run's monotone std maps, one per quartile of the predicted value, fitted once on the
+    validation split of the data it was trained on (Gaussian coverage at 1, 2 and 3 std;
+    docs/uncertainty.md).
     """
     from .learn.predict import predict as predict_model
 

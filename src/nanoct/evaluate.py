@@ -47,7 +47,9 @@ def parse_name(name: str) -> tuple[str, str | None, str]:
     return test_input, model, train_input or test_input
 
 
-def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+def read_std(
+    store: DataStore, name: str, indices: np.ndarray, recos: np.ndarray | None = None
+) -> tuple[np.ndarray, dict[str, Any]]:
     """Raw (uncalibrated) std of reconstruction ``name`` and the calibration stored with it.
 
     :func:`nanoct.learn.predict.predict` stores the calibrated std (the raw std through the
@@ -57,11 +59,12 @@ def read_std(store: DataStore, name: str, indices: np.ndarray) -> tuple[np.ndarr
     recovered by inverting the map (:func:`nanoct.metrics.invert_std_map`, with the stored
     reconstruction as the values). A result of an earlier version, calibrated by the one factor
     only (no ``std_map``), stores ``scale * raw``: raw = stored / scale. Without a calibration
-    the stored std is the raw one and the returned dict is empty.
+    the stored std is the raw one and the returned dict is empty. ``recos``: the reconstructions
+    ``name`` at ``indices`` if the caller has read them already (else they are read).
     """
     cal = dict(store.reconstruction_params(name).get("calibration") or {})
-    values = store.read_reconstruction(name, indices) if "maps" in (cal.get("std_map") or {}) else None
-    return raw_std(store.read_uncertainty(name, indices), cal, values), cal
+    recos = store.read_reconstruction(name, indices) if recos is None else recos
+    return raw_std(store.read_uncertainty(name, indices), cal, recos), cal
 
 
 def uncertainty_scores(
@@ -161,7 +164,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
         recos = store.read_reconstruction(name, idx)
         results[name] = summarize(recos, gts)
         if store.has_uncertainty(name):
-            raw, cal = read_std(store, name, idx)
+            raw, cal = read_std(store, name, idx, recos)
             results[name].update(uncertainty_scores(raw, recos, gts, cal, support))
     return results
 

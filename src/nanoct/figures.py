@@ -207,7 +207,7 @@ def reliability_diagram(
         for name in names:
             reco = store.read_reconstruction(name, indices)
             err = reco - gts
-            raw, cal = read_std(store, name, indices)
+            raw, cal = read_std(store, name, indices, reco)
             axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
             if cal.get("scale"):
                 axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)

@@ -344,21 +344,29 @@ def fit_value_std_map(
         raise ValueError(f"need {err.size} finite predicted values, got {values.size} (or NaN/inf among them)")
     if n_value_bins < 1:
         raise ValueError(f"need n_value_bins >= 1, got {n_value_bins}")
-    edges = list(np.unique(np.quantile(values, np.arange(1, n_value_bins) / n_value_bins)))
-    while True:
-        which = np.searchsorted(edges, values, side="right")
-        maps, bad = [], None
-        for j in range(len(edges) + 1):
-            try:
-                maps.append(fit_std_map(err[which == j], std[which == j], n_bins=n_bins, ks=ks))
-            except ValueError:
-                if not edges:
-                    raise
-                bad = j
-                break
-        if bad is None:
-            return {"value_edges": [float(e) for e in edges], "maps": maps}
-        del edges[min(bad, len(edges) - 1)]  # merge bin `bad` with the next one (the last with the one before)
+    edges = np.unique(np.quantile(values, np.arange(1, n_value_bins) / n_value_bins))
+    which = np.searchsorted(edges, values, side="right")
+    kept: list[float] = []  # upper edges of the fitted bins but the last
+    maps: list[dict[str, list[float]]] = []
+    group = np.zeros(values.size, dtype=bool)  # this bin plus those merged into it
+    previous = group
+    for j in range(edges.size + 1):
+        group = group | (which == j)
+        try:
+            maps.append(fit_std_map(err[group], std[group], n_bins=n_bins, ks=ks))
+        except ValueError:
+            if j < edges.size:
+                continue  # merged with the next bin
+            if not maps:
+                raise
+            group = previous | group  # the last bin: merged with the one before
+            maps[-1] = fit_std_map(err[group], std[group], n_bins=n_bins, ks=ks)
+            kept.pop()
+            break
+        if j < edges.size:
+            kept.append(float(edges[j]))
+        previous, group = group, np.zeros(values.size, dtype=bool)
+    return {"value_edges": kept, "maps": maps}
 
 
 def _value_bins(std: np.ndarray, std_map: dict[str, Any], values: np.ndarray | None) -> tuple[np.ndarray, list]:

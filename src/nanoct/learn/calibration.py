@@ -7,9 +7,9 @@ never read), two calibrations are fitted: a map from raw to calibrated std, stri
 in the std, for each quartile of the predicted value (:func:`nanoct.metrics.fit_value_std_map`,
 fitted bin by bin of the raw std at 1, 2 and 3 std), which is the one applied, and, for
 comparison, one factor ``s`` making ``s * std`` cover 68.27 % of the validation pixels
-(temperature scaling). On the same validation outputs the factor of the
-edge baseline (:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its
-coverage can be compared at equal footing.
+(temperature scaling). On the same validation outputs the factor of the edge baseline
+(:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its coverage can be
+compared at equal footing.
 
 The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
 An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
@@ -161,7 +161,8 @@ def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma:
 
     The map is :func:`nanoct.metrics.fit_value_std_map` (coverage at 1, 2 and 3 std, bin by bin
     of the raw std, within each quartile of the mean); each factor is
-    :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of all images are pooled.
+    :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of
+    all images are pooled.
 
     Returns
     -------
