@@ -37,7 +37,8 @@ def test_figures(tiny_store, tmp_path):
         store.write_reconstruction("fig_fbp+fake", i, gt + rng.normal(0, 1, gt.shape) * calibrated, std=calibrated)
     runs = tmp_path / "runs"
     (runs / "fake-fig_fbp").mkdir(parents=True)
-    (runs / "fake-fig_fbp" / "log.csv").write_text("epoch,train_loss,val_loss\n1,2.0,1.5\n2,1.2,1.1\n3,1.0,1.05\n")
+    log = "epoch,train_loss,val_loss,val_nll_bpd\n1,2.0,1.5,1.4\n2,1.2,1.1,1.0\n3,1.0,1.05,0.9\n"
+    (runs / "fake-fig_fbp" / "log.csv").write_text(log)
     results = evaluate_store(store, "test", names=["fig_fbp", "fig_fbp+fake"])
     outs = [
         show_sample(store, test[0], tmp_path / "a" / "sample.png"),

@@ -248,7 +248,8 @@ def training_curves(
 
     ``panels`` maps a panel title (e.g. the model) to ``{line label: run directory}``; runs
     without a log (or without ``column``) are left out of their panel. For the invertible
-    networks ``val_loss`` is the validation negative log-likelihood.
+    networks ``val_nll_bpd`` is the validation negative log-likelihood; their ``val_loss`` adds
+    the location term of a network trained with ``location_weight``.
     """
     from matplotlib.figure import Figure
 
@@ -298,6 +299,6 @@ def uncertainty_report(
     reliability_diagram(store, names, idx, report / "reliability.png")
     text.append("### Reliability diagram (raw, one-factor and calibrated std)\n\n![reliability](reliability.png)\n")
     runs = {m: {i: Path(runs_dir) / f"{m}-{i}" for i in inputs} for m in names}
-    training_curves(runs, report / "training_curves.png")
+    training_curves(runs, report / "training_curves.png", column="val_nll_bpd")
     text.append("### Validation NLL per epoch\n\n![training curves](training_curves.png)\n")
     return "\n".join(text)

@@ -143,17 +143,29 @@ class Study:
 #   zero pixels (bias -6: val 4.73e-4 / SSIM 0.936; -7: 4.66e-4 / 0.963; -8: 5.19e-4 / 0.964);
 # - 32-channel skip branches instead of dival's 4 (the paper's figure is not available): the
 #   4-channel skips could not carry Dremel's fine detail (val MSE 5.33e-4 > input, 60 epochs).
+def _flow_kwargs(model: str, form: str) -> dict[str, Any]:
+    """The tiny study's architecture arguments of an invertible network with conditional-scale ``form``."""
+    if model.startswith("cinn"):
+        return {"blocks_per_scale": 2, "conditional_scale": form}
+    return {"blocks_per_scale": 1, "conditional_scale": form, "cond_channels": [16, 16, 32, 32, 64]}
+
+
+#: The location term of the non-residual networks in the tiny one-setting study (docs/learn.md).
+_LOCATION_TERM: dict[str, dict[str, float]] = {
+    "cinn": {"location_weight": 1000.0},
+    "ciunet": {"location_weight": 1000.0},
+}
+
 STUDIES: dict[str, Study] = {
     "tiny": Study(
         n=200,
         split_fractions=(0.8, 0.1, 0.1),
-        epochs={"unet": 40, "cinn": 12, "cinn-res": 32, "ciunet": 12, "ciunet-res": 32},
+        epochs={"unet": 40, "cinn": 24, "cinn-res": 32, "ciunet": 24, "ciunet-res": 32},
         lr={"cinn": 1e-3, "cinn-res": 1e-3, "ciunet": 1e-3, "ciunet-res": 1e-3},
         model_kwargs={"unet": {"out_bias": -7.0, "skip_channels": 32}}
-        | {m: {"blocks_per_scale": 2, "conditional_scale": "location"} for m in ("cinn", "cinn-res")}
         | {
-            m: {"blocks_per_scale": 1, "conditional_scale": form, "cond_channels": [16, 16, 32, 32, 64]}
-            for m, form in (("ciunet", "shift"), ("ciunet-res", "location"))
+            m: _flow_kwargs(m, "location") | _LOCATION_TERM.get(m, {})
+            for m in ("cinn", "cinn-res", "ciunet", "ciunet-res")
         },
         n_samples=32,
         mixing=("unet",),
@@ -168,7 +180,15 @@ STUDIES: dict[str, Study] = {
 #: (:data:`STUDIES`): at tiny scale the three settings share 45 minutes, so the residual invertible
 #: networks train 24 epochs instead of 32 (docs/learn.md).
 SCALE_STUDIES: dict[str, Study] = {
-    "tiny": replace(STUDIES["tiny"], epochs={**STUDIES["tiny"].epochs, "cinn-res": 24, "ciunet-res": 24}),
+    "tiny": replace(
+        STUDIES["tiny"],
+        epochs={**STUDIES["tiny"].epochs, "cinn": 12, "cinn-res": 24, "ciunet": 12, "ciunet-res": 24},
+        model_kwargs={
+            **STUDIES["tiny"].model_kwargs,
+            "cinn": _flow_kwargs("cinn", "location"),
+            "ciunet": _flow_kwargs("ciunet", "shift"),
+        },
+    ),
 }
 
 

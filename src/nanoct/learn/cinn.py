@@ -153,6 +153,7 @@ class CiNN(ConditionalFlow):
         coupling: str = "additive",
         clamp: float = 2.0,
         conditional_scale: bool | str = False,
+        location_weight: float = 0.0,
     ) -> None:
         if int(n_scales) < 1:
             raise ValueError(f"n_scales must be >= 1, got {n_scales}")
@@ -190,6 +191,7 @@ class CiNN(ConditionalFlow):
             coupling=str(coupling),
             clamp=float(clamp),
             conditional_scale=conditional_scale,
+            location_weight=float(location_weight),
         )
         self.multiple = 2 ** int(n_scales)
         coarse_channels = 2 ** (int(n_scales) + 1)

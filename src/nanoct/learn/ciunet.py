@@ -107,6 +107,7 @@ class CiUNet(ConditionalFlow):
         coupling: str = "additive",
         clamp: float = 2.0,
         conditional_scale: bool | str = False,
+        location_weight: float = 0.0,
     ) -> None:
         n_scales = int(n_scales)
         if n_scales < 2:
@@ -133,6 +134,7 @@ class CiUNet(ConditionalFlow):
             coupling=str(coupling),
             clamp=float(clamp),
             conditional_scale=conditional_scale,
+            location_weight=float(location_weight),
         )
         self.multiple = 2 ** (n_scales - 1)
         self.cond_net = UNet(

@@ -78,6 +78,15 @@ class ConditionalFlow(PostProcessor):
         self.target_noise = target_noise
         #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
         self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
+        location_weight = float(self.hparams.get("location_weight", 0.0))
+        if not location_weight >= 0:
+            raise ValueError(f"location_weight must be >= 0, got {location_weight}")
+        if location_weight > 0 and self.conditional_form != "location":
+            raise ValueError(
+                f"location_weight = {location_weight} needs conditional_scale='location' (the layer whose "
+                f"location it trains), got conditional_scale={self.hparams.get('conditional_scale', False)!r}"
+            )
+        self.location_weight = location_weight
 
     def _append_conditional_scale(self, nodes: list[Ff.Node], h: int, w: int) -> list[Ff.ConditionNode]:
         """Append the :class:`ConditionalScale` node to ``nodes`` if the network has one.
@@ -174,6 +183,7 @@ class ConditionalFlow(PostProcessor):
         padded ones included); in eval mode the loss is deterministic.
         """
         self._check_pair(x, x_tilde, "x")
+        v_clean = self._target(x_tilde, x) if self.location_weight else None
         if self.training and self.target_noise > 0:
             x = x + self.target_noise * torch.randn_like(x)
         v = self._target(x_tilde, x)
@@ -185,14 +195,32 @@ class ConditionalFlow(PostProcessor):
             noise[..., : v.shape[-2], : v.shape[-1]] = 0.0
             vp = vp + noise
         z, log_jac = self._flow_forward(vp, conds)
-        bpd = gaussian_nll_bpd(z, log_jac)
-        loss = bpd.mean()
+        nll = gaussian_nll_bpd(z, log_jac).mean()
         d = z.shape[1]
-        return loss, {
-            "nll_bpd": float(loss.detach()),
+        logs = {
+            "nll_bpd": float(nll.detach()),
             "z_sq_mean": float(z.detach().pow(2).mean()),
             "logdet_per_dim": float(log_jac.detach().mean() / d),
         }
+        if self.location_weight == 0:
+            return nll, logs
+        location_mse = (self.location(conds, tuple(v.shape[-2:])).float() - v_clean).pow(2).mean()
+        logs["location_mse"] = float(location_mse.detach())
+        return nll + self.location_weight * location_mse, logs
+
+    def location(self, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
+        """The conditional scale's pixel-wise location ``mu`` in the units of ``v``, (B, 1, H, W).
+
+        The layer sits after the input ActNorm ``y = v exp(a) + b``, so its ``mu`` (in units of
+        ``y``) is ``(mu - b) exp(-a)`` in units of ``v``. Only for ``conditional_scale="location"``.
+        """
+        if self.conditional_form != "location":
+            raise ValueError(f"{self.name}: only the 'location' conditional scale has a location")
+        mu = crop(conds[0][:, 1:2], size)
+        actnorm = next((n.module for n in self.flow.node_list if n.name == "actnorm_in"), None)
+        if actnorm is None:
+            return mu
+        return (mu - actnorm.bias.view(1, -1, 1, 1)) * torch.exp(-actnorm.scale.view(1, -1, 1, 1))
 
     @torch.no_grad()
     def data_init(self, x_tilde: torch.Tensor, x: torch.Tensor) -> None:
