@@ -120,29 +120,6 @@ class Study:
     antithetic: bool = False
 
 
-# tiny: meant for the one-setting study in under 25 minutes and the three settings in under 45 on
-# a 2-core machine (what the fresh runs took: docs/results.md); the invertible networks get a 100x larger learning rate
-# than the paper's 1e-5 because they train for tens of epochs instead of 500, lighter coupling
-# stacks (same architecture family) at 63 x 63, a narrower conditioning UNet for CiUNet (16-64
-# channels: half the step time) and the pixel-wise conditional scale (additive couplings, and a
-# conditional ActNorm whose head gives each pixel's spread and location; the location form,
-# except for the non-residual CiUNet, where the shift form was better), chosen on the validation
-# split: docs/learn.md.
-# Training steps run under bfloat16 autocast (on an AVX512-BF16 CPU the UNet makes 2x, the
-# invertible networks 0.9-1.4x the steps per second, with the same quality within run-to-run
-# spread, docs/learn.md). The budget (40 UNet epochs, 32 for the residual invertible networks,
-# which the paper recommends, 12 for the others, M = 32 latent samples in antithetic pairs) is
-# what fits the one-setting study into 25 minutes on that machine (SCALE_STUDIES: the three
-# settings' 45 runs and 152 sampling passes in 45 minutes); antithetic pairs remove the
-# Monte-Carlo error of the mean that M = 50 independent draws left (docs/learn.md).
-# The UNet's architecture arguments were set for the previous budget (70 epochs) on the
-# validation split, Dremel input (the hardest to improve; val MSE of the input 4.93e-4;
-# numbers below with 32-channel skips, 60 epochs unless said):
-# - output bias -7 (sigmoid 0.0009, near the zero background): with PyTorch's default start the
-#   background stayed at 0.024 and SSIM halved; the sigmoid's floor costs SSIM in the 82 % of
-#   zero pixels (bias -6: val 4.73e-4 / SSIM 0.936; -7: 4.66e-4 / 0.963; -8: 5.19e-4 / 0.964);
-# - 32-channel skip branches instead of dival's 4 (the paper's figure is not available): the
-#   4-channel skips could not carry Dremel's fine detail (val MSE 5.33e-4 > input, 60 epochs).
 def _flow_kwargs(model: str, form: str) -> dict[str, Any]:
     """The tiny study's architecture arguments of an invertible network with conditional-scale ``form``."""
     if model.startswith("cinn"):
@@ -156,6 +133,30 @@ _LOCATION_TERM: dict[str, dict[str, float]] = {
     "ciunet": {"location_weight": 1000.0},
 }
 
+# tiny: meant for the one-setting study in under 25 minutes and the three settings in under 45 on
+# a 2-core machine (what the fresh runs took: docs/results.md); the invertible networks get a 100x larger learning rate
+# than the paper's 1e-5 because they train for tens of epochs instead of 500, lighter coupling
+# stacks (same architecture family) at 63 x 63, a narrower conditioning UNet for CiUNet (16-64
+# channels: half the step time) and the pixel-wise conditional scale (additive couplings, and a
+# conditional ActNorm whose head gives each pixel's spread and location, in the location form),
+# chosen on the validation split: docs/learn.md. The non-residual CiNN and CiUNet add the location
+# term (location_weight 1000): under the NLL alone they stayed 3.5-9.1 dB below their inputs.
+# Training steps run under bfloat16 autocast (on an AVX512-BF16 CPU the UNet makes 2x, the
+# invertible networks 0.9-1.4x the steps per second, with the same quality within run-to-run
+# spread, docs/learn.md). The budget (40 UNet epochs, 32 for the residual invertible networks,
+# which the paper recommends, 24 for the others, M = 32 latent samples in antithetic pairs) is
+# what fits the one-setting study into 25 minutes on that machine (SCALE_STUDIES: the three
+# settings' 45 runs and 152 sampling passes in 45 minutes, with the round-four settings of the
+# non-residual networks: 12 epochs, no location term, the shift form for CiUNet); antithetic pairs remove the
+# Monte-Carlo error of the mean that M = 50 independent draws left (docs/learn.md).
+# The UNet's architecture arguments were set for the previous budget (70 epochs) on the
+# validation split, Dremel input (the hardest to improve; val MSE of the input 4.93e-4;
+# numbers below with 32-channel skips, 60 epochs unless said):
+# - output bias -7 (sigmoid 0.0009, near the zero background): with PyTorch's default start the
+#   background stayed at 0.024 and SSIM halved; the sigmoid's floor costs SSIM in the 82 % of
+#   zero pixels (bias -6: val 4.73e-4 / SSIM 0.936; -7: 4.66e-4 / 0.963; -8: 5.19e-4 / 0.964);
+# - 32-channel skip branches instead of dival's 4 (the paper's figure is not available): the
+#   4-channel skips could not carry Dremel's fine detail (val MSE 5.33e-4 > input, 60 epochs).
 STUDIES: dict[str, Study] = {
     "tiny": Study(
         n=200,
@@ -178,7 +179,8 @@ STUDIES: dict[str, Study] = {
 
 #: Studies of ``reproduce --scale`` where they differ from the one-setting study of the same size
 #: (:data:`STUDIES`): at tiny scale the three settings share 45 minutes, so the residual invertible
-#: networks train 24 epochs instead of 32 (docs/learn.md).
+#: networks train 24 epochs instead of 32, and the non-residual ones 12 instead of 24, without the
+#: location term, CiUNet in the shift form (docs/learn.md).
 SCALE_STUDIES: dict[str, Study] = {
     "tiny": replace(
         STUDIES["tiny"],
