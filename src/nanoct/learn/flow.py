@@ -36,6 +36,19 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def _location_weight(hparams: dict[str, Any], form: str | None) -> float:
+    """The checked ``location_weight`` of a flow's ``hparams`` (0 if absent)."""
+    weight = float(hparams.get("location_weight", 0.0))
+    if not weight >= 0:
+        raise ValueError(f"location_weight must be >= 0, got {weight}")
+    if weight > 0 and form != "location":
+        raise ValueError(
+            f"location_weight = {weight} needs conditional_scale='location' (the layer whose location it "
+            f"trains), got conditional_scale={hparams.get('conditional_scale', False)!r}"
+        )
+    return weight
+
+
 class CheckpointMismatchError(ValueError, RuntimeError):
     """A state dict of another architecture or size (a ``ValueError``; also a ``RuntimeError``,
     what ``torch.nn.Module.load_state_dict`` raises, so existing handlers keep working)."""
@@ -78,15 +91,7 @@ class ConditionalFlow(PostProcessor):
         self.target_noise = target_noise
         #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
         self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
-        location_weight = float(self.hparams.get("location_weight", 0.0))
-        if not location_weight >= 0:
-            raise ValueError(f"location_weight must be >= 0, got {location_weight}")
-        if location_weight > 0 and self.conditional_form != "location":
-            raise ValueError(
-                f"location_weight = {location_weight} needs conditional_scale='location' (the layer whose "
-                f"location it trains), got conditional_scale={self.hparams.get('conditional_scale', False)!r}"
-            )
-        self.location_weight = location_weight
+        self.location_weight = _location_weight(self.hparams, self.conditional_form)
 
     def _append_conditional_scale(self, nodes: list[Ff.Node], h: int, w: int) -> list[Ff.ConditionNode]:
         """Append the :class:`ConditionalScale` node to ``nodes`` if the network has one.
