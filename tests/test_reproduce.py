@@ -165,7 +165,12 @@ def test_scale_study_differs_from_the_one_setting_study_only_where_declared():
 
     tiny = scale_study("tiny")
     assert tiny is SCALE_STUDIES["tiny"] and scale_study("paper") is STUDIES["paper"]
-    assert tiny.epochs["cinn-res"] < STUDIES["tiny"].epochs["cinn-res"]
-    assert replace(tiny, epochs=STUDIES["tiny"].epochs) == STUDIES["tiny"]
+    one = STUDIES["tiny"]
+    assert tiny.epochs["cinn-res"] < one.epochs["cinn-res"] and tiny.epochs["cinn"] < one.epochs["cinn"]
+    # only the non-residual networks' architecture arguments differ: no location term, CiUNet in the shift form
+    assert {m for m in one.model_kwargs if tiny.model_kwargs[m] != one.model_kwargs[m]} == {"cinn", "ciunet"}
+    assert one.model_kwargs["cinn"]["location_weight"] > 0 and "location_weight" not in tiny.model_kwargs["cinn"]
+    assert tiny.model_kwargs["ciunet"]["conditional_scale"] == "shift"
+    assert replace(tiny, epochs=one.epochs, model_kwargs=one.model_kwargs) == one
     with pytest.raises(NanoctError, match="unknown scale 'huge'"):
         scale_study("huge")
