@@ -182,7 +182,8 @@ class ConditionalFlow(PostProcessor):
         return x_tilde - x if self.residual else x
 
     def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
-        """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss).
+        """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss), plus
+        ``location_weight`` times the MSE of :meth:`location` against the noise-free target.
 
         In training mode N(0, target_noise^2) noise is added to the target first (to all pixels,
         padded ones included); in eval mode the loss is deterministic.
