@@ -120,18 +120,14 @@ class Study:
     antithetic: bool = False
 
 
-def _flow_kwargs(model: str, form: str) -> dict[str, Any]:
-    """The tiny study's architecture arguments of an invertible network with conditional-scale ``form``."""
-    if model.startswith("cinn"):
-        return {"blocks_per_scale": 2, "conditional_scale": form}
-    return {"blocks_per_scale": 1, "conditional_scale": form, "cond_channels": [16, 16, 32, 32, 64]}
+def _flow_kwargs(model: str, form: str, location_weight: float = 0.0) -> dict[str, Any]:
+    """The tiny study's architecture arguments of an invertible network with conditional-scale
+    ``form`` and, if positive, the location term's weight (docs/learn.md)."""
+    kwargs: dict[str, Any] = {"blocks_per_scale": 2, "conditional_scale": form}
+    if not model.startswith("cinn"):
+        kwargs = {"blocks_per_scale": 1, "conditional_scale": form, "cond_channels": [16, 16, 32, 32, 64]}
+    return kwargs | ({"location_weight": location_weight} if location_weight else {})
 
-
-#: The location term of the non-residual networks in the tiny one-setting study (docs/learn.md).
-_LOCATION_TERM: dict[str, dict[str, float]] = {
-    "cinn": {"location_weight": 1000.0},
-    "ciunet": {"location_weight": 1000.0},
-}
 
 # tiny: meant for the one-setting study in under 25 minutes and the three settings in under 45 on
 # a 2-core machine (what the fresh runs took: docs/results.md); the invertible networks get a 100x larger learning rate
@@ -165,7 +161,7 @@ STUDIES: dict[str, Study] = {
         lr={"cinn": 1e-3, "cinn-res": 1e-3, "ciunet": 1e-3, "ciunet-res": 1e-3},
         model_kwargs={"unet": {"out_bias": -7.0, "skip_channels": 32}}
         | {
-            m: _flow_kwargs(m, "location") | _LOCATION_TERM.get(m, {})
+            m: _flow_kwargs(m, "location", 0.0 if m.endswith("-res") else 1000.0)
             for m in ("cinn", "cinn-res", "ciunet", "ciunet-res")
         },
         n_samples=32,

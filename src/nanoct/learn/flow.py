@@ -217,16 +217,14 @@ class ConditionalFlow(PostProcessor):
     def location(self, conds: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
         """The conditional scale's pixel-wise location ``mu`` in the units of ``v``, (B, 1, H, W).
 
-        The layer sits after the input ActNorm ``y = v exp(a) + b``, so its ``mu`` (in units of
-        ``y``) is ``(mu - b) exp(-a)`` in units of ``v``. Only for ``conditional_scale="location"``.
+        The layer sits after the input ActNorm, so its ``mu`` (in that layer's units) goes back
+        through the ActNorm's inverse. Only for ``conditional_scale="location"``.
         """
         if self.conditional_form != "location":
             raise ValueError(f"{self.name}: only the 'location' conditional scale has a location")
-        mu = crop(conds[0][:, 1:2], size)
-        actnorm = next((n.module for n in self.flow.node_list if n.name == "actnorm_in"), None)
-        if actnorm is None:
-            return mu
-        return (mu - actnorm.bias.view(1, -1, 1, 1)) * torch.exp(-actnorm.scale.view(1, -1, 1, 1))
+        modules = {n.name: n.module for n in self.flow.node_list}
+        mu = crop(modules["scale_in"].split(conds[0])[1], size)
+        return modules["actnorm_in"].reverse(mu) if "actnorm_in" in modules else mu
 
     @torch.no_grad()
     def data_init(self, x_tilde: torch.Tensor, x: torch.Tensor) -> None:

@@ -332,9 +332,12 @@ class ConditionalScale(Fm.InvertibleModule):
         self.clamp = float(clamp)
         self.form = form
 
+    def split(self, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The (soft-clamped log-scale s, location mu or shift t) of a condition map ``c``."""
+        return self.clamp * 0.636 * torch.atan(c[:, : self.channels]), c[:, self.channels :]
+
     def forward(self, x, c=None, rev: bool = False, jac: bool = True):
-        s = self.clamp * 0.636 * torch.atan(c[0][:, : self.channels])
-        t = c[0][:, self.channels :]
+        s, t = self.split(c[0])
         log_det = s.sum(dim=(1, 2, 3))
         if self.form == "location":
             if not rev:
@@ -417,7 +420,11 @@ class ActNorm(Fm.ActNorm):
         log_det = (self.scale.sum() * math.prod(x0.shape[2:])).expand(x0.shape[0])
         if not rev:
             return [x0 * self.scale.exp() + self.bias], log_det
-        return [(x0 - self.bias) * torch.exp(-self.scale)], -log_det
+        return [self.reverse(x0)], -log_det
+
+    def reverse(self, y: torch.Tensor) -> torch.Tensor:
+        """The inverse map ``(y - b) exp(-s)``, without the side effects of ``forward(rev=True)``."""
+        return (y - self.bias) * torch.exp(-self.scale)
 
 
 def finish_actnorm_init(module: nn.Module) -> None:
