@@ -29,6 +29,7 @@ TOY = Study(
     n_samples=3,
     mixing=("unet",),
     antithetic=True,
+    scheduler={"cinn-res": "cosine"},
 )
 
 
@@ -52,6 +53,8 @@ def test_reproduce_toy_study(tmp_path):
             == json.loads((out / "runs" / f"cinn-res-{i}" / "calibration.json").read_text())["best"]["scale"]
         )
         assert r["edge_baseline"]["all"]["coverage"]["calibrated"] is not None
+    # the study's schedule reaches the training run (the registry's for cinn-res is "plateau")
+    assert json.loads((out / "runs" / "cinn-res-fbp" / "config.json").read_text())["scheduler"] == "cosine"
     cal = json.loads((out / "runs" / "cinn-res-fbp" / "calibration.json").read_text())["best"]
     assert cal["reconstruct"] == {"n_samples": 3, "antithetic": True}  # the study's sampling, also in calibration
     for png in (
@@ -171,6 +174,7 @@ def test_scale_study_differs_from_the_one_setting_study_only_where_declared():
     assert {m for m in one.model_kwargs if tiny.model_kwargs[m] != one.model_kwargs[m]} == {"cinn", "ciunet"}
     assert one.model_kwargs["cinn"]["location_weight"] > 0 and "location_weight" not in tiny.model_kwargs["cinn"]
     assert tiny.model_kwargs["ciunet"]["conditional_scale"] == "shift"
-    assert replace(tiny, epochs=one.epochs, model_kwargs=one.model_kwargs) == one
+    assert one.scheduler == {"ciunet": "cosine"} and tiny.scheduler == {}  # the scale study keeps the registry's
+    assert replace(tiny, epochs=one.epochs, scheduler=one.scheduler, model_kwargs=one.model_kwargs) == one
     with pytest.raises(NanoctError, match="unknown scale 'huge'"):
         scale_study("huge")
