@@ -46,6 +46,7 @@ def test_reproduce_toy_study(tmp_path):
         assert results[f"{i}+cinn-res"]["n"] == 3 and "uncertainty" in results[f"{i}+cinn-res"]
     assert "fbp+unet@resesop" in results and "fbp+cinn-res@resesop" not in results  # mixing for unet only
     assert "rows = trained on" in text and "| fbp+cinn-res | support |" in text
+    assert "learning-rate schedule cinn-res cosine (others: their model's default)" in text
     for i in inputs:  # predict calibrated each invertible run on its validation split
         r = results[f"{i}+cinn-res"]
         assert (

@@ -567,11 +567,13 @@ def report_stage(
     write_report_tables(store, results, report_dir, "test", conclusions=checks, setting=setting.paper)
     mixing = mixing_matrices(results)
     seeds = 1 + max((s for *_, s in jobs.train), default=0)
+    schedules = ", ".join(f"{m} {study.scheduler[m]}" for m in models if m in study.scheduler)
     sections = [
         f"## {setting.preset}{'' if setting.perturbed else ' (no motion)'}",
         "",
         f"{store.n} samples (train/val/test { ({s: int(store.indices(s).size) for s in SPLITS}) }), seed {store.seed}; "
         f"networks: {', '.join(models) or 'none'}; epochs {', '.join(f'{m} {study.epochs[m]}' for m in models)}"
+        + (f"; learning-rate schedule {schedules} (others: their model's default)" if schedules else "")
         + (f"; {seeds} training seeds per network row (tables: seed 0)" if seeds > 1 else "")
         + ".",
         "",
