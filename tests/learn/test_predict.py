@@ -54,6 +54,14 @@ def test_predict_writes_test_split(setup):
     np.testing.assert_allclose(out, ref, atol=1e-5)
 
 
+def test_sampling_arguments_for_the_unet_are_refused(setup):
+    """--samples / --antithetic mean nothing to a UNet: a clear error, nothing written."""
+    path, run = setup
+    with pytest.raises(NanoctError, match=r"holds a 'unet'.*\['antithetic', 'n_samples'\].*leave them out"):
+        predict(path, run, progress=False, name="sampled", reconstruct_kwargs={"n_samples": 8, "antithetic": True})
+    assert "sampled" not in DataStore.open(path).reconstruction_names()
+
+
 def test_predict_is_resumable_and_noop_when_complete(setup, monkeypatch):
     path, run = setup
     predict(path, run, progress=False)

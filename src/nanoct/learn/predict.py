@@ -134,7 +134,8 @@ def predict(
     ------
     NanoctError
         Missing run or checkpoint, a corrupt checkpoint or one for another image size, an
-        empty split, or a missing or incomplete input reconstruction.
+        empty split, a missing or incomplete input reconstruction, or ``reconstruct_kwargs``
+        for a network without sampling (the UNet).
     """
 
     if checkpoint not in ("best", "last"):
@@ -169,6 +170,12 @@ def predict(
         "reconstruct": kwargs,
     }
     sampling = model_class(str(ckpt["model"])).has_uncertainty
+    if kwargs and not sampling:
+        raise NanoctError(
+            f"the run at {run} holds a '{ckpt['model']}', which gives one output per image and no std; the "
+            f"sampling arguments {sorted(kwargs)} (--samples, --antithetic) apply to the invertible networks only: "
+            "leave them out"
+        )
     std_map = None
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
