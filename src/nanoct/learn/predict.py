@@ -151,6 +151,14 @@ def predict(
     ckpt_path = run / f"{checkpoint}.pt"
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     _check_geometry(store, run, ckpt)
+    kwargs = dict(reconstruct_kwargs or {})
+    sampling = model_class(str(ckpt["model"])).has_uncertainty
+    if kwargs and not sampling:
+        raise NanoctError(
+            f"the run at {run} holds a '{ckpt['model']}', which gives one output per image and no std; the "
+            f"sampling arguments {sorted(kwargs)} (--samples, --antithetic) apply to the invertible networks only: "
+            "leave them out"
+        )
     train_input = str(ckpt["input"])
     input_name = train_input if input_name is None else input_name
     indices = store.indices(split)
@@ -158,7 +166,6 @@ def predict(
         raise NanoctError(f"the {split} split of {store.path} has no samples; nothing to post-process")
     check_input(store, input_name, indices, split)
     out = name or output_name(input_name, str(ckpt["model"]), train_input)
-    kwargs = dict(reconstruct_kwargs or {})
     params = {
         "input": input_name,
         "run": str(run.resolve()),
@@ -169,13 +176,6 @@ def predict(
         "train_input": train_input,
         "reconstruct": kwargs,
     }
-    sampling = model_class(str(ckpt["model"])).has_uncertainty
-    if kwargs and not sampling:
-        raise NanoctError(
-            f"the run at {run} holds a '{ckpt['model']}', which gives one output per image and no std; the "
-            f"sampling arguments {sorted(kwargs)} (--samples, --antithetic) apply to the invertible networks only: "
-            "leave them out"
-        )
     std_map = None
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
