@@ -25,26 +25,28 @@ from pathlib import Path
 
 import torch
 
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.geometry import get_preset
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.reproduce import STUDIES
+from nanoct.sim.generate import generate_dataset
+from nanoct.study.config import STUDIES
 
 
 def _train(store: str, model: str, out: str, epochs: int, threads: int) -> None:
-    from nanoct.learn.train import train
+    from nanoct.learn.train import TrainConfig, train
 
     torch.set_num_threads(threads)
     study = STUDIES["tiny"]
     train(
         store,
-        model,
-        "fbp",
         out,
-        epochs=epochs,
-        lr=study.lr.get(model),
-        model_kwargs=study.model_kwargs.get(model),
-        precision=study.precision,
+        TrainConfig(
+            model,
+            "fbp",
+            epochs=epochs,
+            lr=study.lr.get(model),
+            model_kwargs=study.model_kwargs.get(model),
+            precision=study.precision,
+        ),
         progress=False,
     )
 

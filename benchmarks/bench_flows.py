@@ -7,9 +7,9 @@ threads and inputs:
   63 x 63, the trainer's memory format: channels_last on CPU), and
 * seconds per image to draw the study's latent samples for the mean and std (``reconstruct``),
 
-for the "old" configuration (the tiny study before issue 9: additive couplings, the paper's
+for the "old" configuration (additive couplings everywhere, the paper's
 conditioner widths) and the "new" one (the tiny study's ``model_kwargs`` in
-:data:`nanoct.reproduce.STUDIES`), and prints the ratio new/old of the step rate.
+:data:`nanoct.study.config.STUDIES`), and prints the ratio new/old of the step rate.
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_flows.py --threads 1 --repeat 5
 """
@@ -25,10 +25,10 @@ from typing import Any
 import torch
 
 from nanoct.learn.models import build_model
-from nanoct.reproduce import STUDIES
+from nanoct.study.config import STUDIES
 
 NETWORKS = ("cinn", "cinn-res", "ciunet", "ciunet-res")
-#: The tiny study's architecture before issue 9 (additive couplings everywhere).
+#: The earlier tiny-study architecture (additive couplings everywhere), the baseline of the comparison.
 OLD = {"cinn": {"blocks_per_scale": 2}, "ciunet": {"blocks_per_scale": 1}}
 
 

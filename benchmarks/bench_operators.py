@@ -17,14 +17,14 @@ import astra
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from nanoct.fanout import dask_client
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
-from nanoct.motion import sample_motion
-from nanoct.operators import RayTransform, astra_vectors, system_matrix
-from nanoct.phantoms import downsample, random_phantom
+from nanoct.core.fanout import dask_client
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import RayTransform, astra_vectors, system_matrix
 from nanoct.recon.fbp import fbp, ramp_filter
-from nanoct.simulate import SimulationConfig, sample_rngs
+from nanoct.sim.generate import generate_dataset
+from nanoct.sim.motion import sample_motion
+from nanoct.sim.phantoms import downsample, random_phantom
+from nanoct.sim.simulate import SimulationConfig, sample_rngs
 
 
 def best_of(fn, repeat: int = 5) -> float:

@@ -1,7 +1,7 @@
 """Benchmark of training-step speed in float32 vs bfloat16 autocast, the tiny study's networks.
 
 For the UNet and each invertible network (the tiny study's ``model_kwargs`` in
-:data:`nanoct.reproduce.STUDIES`) one run measures, with the same threads and inputs, the median
+:data:`nanoct.study.config.STUDIES`) one run measures, with the same threads and inputs, the median
 seconds of one training step (the model's loss, backward, gradient clipping, Adam; batch 16,
 63 x 63, channels_last as the trainer uses on CPU) with ``precision="fp32"`` and with the forward
 pass under ``torch.autocast(dtype=torch.bfloat16)`` as :func:`nanoct.learn.train.train` runs it
@@ -18,7 +18,7 @@ import torch
 
 from bench_flows import bench_train, step_args  # the same step, timed the same way
 from nanoct.learn.models import table_order
-from nanoct.reproduce import STUDIES
+from nanoct.study.config import STUDIES
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Benchmarks of the row-action reconstructions (issue 3), each with its baselines in the same run.
+"""Benchmarks of the row-action reconstructions, each with its baselines in the same run.
 
 Usage::
 
@@ -32,13 +32,13 @@ import tracemalloc  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from nanoct.geometry import get_preset  # noqa: E402
-from nanoct.operators import RayTransform, astra_vectors, system_matrix  # noqa: E402
-from nanoct.phantoms import downsample, random_phantom  # noqa: E402
+from nanoct.core.geometry import get_preset  # noqa: E402
+from nanoct.core.operators import RayTransform, astra_vectors, system_matrix  # noqa: E402
 from nanoct.recon.dremel import _XCorr, dremel  # noqa: E402
 from nanoct.recon.kaczmarz import _kaczmarz_sweep, kaczmarz_reference  # noqa: E402
 from nanoct.recon.resesop import resesop, resesop_reference  # noqa: E402
 from nanoct.recon.rowaction import residual_norm, row_norms_squared, unsigned_indices, view_order  # noqa: E402
+from nanoct.sim.phantoms import downsample, random_phantom  # noqa: E402
 
 
 def timeit(fn, repeat: int) -> float:

@@ -1,4 +1,4 @@
-"""Sampling cost of the conditional invertible networks (issue 5): ms per sample per image.
+"""Sampling cost of the conditional invertible networks: ms per sample per image.
 
 Usage::
 

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nanoct.eta import eta_from_reference, eta_from_residual, fit_scale
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
-from nanoct.metrics import summarize
+from nanoct.core.geometry import get_preset
+from nanoct.evaluation.metrics import summarize
+from nanoct.io.store import DataStore
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.store import DataStore
+from nanoct.recon.eta import eta_from_reference, eta_from_residual, fit_scale
+from nanoct.sim.generate import generate_dataset
 
 
 def _residual_etas(store: DataStore, indices: np.ndarray) -> np.ndarray:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.geometry import get_preset
+from nanoct.sim.generate import generate_dataset
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import nanoct
-from nanoct.geometry import Geometry, get_preset
-from nanoct.operators import RayTransform
+from nanoct.core.geometry import Geometry, get_preset
+from nanoct.core.operators import RayTransform
 from nanoct.recon.dremel import dremel as dremel_solver
 from nanoct.recon.fbp import fbp as fbp_solver
 
@@ -52,3 +52,12 @@ def test_bad_calls(data):
         nanoct.kaczmarz(y, g, sweeps=3)
     with pytest.raises(AttributeError):
         nanoct.sirt  # noqa: B018
+
+
+def test_the_examples_in_the_array_api_docstring_run():
+    import doctest
+
+    import nanoct.api
+
+    result = doctest.testmod(nanoct.api, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 8 and result.failed == 0

@@ -27,6 +27,7 @@ def test_help(monkeypatch, capsys, command):
     assert code == 0 and "Usage" in out
 
 
+@pytest.mark.slow
 def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     d = tmp_path / "d"
     code, out, _ = run(

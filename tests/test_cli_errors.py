@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from nanoct.cli import _expected_error, run
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
-from nanoct.learn.train import train
+from nanoct.core.geometry import get_preset
+from nanoct.io.store import DataStore
+from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.store import DataStore
+from nanoct.sim.generate import generate_dataset
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
 
@@ -33,7 +33,12 @@ def base(tmp_path_factory):
     generate_dataset(root / "fan", get_preset("tiny-fan"), 4, workers=0, progress=False, split_fractions=fractions)
     for d in ("par", "fan"):
         reconstruct_dataset(root / d, "fbp", workers=0, progress=False)
-    train(root / "par", "unet", "fbp", root / "run", epochs=1, batch_size=2, progress=False, model_kwargs=SMALL)
+    train(
+        root / "par",
+        root / "run",
+        TrainConfig("unet", "fbp", epochs=1, batch_size=2, model_kwargs=SMALL),
+        progress=False,
+    )
     (root / "afile").write_text("not a directory")
     return root
 
@@ -134,6 +139,7 @@ BAD_ARGS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(BAD_ARGS))
 def test_bad_arguments(work, capsys, case):
     args, expect = BAD_ARGS[case]
@@ -282,11 +288,11 @@ def test_os_errors_name_the_file():
 
 
 def test_bug_shows_traceback(monkeypatch, capsys):
-    import nanoct.store
+    import nanoct.io.store
 
     def broken(*a, **k):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(nanoct.store.DataStore, "open", broken)
+    monkeypatch.setattr(nanoct.io.store.DataStore, "open", broken)
     code, _, err = _cli(capsys, ["info", "anything"])
     assert code == 1 and "Traceback" in err and "report" in err

@@ -9,8 +9,8 @@ import h5py
 import matplotlib
 import numpy as np
 
-from nanoct.geometry import Geometry
-from nanoct.operators import RayTransform
+from nanoct.core.geometry import Geometry
+from nanoct.core.operators import RayTransform
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

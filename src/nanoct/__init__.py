@@ -22,13 +22,13 @@ __all__ = ["__version__", *_API, "Geometry"]
 
 
 def __getattr__(name: str) -> Any:
-    """Import the array API (:mod:`nanoct.api`) and :class:`~nanoct.geometry.Geometry` lazily."""
+    """Import the array API (:mod:`nanoct.api`) and :class:`~nanoct.core.geometry.Geometry` lazily."""
     if name in _API:
         from . import api
 
         return getattr(api, name)
     if name == "Geometry":
-        from .geometry import Geometry
+        from .core.geometry import Geometry
 
         return Geometry
     raise AttributeError(f"module 'nanoct' has no attribute {name!r}")

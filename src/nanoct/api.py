@@ -1,12 +1,32 @@
 """Reconstruction on plain arrays, for notebooks: ``nanoct.fbp(sinogram, angles=...)``.
 
 Each function takes a sinogram ``(K views, L detector pixels)`` and either a
-:class:`~nanoct.geometry.Geometry` or the scan's ``angles`` (radians unless ``degrees``) with an
+:class:`~nanoct.core.geometry.Geometry` or the scan's ``angles`` (radians unless ``degrees``) with an
 optional rotation-axis ``center_offset`` (detector pixels from the detector centre) and image
 ``size``, builds the parallel-beam geometry, and calls the registered method with the given
 keyword parameters (see :mod:`nanoct.recon` for the contract and each method's parameters).
 They return the method's :class:`~nanoct.recon.result.ReconResult` (``image``, ``motion`` for
 Dremel, ``residuals``, ``params``).
+
+Examples
+--------
+A disk of radius 20 and density 1, centred on the axis, seen by 90 parallel views:
+
+>>> import numpy as np
+>>> import nanoct
+>>> angles = np.linspace(0, np.pi, 90, endpoint=False)
+>>> s = np.arange(64) - 31.5
+>>> sinogram = np.tile(2 * np.sqrt(np.clip(20**2 - s**2, 0, None)), (90, 1)).astype(np.float32)
+>>> image = nanoct.fbp(sinogram, angles=angles).image
+>>> image.shape, round(float(image[32, 32]), 2)
+((64, 64), 1.0)
+>>> result = nanoct.dremel(sinogram, angles=angles, n_iter=4)
+>>> result.motion.shape, result.stop_reason
+((90,), 'max_iter')
+>>> bool(np.abs(result.motion).max() < 0.5)  # the disk does not move
+True
+>>> nanoct.resesop(sinogram, angles=angles, eta=np.full(90, 0.5), n_iter=5).image.shape
+(64, 64)
 """
 
 from __future__ import annotations
@@ -16,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import NanoctError
-from .geometry import Geometry
-from .recon.registry import check_method_params, method_spec
+from .core.errors import NanoctError
+from .core.geometry import Geometry
+from .recon.registry import method_spec
 from .recon.result import ReconResult
 
 __all__ = ["NanoctError", "dremel", "fbp", "kaczmarz", "make_geometry", "resesop"]
@@ -84,7 +104,7 @@ ReconResult
 
 def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
     """The array-API function of a registered method (``eta=`` for methods that need it)."""
-    needs_eta = method_spec(method).needs_eta
+    spec = method_spec(method)
 
     def run(
         sinogram: Any,
@@ -97,14 +117,10 @@ def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
         eta: Any = None,
         **params: Any,
     ) -> ReconResult:
-        if needs_eta and eta is None:
-            raise ValueError(f"{method} needs the per-view model error eta=; estimate it with nanoct.eta")
-        if not needs_eta and eta is not None:
-            raise ValueError(f"{method} takes no eta")
+        spec.check_eta(eta)
         g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-        check_method_params(method, params, g)
-        data = (sinogram, eta) if needs_eta else (sinogram,)
-        return method_spec(method).solver()(g, *data, **params)
+        spec.check(params, g)
+        return spec.run(g, sinogram, eta, **params)
 
     run.__name__ = run.__qualname__ = method
     run.__doc__ = summary + _COMMON
@@ -121,6 +137,6 @@ dremel = _array_method(
 resesop = _array_method(
     "resesop",
     "RESESOP-Kaczmarz with the per-view model error ``eta=`` (:func:`nanoct.recon.resesop.resesop`); "
-    "without ground truth estimate it with :mod:`nanoct.eta`, e.g. "
+    "without ground truth estimate it with :mod:`nanoct.recon.eta`, e.g. "
     "``eta_from_residual(geometry, sinogram, dremel(...).image)``.",
 )

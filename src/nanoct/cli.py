@@ -13,7 +13,8 @@ from typing import Any
 import click
 import typer
 
-from .errors import NanoctError
+from .core.errors import NanoctError
+from .names import is_prediction
 from .recon.registry import method_help, method_spec, methods_with_eta
 
 app = typer.Typer(
@@ -41,7 +42,7 @@ def _parse_fractions(text: str) -> tuple[float, float, float]:
 
 
 def _check_name(name: str | None) -> str | None:
-    from .store_recon import check_name
+    from .io.store_recon import check_name
 
     return None if name is None else check_name(name)
 
@@ -103,10 +104,10 @@ def generate(
     Resumable: running the same command again completes an interrupted run and is a no-op
     when the data set is complete.
     """
-    from .generate import generate_dataset
-    from .geometry import get_preset
-    from .motion import MotionParams
-    from .simulate import SimulationConfig
+    from .core.geometry import get_preset
+    from .sim.generate import generate_dataset
+    from .sim.motion import MotionParams
+    from .sim.simulate import SimulationConfig
 
     geometry = get_preset(preset)
     overrides = {} if max_shift is None else {"max_shift": max_shift}
@@ -150,8 +151,9 @@ def reconstruct(
     param: list[str] = typer.Option(
         [],
         "--param",
-        help="Method parameter name=value (repeatable). Dremel also: motion_slices=all|0,5,9 (one motion for "
-        "these slices), shifts_from=FILE (start motion), fix_shifts=true (use it as given).",
+        help="Method parameter name=value (repeatable); 'nanoct methods METHOD' lists them. Dremel also: "
+        "motion_slices=all|0,5,9 (one motion for these slices), shifts_from=FILE (start motion), fix_shifts=true "
+        "(use it as given).",
     ),
     name: str | None = typer.Option(
         None,
@@ -191,6 +193,30 @@ def reconstruct(
 
 
 @app.command()
+def methods(
+    method: str | None = typer.Argument(None, help="A method (default: all of them)."),
+) -> None:
+    """List the reconstruction methods and the parameters each takes (--param NAME=VALUE).
+
+    The parameters, their defaults and help come from each method's parameter class
+    (nanoct.recon.params); batch parameters (--eta, motion_slices, shifts_from) are used by
+    'nanoct reconstruct' itself and never reach the solver.
+    """
+    from dataclasses import fields
+
+    from .recon.registry import METHODS
+
+    for name in [method_spec(method).name] if method else list(METHODS):
+        spec = METHODS[name]
+        typer.echo(f"{name}: {spec.help}")
+        defaults = {f.name: f.default for f in fields(spec.params_class())}
+        batch = set(spec.batch_parameter_names())
+        for param, text in spec.parameter_help().items():
+            where = " (batch)" if param in batch else f" = {defaults[param]!r}"
+            typer.echo(f"  {param}{where}  {text}")
+
+
+@app.command()
 def train(
     directory: Path = typer.Argument(..., help="Data-set store."),
     model: str = typer.Option("unet", "--model", "-m", help="unet | cinn | cinn-res | ciunet | ciunet-res"),
@@ -214,33 +240,43 @@ def train(
         "--precision",
         help="fp32 | bf16 (bfloat16 autocast; up to 2x faster on CPUs with native bfloat16).",
     ),
+    clip_grad: float | None = typer.Option(
+        None, "--clip-grad", help="Gradient-norm clipping (default: the model's; 0 disables)."
+    ),
+    max_steps: int | None = typer.Option(
+        None, "--max-steps", help="Stop after this many optimizer steps in total (smoke tests)."
+    ),
+    num_workers: int = typer.Option(0, "--num-workers", help="DataLoader worker processes."),
     quiet: bool = QUIET,
 ) -> None:
     """Train a post-processing network on reconstructions/<input> -> phantoms.
 
     Keeps the checkpoint with the lowest validation loss (best.pt) and the last one
     (last.pt), logs losses to log.csv; running the same command again resumes after the
-    last finished epoch. Under torchrun it trains with DDP.
+    last finished epoch. Under torchrun it trains with DDP, e.g.
+    torchrun --nproc-per-node 2 -m nanoct train DIR --input fbp.
     """
+    from .learn.train import TrainConfig
     from .learn.train import train as train_model
 
     _check_device(device)
     run = out or Path(directory).resolve().parent / "runs" / f"{model}-{input_name}"
-    path = train_model(
-        directory,
+    config = TrainConfig(
         model,
         input_name,
-        run,
         epochs=epochs,
         batch_size=batch_size,
         lr=lr,
         seed=seed,
-        device=device,
-        progress=not quiet,
-        model_kwargs=_parse_params(param) or None,
         scheduler=lr_schedule,
+        model_kwargs=_parse_params(param) or None,
+        clip_grad=clip_grad,
         precision=precision,
+        max_steps=max_steps,
+        device=device,
+        num_workers=num_workers,
     )
+    path = train_model(directory, run, config, progress=not quiet)
     typer.echo(f"run: {path}")
 
 
@@ -311,7 +347,7 @@ def info(
     With --check, every sample and reconstruction that claims to be written is read; damaged
     ones (a lost or unreadable chunk) are listed with the command that rewrites them.
     """
-    from .store import DataStore
+    from .io.store import DataStore
 
     store = DataStore.open(directory)
     data = store.info()
@@ -328,7 +364,7 @@ def info(
 def _damage_message(damaged: dict[str, list[int]]) -> str:
     parts = []
     for key, idx in damaged.items():
-        command = "generate" if key == "samples" else "predict" if "+" in key else "reconstruct"
+        command = "generate" if key == "samples" else "predict" if is_prediction(key) else "reconstruct"
         parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun 'nanoct {command}' to rewrite them)")
     return (
         "damaged data found: " + "; ".join(parts) + "; a chunk file that exists but cannot be read must be deleted "
@@ -366,8 +402,8 @@ def show(
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
 ) -> None:
     """Figure of one sample: phantom, motion, sinograms with and without motion, FBPs."""
-    from .figures import show_sample
-    from .store import DataStore
+    from .evaluation.figures import show_sample
+    from .io.store import DataStore
 
     store = DataStore.open(directory)
     if not 0 <= index < store.n:
@@ -388,20 +424,23 @@ def evaluate(
     sampling models the std/error correlation and calibration, and the paper's conclusions
     checked on the per-image values (paired differences) for the paper's setting of the store.
     """
-    from .conclusions import check_conclusions
-    from .evaluate import evaluate_store, per_image_values, store_setting, write_report_tables
-    from .store import DataStore
+    from .evaluation.evaluate import store_setting, write_report_tables
+    from .io.store import DataStore
+    from .study.report import evaluate_rows
 
     store = DataStore.open(directory)
-    results = evaluate_store(store, split)
-    if not results:
+    scores = evaluate_rows(store, split, store_setting(store))
+    if not scores.results:
         raise NanoctError(
             f"no reconstruction in {directory} covers the '{split}' split; run 'nanoct reconstruct' first"
         )
-    setting = store_setting(store)
-    checks = check_conclusions(per_image_values(results), setting) if setting else []
     md, js = write_report_tables(
-        store, results, out or Path(directory) / "report", split, conclusions=checks, setting=setting
+        store,
+        scores.results,
+        out or Path(directory) / "report",
+        split,
+        conclusions=scores.checks,
+        setting=scores.setting,
     )
     typer.echo(js.read_text() if as_json else md.read_text())
     typer.echo(f"wrote {md} and {js}", err=True)
@@ -439,13 +478,13 @@ def reproduce(
     missing, and a killed run resumes. The report (Markdown and a self-contained HTML file)
     puts the paper's numbers next to ours and checks the paper's conclusions.
     """
-    from .reproduce import reproduce_scale, reproduce_study
+    from .study.runner import reproduce_scale, reproduce_study
 
     chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
     if scale is not None and (n is not None or no_motion):
         raise NanoctError("--n and --no-motion apply to one --preset; --scale runs the study's three settings")
     if plan:
-        from .plan import format_plan, plan_study
+        from .study.plan import format_plan, plan_study
 
         typer.echo(
             format_plan(
@@ -518,7 +557,7 @@ def import_(
     set has no ground truth: reconstruct it (Dremel estimates one shift per view for the whole
     stack), post-process it with a trained network of the same image size, and export the images.
     """
-    from .scanio import import_scan
+    from .io.scanio import import_scan
 
     row_range = _parse_range(rows, "--rows", ":")
     store = import_scan(
@@ -552,9 +591,9 @@ def export(
     --param shifts_from=FILE): the stack's shared shifts for an imported scan, else those of
     sample --index.
     """
+    from .io.scanio import write_images
+    from .io.store import DataStore
     from .recon.shared import write_store_shifts
-    from .scanio import write_images
-    from .store import DataStore
 
     if out.suffix.lower() == ".txt":
         path = write_store_shifts(directory, name, out, sample=index)

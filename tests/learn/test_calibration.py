@@ -10,17 +10,17 @@ import pytest
 import torch
 
 import nanoct.learn.calibration as cal_mod
-from nanoct.errors import NanoctError
-from nanoct.evaluate import read_std
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
+from nanoct.evaluation.evaluate import read_std
+from nanoct.evaluation.metrics import GAUSSIAN_COVERAGE, apply_std_map, coverage, fit_std_map
+from nanoct.io.store import DataStore
 from nanoct.learn.calibration import CALIBRATION_FILE, CALIBRATION_FORMAT, calibrate, load_calibration
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 from nanoct.learn.predict import predict
-from nanoct.learn.train import train
-from nanoct.metrics import GAUSSIAN_COVERAGE, apply_std_map, coverage, fit_std_map
+from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.store import DataStore
+from nanoct.sim.generate import generate_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -48,7 +48,12 @@ def setup(tmp_path_factory):
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        run = train(path, "cinn-res", "fbp", root / "run", epochs=1, batch_size=2, progress=False, model_kwargs=SMALL)
+        run = train(
+            path,
+            root / "run",
+            TrainConfig("cinn-res", "fbp", epochs=1, batch_size=2, model_kwargs=SMALL),
+            progress=False,
+        )
     finally:
         torch.set_num_threads(n)
     return path, run
@@ -62,6 +67,7 @@ def _copy(setup, tmp_path):
     return tmp_path / "data", tmp_path / "run"
 
 
+@pytest.mark.slow
 def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeypatch):
     path, run = _copy(setup, tmp_path)
     entry = calibrate(path, run, reconstruct_kwargs=M)
@@ -114,6 +120,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     assert calibrate(path, run, reconstruct_kwargs={"n_samples": 5}) == refit and calls == [1, 1, 1]
 
 
+@pytest.mark.slow
 def test_fit_reads_validation_data_only(setup, tmp_path):
     path, run = _copy(setup, tmp_path)
     before = calibrate(path, run, reconstruct_kwargs=M)
@@ -136,6 +143,7 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_predict_applies_the_map(setup, tmp_path):
     path, run = _copy(setup, tmp_path)
     (run / CALIBRATION_FILE).write_text(json.dumps({"best": {"format": 1, "checkpoint": "best", "scale": 1.0}}))
@@ -162,6 +170,7 @@ def test_predict_applies_the_map(setup, tmp_path):
     np.testing.assert_array_equal(store.read_uncertainty("raw", test), store.read_uncertainty(name, test))
 
 
+@pytest.mark.slow
 def test_bad_input(setup, tmp_path):
     path, run = setup
     no_val = tmp_path / "noval"
@@ -172,6 +181,7 @@ def test_bad_input(setup, tmp_path):
         calibrate(path, tmp_path, reconstruct_kwargs=M)
 
 
+@pytest.mark.slow
 def test_prediction_under_a_refitted_calibration_is_redone(setup, tmp_path):
     """A calibrated result of an older calibration (e.g. format 1) is redone, not refused: the same request."""
     path, run = _copy(setup, tmp_path)

@@ -16,6 +16,7 @@ from nanoct.learn.invertible import OrthogonalDownsampling
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
+@pytest.mark.slow
 def test_paper_defaults():
     d = CiNN().hparams  # paper defaults
     assert d["n_scales"] == 6 and d["fc_dim"] == 128 and CiNN().multiple == 64

@@ -138,6 +138,7 @@ def _initialised(arch, images, perturb, n: int, h: int, w: int, seed: int, eval_
     return m, x_tilde, x
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(8, 8), (13, 10)])
 def test_inverse_of_forward_is_identity(arch, size, images, perturb):
     m, x_tilde, x = _initialised(arch, images, perturb, 3, *size, seed=1, eval_mode=False)
@@ -147,6 +148,7 @@ def test_inverse_of_forward_is_identity(arch, size, images, perturb):
     torch.testing.assert_close(m.inverse(z, x_tilde), v, atol=1e-4, rtol=0)
 
 
+@pytest.mark.slow
 def test_logdet_matches_brute_force_jacobian(arch, images, perturb):
     torch.manual_seed(0)
     m = arch.make().double().eval()
@@ -174,6 +176,7 @@ def test_logdet_depends_on_the_condition_unless_volume_preserving(arch, images, 
         assert abs(log_jac[0] - log_jac[1]) > 1e-3
 
 
+@pytest.mark.slow
 def test_learned_std_follows_a_condition_dependent_noise_level(arch):
     """Targets ``x = x_tilde + sigma(x_tilde) eps`` with sigma 0.01 on dark and 0.1 on bright pixels (random 2x2
     blocks): after a short training the conditional variants put a larger std on the bright pixels (measured
@@ -207,6 +210,7 @@ def test_learned_std_follows_a_condition_dependent_noise_level(arch):
         assert ratio > 1.3, ratio
 
 
+@pytest.mark.slow
 def test_nll_decreases_in_short_training(arch, images):
     torch.manual_seed(0)
     m = arch.make()
@@ -237,6 +241,7 @@ def test_different_conditions_give_different_samples(arch, images, perturb):
     torch.testing.assert_close(v_same[0], v_same[1])
 
 
+@pytest.mark.slow
 def test_reconstruct_follows_the_paper_formulas(arch, images, perturb):
     m, x_tilde, x = _initialised(arch, images, perturb, 1, 13, 10, seed=6)
     n = 12
@@ -281,6 +286,7 @@ def test_bad_input_raises(arch, images):
             arch.make(**overrides)
 
 
+@pytest.mark.slow
 def test_state_dict_round_trip_and_mismatch(arch, images, perturb):
     m, x_tilde, x = _initialised(arch, images, perturb, 2, 13, 10, seed=10)
     buf = io.BytesIO()
@@ -386,6 +392,7 @@ def test_location_weight_adds_the_weighted_location_mse_to_the_nll(location_arch
     torch.testing.assert_close(total, nll + 250.0 * mse, atol=1e-4, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_location_weight_trains_the_location_towards_the_target(location_arch, images):
     x_tilde, x = images(8, 8, 8, seed=14)
     target = x_tilde - x if location_arch.residual else x

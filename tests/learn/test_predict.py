@@ -7,16 +7,19 @@ import pytest
 import torch
 
 import nanoct.learn.predict as predict_mod
-from nanoct.errors import NanoctError
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
+from nanoct.io.store import DataStore
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
-from nanoct.learn.predict import output_name, predict
-from nanoct.learn.train import train
+from nanoct.learn.predict import predict
+from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.store import DataStore
+from nanoct.sim.generate import generate_dataset
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
+
+#: every test here predicts with a network trained by the module fixture (and some build on each other)
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -28,13 +31,10 @@ def setup(tmp_path_factory):
     )
     reconstruct_dataset(path, "fbp", workers=0, progress=False)
     reconstruct_dataset(path, "fbp", name="other", split="test", workers=0, progress=False)  # a second "method"
-    run = train(path, "unet", "fbp", root / "run", epochs=2, batch_size=2, progress=False, model_kwargs=SMALL)
+    run = train(
+        path, root / "run", TrainConfig("unet", "fbp", epochs=2, batch_size=2, model_kwargs=SMALL), progress=False
+    )
     return path, run
-
-
-def test_output_name():
-    assert output_name("fbp", "unet", "fbp") == "fbp+unet"
-    assert output_name("dremel", "unet", "fbp") == "dremel+unet@fbp"
 
 
 def test_predict_writes_test_split(setup):

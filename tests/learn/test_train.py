@@ -15,17 +15,17 @@ from pathlib import Path
 import pytest
 import torch
 
-from nanoct.errors import NanoctError
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from nanoct.learn.data import ReconDataset
 from nanoct.learn.models import build_model
-from nanoct.learn.train import cosine_lr, train
+from nanoct.learn.train import TrainConfig, cosine_lr, train
 from nanoct.recon.batch import reconstruct_dataset
+from nanoct.sim.generate import generate_dataset
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
-FAST = dict(batch_size=2, progress=False, model_kwargs=SMALL)
+FAST = dict(batch_size=2, model_kwargs=SMALL)
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +45,7 @@ def _log(run: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_dataset(store):
     ds = ReconDataset(store, "fbp", "train")
     assert len(ds) == 6 and ds.in_memory and ds.image_size == 63
@@ -71,8 +72,9 @@ def test_dataset_errors(store, tmp_path):
         ReconDataset(no_val, "fbp", "val")
 
 
+@pytest.mark.slow
 def test_training_lowers_loss_and_writes_run(store, tmp_path):
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=8, lr=3e-3, **FAST)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=8, lr=3e-3, **FAST))
     assert {p.name for p in run.iterdir()} >= {"last.pt", "best.pt", "log.csv", "config.json"}
     rows = _log(run)
     assert [int(r["epoch"]) for r in rows] == list(range(1, 9))
@@ -89,19 +91,15 @@ def test_training_lowers_loss_and_writes_run(store, tmp_path):
     assert isinstance(model_from_checkpoint(best), torch.nn.Module)
 
 
+@pytest.mark.slow
 def test_flow_run_logs_the_validation_nll_per_epoch(store, tmp_path):
     tiny = dict(n_scales=3, blocks_per_scale=1, fc_dim=8, fc_blocks=1, cond_channels=4, cond_width=4, fc_cond_dim=8)
     kwargs = {**tiny, "conditional_scale": True}
     run = train(
         store,
-        "cinn-res",
-        "fbp",
         tmp_path / "flow",
-        epochs=2,
-        lr=1e-3,
-        batch_size=2,
+        TrainConfig("cinn-res", "fbp", epochs=2, lr=1e-3, batch_size=2, model_kwargs=kwargs),
         progress=False,
-        model_kwargs=kwargs,
     )
     rows = _log(run)
     assert [int(r["epoch"]) for r in rows] == [1, 2]
@@ -111,9 +109,10 @@ def test_flow_run_logs_the_validation_nll_per_epoch(store, tmp_path):
     assert cfg["hparams"]["conditional_scale"] is True and cfg["hparams"]["coupling"] == "additive"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sched", ["plateau", "cosine"])
 def test_resume_after_kill_matches_uninterrupted(store, tmp_path, sched):
-    ref = train(store, "unet", "fbp", tmp_path / "ref", epochs=3, scheduler=sched, **FAST)
+    ref = train(store, tmp_path / "ref", TrainConfig("unet", "fbp", epochs=3, scheduler=sched, **FAST))
 
     calls: list[int] = []
 
@@ -123,9 +122,13 @@ def test_resume_after_kill_matches_uninterrupted(store, tmp_path, sched):
             raise KeyboardInterrupt("simulated kill after epoch 2")
 
     with pytest.raises(KeyboardInterrupt):
-        train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler=sched, on_epoch_end=killer, **FAST)
+        train(
+            store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=3, scheduler=sched, **FAST), on_epoch_end=killer
+        )
     assert load_checkpoint(tmp_path / "run" / "last.pt")["epoch"] == 2
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=3, scheduler=sched, on_epoch_end=killer, **FAST)
+    run = train(
+        store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=3, scheduler=sched, **FAST), on_epoch_end=killer
+    )
     assert calls == [1, 2, 3]  # epochs 1 and 2 were not repeated
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3]
     a, b = load_checkpoint(ref / "last.pt"), load_checkpoint(run / "last.pt")
@@ -135,9 +138,9 @@ def test_resume_after_kill_matches_uninterrupted(store, tmp_path, sched):
     assert [r["val_loss"] for r in _log(ref)] == [r["val_loss"] for r in _log(run)]
     # finished: nothing to do; more epochs extend the run
     mtime = (run / "last.pt").stat().st_mtime_ns
-    train(store, "unet", "fbp", run, epochs=3, scheduler=sched, **FAST)
+    train(store, run, TrainConfig("unet", "fbp", epochs=3, scheduler=sched, **FAST))
     assert (run / "last.pt").stat().st_mtime_ns == mtime
-    train(store, "unet", "fbp", run, epochs=4, scheduler=sched, **FAST)
+    train(store, run, TrainConfig("unet", "fbp", epochs=4, scheduler=sched, **FAST))
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3, 4]
 
 
@@ -153,21 +156,24 @@ def test_cosine_lr_matches_torch_scheduler():
     assert cosine_lr(lr, 1, epochs) == lr and cosine_lr(lr, epochs + 1, epochs) == pytest.approx(lr / 10)
 
 
+@pytest.mark.slow
 def test_unet_default_schedule_is_cosine(store, tmp_path):
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=4, **FAST)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=4, **FAST))
     assert json.loads((run / "config.json").read_text())["scheduler"] == "cosine"
     lrs = [float(r["lr"]) for r in _log(run)]
     assert lrs == pytest.approx([cosine_lr(1e-3, e, 4) for e in (1, 2, 3, 4)])
     assert lrs[0] == pytest.approx(1e-3) and all(a > b for a, b in zip(lrs, lrs[1:]))
 
 
+@pytest.mark.slow
 def test_resume_after_sigkill(store, tmp_path):
     """A real kill (SIGKILL) of the training process; the rerun continues at the next epoch."""
     run = tmp_path / "run"
     cmd = [
         sys.executable,
         "-m",
-        "nanoct.learn.train",
+        "nanoct",
+        "train",
         str(store),
         "--model",
         "unet",
@@ -177,9 +183,9 @@ def test_resume_after_sigkill(store, tmp_path):
         str(run),
         "--batch-size",
         "2",
-        "--model-kwargs",
-        json.dumps(SMALL),
-        "--no-progress",
+        "--param",
+        f"channels={json.dumps(SMALL['channels'])}",
+        "--quiet",
     ]
     proc = subprocess.Popen([*cmd, "--epochs", "10000"], stderr=subprocess.PIPE)
     try:
@@ -198,44 +204,42 @@ def test_resume_after_sigkill(store, tmp_path):
     assert not [p for p in run.iterdir() if p.name.startswith(".")]  # no temporary files left
 
 
+@pytest.mark.slow
 def test_kill_during_checkpoint_write_leaves_no_temporary(store, tmp_path, monkeypatch):
     """A kill between writing the temporary checkpoint and renaming it: the old one stays, the rerun cleans up."""
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
-    import nanoct.fileio
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=1, **FAST))
+    import nanoct.io.fileio
 
     def killed_replace(src, dst):
         raise KeyboardInterrupt("simulated kill before the rename")
 
-    monkeypatch.setattr(nanoct.fileio.os, "replace", killed_replace)
+    monkeypatch.setattr(nanoct.io.fileio.os, "replace", killed_replace)
     monkeypatch.setattr(Path, "unlink", lambda self, missing_ok=False: None)  # the kill also skips the cleanup
     with pytest.raises(KeyboardInterrupt):
-        train(store, "unet", "fbp", run, epochs=2, **FAST)
+        train(store, run, TrainConfig("unet", "fbp", epochs=2, **FAST))
     monkeypatch.undo()
     stale = [p for p in run.iterdir() if p.name.startswith(".")]
     assert stale and load_checkpoint(run / "last.pt")["epoch"] == 1  # the old checkpoint is intact
-    train(store, "unet", "fbp", run, epochs=2, **FAST)
+    train(store, run, TrainConfig("unet", "fbp", epochs=2, **FAST))
     assert load_checkpoint(run / "last.pt")["epoch"] == 2
     assert not [p for p in run.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow
 def test_mismatched_request_refused(store, tmp_path):
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=1, **FAST))
     with pytest.raises(NanoctError, match="differs in: lr"):
-        train(store, "unet", "fbp", run, epochs=2, lr=1e-4, **FAST)
+        train(store, run, TrainConfig("unet", "fbp", epochs=2, lr=1e-4, **FAST))
     with pytest.raises(NanoctError, match="architecture|hparams"):
         train(
             store,
-            "unet",
-            "fbp",
             run,
-            epochs=2,
-            batch_size=2,
+            TrainConfig("unet", "fbp", epochs=2, batch_size=2, model_kwargs={"channels": [4, 4, 8, 8, 8]}),
             progress=False,
-            model_kwargs={"channels": [4, 4, 8, 8, 8]},
         )
     reconstruct_dataset(store, "fbp", name="fbp_copy", workers=0, progress=False)
     with pytest.raises(NanoctError, match="differs in: input"):
-        train(store, "unet", "fbp_copy", run, epochs=2, **FAST)
+        train(store, run, TrainConfig("unet", "fbp_copy", epochs=2, **FAST))
 
 
 def test_corrupt_and_mismatched_checkpoints(store, tmp_path):
@@ -264,11 +268,12 @@ def test_corrupt_and_mismatched_checkpoints(store, tmp_path):
     run.mkdir()
     (run / "last.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(NanoctError, match="corrupt"):
-        train(store, "unet", "fbp", run, epochs=1, **FAST)
+        train(store, run, TrainConfig("unet", "fbp", epochs=1, **FAST))
     with pytest.raises(NanoctError, match="no reconstruction 'kaczmarz'"):
-        train(store, "unet", "kaczmarz", tmp_path / "run2", epochs=1, **FAST)
+        train(store, tmp_path / "run2", TrainConfig("unet", "kaczmarz", epochs=1, **FAST))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs a POSIX system")
 def test_ddp_two_processes_gloo(store, tmp_path):
     run = tmp_path / "ddp"
@@ -281,7 +286,8 @@ def test_ddp_two_processes_gloo(store, tmp_path):
         "--nproc_per_node",
         "2",
         "-m",
-        "nanoct.learn.train",
+        "nanoct",
+        "train",
         str(store),
         "--model",
         "unet",
@@ -295,9 +301,9 @@ def test_ddp_two_processes_gloo(store, tmp_path):
         "2",
         "--max-steps",
         "3",
-        "--model-kwargs",
-        json.dumps(SMALL),
-        "--no-progress",
+        "--param",
+        f"channels={json.dumps(SMALL['channels'])}",
+        "--quiet",
     ]
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
@@ -307,25 +313,27 @@ def test_ddp_two_processes_gloo(store, tmp_path):
     assert len(_log(run)) == 1
 
 
+@pytest.mark.slow
 def test_bf16_precision_trains_records_and_is_part_of_the_request(store, tmp_path):
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=2, precision="bf16", **FAST)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=2, precision="bf16", **FAST))
     config = json.loads((run / "config.json").read_text())
     assert config["precision"] == "bf16"
     rows = _log(run)
     assert len(rows) == 2 and all(math.isfinite(float(r["val_loss"])) for r in rows)
     with pytest.raises(NanoctError, match="differs in: precision"):
-        train(store, "unet", "fbp", run, epochs=3, **FAST)
+        train(store, run, TrainConfig("unet", "fbp", epochs=3, **FAST))
     with pytest.raises(NanoctError, match="precision 'fp16' is unknown"):
-        train(store, "unet", "fbp", tmp_path / "other", epochs=1, precision="fp16", **FAST)
+        train(store, tmp_path / "other", TrainConfig("unet", "fbp", epochs=1, precision="fp16", **FAST))
     assert not (tmp_path / "other").exists()
 
 
+@pytest.mark.slow
 def test_run_recorded_before_precision_existed_resumes_as_fp32(store, tmp_path):
-    run = train(store, "unet", "fbp", tmp_path / "run", epochs=1, **FAST)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=1, **FAST))
     ckpt = torch.load(run / "last.pt", weights_only=False)
     del ckpt["config"]["precision"]  # a run directory of an earlier version
     torch.save(ckpt, run / "last.pt")
-    train(store, "unet", "fbp", run, epochs=2, **FAST)
+    train(store, run, TrainConfig("unet", "fbp", epochs=2, **FAST))
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2]
     with pytest.raises(NanoctError, match="differs in: precision"):
-        train(store, "unet", "fbp", run, epochs=3, precision="bf16", **FAST)
+        train(store, run, TrainConfig("unet", "fbp", epochs=3, precision="bf16", **FAST))

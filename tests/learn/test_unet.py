@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from nanoct.errors import NanoctError
+from nanoct.core.errors import NanoctError
 from nanoct.learn.base import PostProcessor
 from nanoct.learn.models import build_model, model_names
 from nanoct.learn.unet import PAPER_CHANNELS, UNet, UNetPost, padded_size

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.geometry import get_preset
-from nanoct.operators import system_matrix
-from nanoct.phantoms import random_phantom
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import system_matrix
+from nanoct.sim.phantoms import random_phantom
 
 
 def _consistent(name: str, seed: int = 5):
@@ -29,5 +29,5 @@ def consistent():
 
 @pytest.fixture
 def psnr():
-    """``psnr(x, gt)`` in dB with data range ``max(gt) - min(gt)`` (no input checks, unlike nanoct.metrics)."""
+    """``psnr(x, gt)`` in dB with data range ``max(gt) - min(gt)`` (no input checks, unlike evaluation.metrics)."""
     return _psnr

@@ -3,21 +3,13 @@
 import numpy as np
 import pytest
 
-from nanoct.errors import NanoctError, StoreError
-from nanoct.metrics import psnr
+from nanoct.core.errors import NanoctError, StoreError
+from nanoct.evaluation.metrics import psnr
+from nanoct.io.store import DataStore
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.recon.registry import output_name, reconstruct_command
-from nanoct.store import DataStore
 
 
-def test_output_names():
-    assert output_name("resesop", {"eta_scale": 1.0}) == "resesop"
-    assert output_name("resesop") == "resesop"
-    assert output_name("resesop", {"eta_scale": 0.8}) == "resesop_eta0.8"
-    assert output_name("resesop", {"eta_scale": 1.2}) == "resesop_eta1.2"
-    assert output_name("dremel") == "dremel"
-
-
+@pytest.mark.slow
 def test_resesop_and_dremel_batches(tiny_store):
     path = tiny_store.path
     test = tiny_store.indices("test")
@@ -116,10 +108,3 @@ def test_cli_reports_bad_parameters_in_one_line(tiny_store, monkeypatch, capsys,
     err = capsys.readouterr().err
     assert exc.value.code == 2 and err.startswith(message) and err.count("\n") == 1 and "Traceback" not in err
     assert _snapshot(tiny_store.path) == before
-
-
-def test_reconstruct_command_hints_only_registered_methods():
-    assert reconstruct_command("d", "fbp") == "nanoct reconstruct d --method fbp"
-    assert reconstruct_command("d", "resesop_eta0.8") == "nanoct reconstruct d --method resesop --eta-scale 0.8"
-    assert reconstruct_command("d", "sirt") == "nanoct reconstruct d --method <fbp|kaczmarz|dremel|resesop> --name sirt"
-    assert reconstruct_command("d", "resesop_etaX").endswith("--name resesop_etaX")

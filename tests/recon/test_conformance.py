@@ -11,12 +11,12 @@ import inspect
 import numpy as np
 import pytest
 
-from nanoct.errors import NanoctError
-from nanoct.geometry import get_preset
-from nanoct.operators import RayTransform, system_matrix
-from nanoct.phantoms import random_phantom
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import RayTransform, system_matrix
 from nanoct.recon import STOP_REASONS
 from nanoct.recon.registry import METHODS, check_method_params, method_spec
+from nanoct.sim.phantoms import random_phantom
 
 PRESETS = ("tiny-parallel", "tiny-fan")
 NAMES = tuple(METHODS)
@@ -53,8 +53,9 @@ def _is_iterative(name: str) -> bool:
 
 def _run(name, op, y, eta=None, **params):
     spec = method_spec(name)
-    args = (y, np.zeros(y.shape[0]) if eta is None else eta) if spec.needs_eta else (y,)
-    return spec.solver()(op, *args, **params)
+    if spec.needs_eta:
+        eta = np.zeros(y.shape[0]) if eta is None else eta
+    return spec.run(op, y, eta if spec.needs_eta else None, **params)
 
 
 def _quick(name: str) -> dict:
@@ -98,13 +99,17 @@ def test_output_and_recorded_parameters(name, problem):
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_solver_and_check_share_names_and_defaults(name):
+def test_solver_signature_and_declared_parameters(name):
     spec = method_spec(name)
     solver = inspect.signature(spec.solver()).parameters
-    checker = inspect.signature(spec.check_function()).parameters
     assert list(solver)[:2] == ["op", "sino"] and (list(solver)[2] == "eta") == spec.needs_eta
+    assert list(solver)[-1] == "params" and solver["params"].kind is inspect.Parameter.VAR_KEYWORD
+    # the parameters are declared once, in the parameter class, never again in the solver's signature
+    assert not set(spec.solver_parameter_names()) & set(solver)
+    defaults = spec.params_class()()
     for p in spec.solver_parameter_names():
-        assert solver[p].kind is inspect.Parameter.KEYWORD_ONLY and solver[p].default == checker[p].default, p
+        assert spec.parameter_help()[p] != "(undocumented)", f"document {p} in the parameter class's docstring"
+        assert getattr(defaults, p) == spec.params_class().__dataclass_fields__[p].default or p == "relaxation"
     if _is_iterative(name):
         assert {"x0", "callback", "matrix"} <= set(solver)
 

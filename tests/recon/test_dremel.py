@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.geometry import get_preset
-from nanoct.motion import MotionParams, sample_motion
-from nanoct.operators import RayTransform
-from nanoct.phantoms import downsample, random_phantom
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import RayTransform
 from nanoct.recon.dremel import dremel, shift_cross_corr
+from nanoct.sim.motion import MotionParams, sample_motion
+from nanoct.sim.phantoms import downsample, random_phantom
 
 
 def signal(n, shift):
@@ -79,6 +79,7 @@ def gauge_free(est, true, phi):
     return est - basis @ coef
 
 
+@pytest.mark.slow
 def test_recovers_translations_parallel():
     corr, corr_fixed = [], []
     for seed in range(11, 17):

@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 
 from nanoct.cli import main
-from nanoct.errors import NanoctError
-from nanoct.eta import eta_from_reference, eta_from_residual
-from nanoct.generate import generate_dataset
-from nanoct.geometry import get_preset
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
+from nanoct.io.store import DataStore, create_scan
 from nanoct.recon.batch import reconstruct_dataset
-from nanoct.recon.eta_source import check_eta_param, eta_label
-from nanoct.recon.registry import output_name, reconstruct_command
+from nanoct.recon.eta import eta_from_reference, eta_from_residual
+from nanoct.recon.eta_source import EtaSourceParams
 from nanoct.recon.resesop import resesop
-from nanoct.store import DataStore, create_scan
+from nanoct.sim.generate import generate_dataset
 
 QUICK = {"n_iter": 2}
 
@@ -28,19 +27,12 @@ def reference(tmp_path_factory):
     return generate_dataset(path, get_preset("tiny-parallel"), 4, seed=99, workers=0, progress=False)
 
 
-def test_names_and_syntax():
-    assert check_eta_param(None, eta="estimate:residual") == {"eta": "estimate:residual=dremel"}
-    assert eta_label("estimate:residual=dremel") == "est-residual"
-    assert eta_label("estimate:residual=fbp") == "est-residual-fbp"
-    assert output_name("resesop", {"eta": "estimate:residual", "eta_scale": 0.8}) == "resesop_est-residual_eta0.8"
-    assert output_name("resesop", {"eta": "estimate:reference=x", "eta_scale": 1.0}) == "resesop_est-reference"
-    assert output_name("resesop", {"eta": "true", "eta_scale": 1.2}) == "resesop_eta1.2"
-    assert reconstruct_command("D", "resesop_est-residual_eta0.8") == (
-        "nanoct reconstruct D --method resesop --eta estimate:residual --eta-scale 0.8"
-    )
+def test_syntax():
+    assert EtaSourceParams(eta="estimate:residual").eta == "estimate:residual=dremel"
+    assert EtaSourceParams(eta=" true ").eta == "true"
     for bad in ("estimate", "estimate:reference", "guess", "estimate:residual=a/b"):
         with pytest.raises(ValueError, match="eta="):
-            check_eta_param(None, eta=bad)
+            EtaSourceParams(eta=bad)
 
 
 def test_residual_estimate_needs_first_reconstruction(tiny_store):

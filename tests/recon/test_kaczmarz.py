@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from nanoct.geometry import Geometry, get_preset
-from nanoct.operators import RayTransform, system_matrix
+from nanoct.core.geometry import Geometry, get_preset
+from nanoct.core.operators import RayTransform, system_matrix
 from nanoct.recon.kaczmarz import kaczmarz, kaczmarz_reference
 from nanoct.recon.rowaction import view_order
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.geometry import Geometry, get_preset
-from nanoct.motion import MotionParams, sample_motion
-from nanoct.operators import RayTransform, system_matrix
-from nanoct.phantoms import downsample, random_phantom
+from nanoct.core.geometry import Geometry, get_preset
+from nanoct.core.operators import RayTransform, system_matrix
 from nanoct.recon.kaczmarz import kaczmarz
 from nanoct.recon.resesop import resesop, resesop_reference
 from nanoct.recon.rowaction import view_order
+from nanoct.sim.motion import MotionParams, sample_motion
+from nanoct.sim.phantoms import downsample, random_phantom
 
 SMALL = Geometry("parallel", 6, 5, 7)
 

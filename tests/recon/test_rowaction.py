@@ -3,8 +3,8 @@
 import numpy as np
 import scipy.sparse as sp
 
-from nanoct.geometry import get_preset
-from nanoct.operators import system_matrix
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import system_matrix
 from nanoct.recon.rowaction import (
     auto_relaxation,
     matrix_cache,

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.errors import NanoctError
-from nanoct.geometry import get_preset
-from nanoct.motion import MotionParams, sample_motion
-from nanoct.operators import RayTransform
-from nanoct.phantoms import random_phantom
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import get_preset
+from nanoct.core.operators import RayTransform
+from nanoct.io.scanio import read_shifts, write_shifts
+from nanoct.io.store import DataStore, create_scan
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.recon.dremel import dremel
 from nanoct.recon.shared import remove_translation, write_store_shifts
-from nanoct.scanio import read_shifts, write_shifts
-from nanoct.store import DataStore, create_scan
+from nanoct.sim.motion import MotionParams, sample_motion
+from nanoct.sim.phantoms import random_phantom
 
 
 def _stack(seed: int = 21, slices: int = 3):

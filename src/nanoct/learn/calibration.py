@@ -4,11 +4,11 @@ The std of a conditional invertible network (over M latent samples) is rarely ca
 more (or fewer) than 68 % of the pixels fall within one std of the mean. Per run and checkpoint,
 on the validation split of the data set and input the network was trained on (the test split is
 never read), two calibrations are fitted: a map from raw to calibrated std, strictly increasing
-in the std, for each quartile of the predicted value (:func:`nanoct.metrics.fit_value_std_map`,
+in the std, for each quartile of the predicted value (:func:`nanoct.evaluation.metrics.fit_value_std_map`,
 fitted bin by bin of the raw std at 1, 2 and 3 std), which is the one applied, and, for
 comparison, one factor ``s`` making ``s * std`` cover 68.27 % of the validation pixels
 (temperature scaling). On the same validation outputs the factor of the edge baseline
-(:func:`nanoct.metrics.edge_std` of the network's mean) is fitted, so that its coverage can be
+(:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) is fitted, so that its coverage can be
 compared at equal footing.
 
 The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
@@ -31,9 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import NanoctError
-from ..fileio import atomic_write_text
-from ..metrics import (
+from ..core.errors import NanoctError
+from ..evaluation.metrics import (
     EDGE_SIGMA,
     GAUSSIAN_COVERAGE,
     apply_std_map,
@@ -42,7 +41,8 @@ from ..metrics import (
     fit_std_scale,
     fit_value_std_map,
 )
-from ..store import DataStore
+from ..io.fileio import atomic_write_text
+from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
@@ -86,7 +86,7 @@ class Inference:
 
     A sampling model is called one image at a time with ``seed`` = the sample's index, so a
     prediction does not depend on batching or resumption; its std goes through ``std_map``
-    (:func:`nanoct.metrics.apply_std_map` with the mean as the predicted values; None keeps the
+    (:func:`nanoct.evaluation.metrics.apply_std_map` with the mean as the predicted values; None keeps the
     raw std).
     :func:`nanoct.learn.predict.predict` and :func:`sample_outputs` both use it, so the calibration
     sees exactly the std that predict stores.
@@ -159,9 +159,9 @@ def sample_outputs(
 def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma: float = EDGE_SIGMA) -> dict[str, Any]:
     """Fit the std's calibration map, its one factor and the edge baseline's factor on validation outputs.
 
-    The map is :func:`nanoct.metrics.fit_value_std_map` (coverage at 1, 2 and 3 std, bin by bin
+    The map is :func:`nanoct.evaluation.metrics.fit_value_std_map` (coverage at 1, 2 and 3 std, bin by bin
     of the raw std, within each quartile of the mean); each factor is
-    :func:`nanoct.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of
+    :func:`nanoct.evaluation.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of
     all images are pooled.
 
     Returns

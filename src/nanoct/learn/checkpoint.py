@@ -7,7 +7,7 @@ A checkpoint is a ``torch.save`` dict (loaded with ``weights_only=True``)::
     best_epoch, model_state, optimizer_state, scheduler_state, rng (torch/numpy/python/cuda),
     history (one dict per finished epoch: the rows of log.csv), config (the training request)
 
-It is written with :func:`nanoct.fileio.atomic_write_bytes`, so a kill at any moment leaves
+It is written with :func:`nanoct.io.fileio.atomic_write_bytes`, so a kill at any moment leaves
 either the old or the new file.
 """
 
@@ -24,8 +24,8 @@ import torch
 from torch import nn
 
 from .. import __version__
-from ..errors import NanoctError
-from ..fileio import atomic_write_bytes
+from ..core.errors import NanoctError
+from ..io.fileio import atomic_write_bytes
 from .base import PostProcessor
 from .models import build_model
 

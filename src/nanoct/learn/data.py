@@ -20,8 +20,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..errors import NanoctError, StoreError
-from ..store import SPLITS, DataStore
+from ..core.errors import NanoctError, StoreError
+from ..io.store import SPLITS, DataStore
+from ..names import predict_command
 
 __all__ = ["ReconDataset", "check_input"]
 
@@ -33,22 +34,13 @@ def _memory_limit_bytes() -> float:
         return 4 * 2**30
 
 
-def _command(store: DataStore, name: str) -> str:
-    """The command that makes reconstruction ``name``: predict for ``<input>+<model>``, else reconstruct."""
-    if "+" in name:
-        return f"'nanoct predict {store.path} --run RUN' (a run of a network trained on {name.split('+')[0]})"
-    from ..recon.registry import reconstruct_command
-
-    return f"'{reconstruct_command(store.path, name)}'"
-
-
 def check_input(store: DataStore, input_name: str, indices: np.ndarray, what: str) -> None:
     """Raise a NanoctError unless ``reconstructions/<input_name>`` covers ``indices``."""
     if input_name not in store.reconstruction_names():
         present = ", ".join(store.reconstruction_names()) or "none"
         raise NanoctError(
             f"{store.path} has no reconstruction '{input_name}' (present: {present}); "
-            f"make it first: {_command(store, input_name)}"
+            f"make it first: {predict_command(store.path, input_name)}"
         )
     done = store.reconstruction_done(input_name, indices)
     if not done.all():

@@ -13,7 +13,7 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..errors import NanoctError
+from ..core.errors import NanoctError
 
 if TYPE_CHECKING:  # the registry itself does not import torch (the study planner reads it)
     from .base import PostProcessor
@@ -25,7 +25,6 @@ __all__ = [
     "model_class",
     "model_names",
     "model_spec",
-    "prediction_name",
     "table_order",
 ]
 
@@ -83,12 +82,6 @@ def model_spec(name: str) -> ModelSpec:
     if name not in MODELS:
         raise NanoctError(f"model {name!r} is unknown; use one of {', '.join(model_names())}")
     return MODELS[name]
-
-
-def prediction_name(input_name: str, model_name: str, train_input: str) -> str:
-    """Store name of a prediction: ``<input>+<model>``, or ``<input>+<model>@<train_input>`` for another input."""
-    name = f"{input_name}+{model_name}"
-    return name if input_name == train_input else f"{name}@{train_input}"
 
 
 def model_class(name: str) -> type[PostProcessor]:

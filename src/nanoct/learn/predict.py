@@ -23,19 +23,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import NanoctError, StoreError
-from ..store import SPLITS, DataStore
+from ..core.errors import NanoctError, StoreError
+from ..io.store import SPLITS, DataStore
+from ..names import prediction_name
 from .calibration import Inference
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
-from .models import model_class, prediction_name
+from .models import model_class
 
-__all__ = ["output_name", "predict"]
-
-
-#: The store name of a prediction (:func:`nanoct.learn.models.prediction_name`).
-output_name = prediction_name
+__all__ = ["predict"]
 
 
 def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any]:
@@ -113,7 +110,7 @@ def predict(
     overwrite : bool
         Delete an existing result of that name made with other parameters first.
     name : str, optional
-        Output name (default :func:`output_name`).
+        Output name (default :func:`nanoct.names.prediction_name`).
     reconstruct_kwargs : dict, optional
         Passed to the model's ``reconstruct`` (e.g. the number of samples of a CiNN); stored
         with the result.
@@ -121,8 +118,8 @@ def predict(
         For networks with a std: store the calibrated std, the raw std through the map of the
         run's calibration on the validation split (:func:`nanoct.learn.calibration.calibrate`,
         fitted first if the run has none for this checkpoint and these sampling arguments;
-        :func:`nanoct.metrics.apply_std_map`), and record the calibration under ``calibration``
-        in the stored parameters (raw std = :func:`nanoct.metrics.invert_std_map` of the stored
+        :func:`nanoct.evaluation.metrics.apply_std_map`), and record the calibration under ``calibration``
+        in the stored parameters (raw std = :func:`nanoct.evaluation.metrics.invert_std_map` of the stored
         one). False stores the raw std.
 
     Returns
@@ -165,7 +162,7 @@ def predict(
     if indices.size == 0:
         raise NanoctError(f"the {split} split of {store.path} has no samples; nothing to post-process")
     check_input(store, input_name, indices, split)
-    out = name or output_name(input_name, str(ckpt["model"]), train_input)
+    out = name or prediction_name(input_name, str(ckpt["model"]), train_input)
     params = {
         "input": input_name,
         "run": str(run.resolve()),

@@ -12,7 +12,7 @@ epoch (a larger ``epochs`` extends a finished run). Every epoch reseeds torch, n
 ``random`` from (seed, epoch, rank) and shuffles with a sampler seeded by (seed, epoch), so a
 resumed run on CPU ends with exactly the weights of an uninterrupted one.
 
-Multi-process: ``torchrun --nproc_per_node P -m nanoct.learn.train STORE --model unet ...``
+Multi-process: ``torchrun --nproc_per_node P -m nanoct train STORE --model unet ...``
 (``WORLD_SIZE > 1``) initialises a process group (NCCL on CUDA, gloo on CPU), splits each
 global batch of ``batch_size`` over the processes, averages gradients with DDP and lets only
 rank 0 write files.
@@ -20,7 +20,6 @@ rank 0 write files.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
@@ -41,16 +40,16 @@ from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler, Subset
 
 from .. import __version__
-from ..errors import NanoctError
-from ..fileio import atomic_link, atomic_write_bytes, remove_stale_temporaries
-from ..provenance import environment_info
-from ..store import DataStore
+from ..core.errors import NanoctError
+from ..io.fileio import atomic_link, atomic_write_bytes, remove_stale_temporaries
+from ..io.provenance import environment_info
+from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_spec
 
-__all__ = ["PRECISIONS", "cosine_lr", "main", "resolve_device", "seed_everything", "train"]
+__all__ = ["PRECISIONS", "TrainConfig", "cosine_lr", "resolve_device", "seed_everything", "train"]
 
 SCHEDULERS = ("none", "plateau", "cosine")
 PLATEAU = {"factor": 0.5, "patience": 10, "min_lr": 1e-7}
@@ -159,74 +158,87 @@ def _to(t: torch.Tensor, device: torch.device, channels_last: bool) -> torch.Ten
     return t.contiguous(memory_format=torch.channels_last) if channels_last else t
 
 
-def train(
-    store_path: str | os.PathLike[str],
-    model_name: str = "unet",
-    input_name: str = "fbp",
-    out_dir: str | os.PathLike[str] = "runs/unet-fbp",
-    *,
-    epochs: int | None = None,
-    batch_size: int | None = None,
-    lr: float | None = None,
-    seed: int = 0,
-    device: str | torch.device | None = None,
-    progress: bool = True,
-    max_steps: int | None = None,
-    model_kwargs: dict[str, Any] | None = None,
-    clip_grad: float | None = None,
-    scheduler: str | None = None,
-    num_workers: int = 0,
-    in_memory: bool | None = None,
-    channels_last: bool | None = None,
-    precision: str = "fp32",
-    on_epoch_end: Callable[[int, dict[str, Any]], None] | None = None,
-) -> Path:
-    """Train a post-processing network on ``reconstructions/<input_name>`` -> phantoms.
+@dataclass(frozen=True)
+class TrainConfig:
+    """What one training run is asked to do; ``None`` means the model's registry default.
 
     Parameters
     ----------
-    store_path : path
-        Data-set store with ``reconstructions/<input_name>`` for the train and val splits.
-    model_name : str
+    model : str
         Registered model (:func:`nanoct.learn.models.model_names`), e.g. "unet".
-    input_name : str
+    input : str
         Input reconstruction, e.g. "fbp", "dremel".
-    out_dir : path
-        Run directory (created; resumed when it holds a run of the same request).
     epochs, batch_size, lr : optional
         Default: the model's registry entry (UNet: 500 epochs, batch 16, lr 1e-3, as in the
         paper). ``batch_size`` is the global batch, split over DDP processes.
     seed : int
         Seeds the initial weights, the shuffling and every epoch's random state.
-    device : str, optional
-        Default: CUDA when available, else CPU.
-    progress : bool
-        Progress bars (rank 0 only).
-    max_steps : int, optional
-        Stop after this many optimizer steps in total (the epoch in progress is then
-        validated and checkpointed as finished); for smoke tests.
-    model_kwargs : dict, optional
-        Architecture keyword arguments (e.g. ``{"channels": [8, 8, 16, 16, 32]}``).
-    clip_grad : float, optional
-        Gradient-norm clipping (default: the model's; 0 disables).
     scheduler : {"none", "plateau", "cosine"}, optional
         Learning-rate schedule (default: the model's). "plateau": ReduceLROnPlateau on the
         validation loss, factor 0.5, patience 10 epochs. "cosine": cosine annealing per epoch
         from ``lr`` in the first epoch to ``lr / 10`` after the last (dival's UNet schedule,
         ``CosineAnnealingLR(T_max=epochs)``); a computed function of (epoch, epochs), so a
         resumed run follows the same curve and an extended run follows the new one.
-    num_workers : int
-        DataLoader worker processes.
-    in_memory : bool, optional
-        See :class:`~nanoct.learn.data.ReconDataset`.
-    channels_last : bool, optional
-        Default: True on CPU (faster convolutions there), False on CUDA.
+    model_kwargs : dict, optional
+        Architecture keyword arguments (e.g. ``{"channels": [8, 8, 16, 16, 32]}``).
+    clip_grad : float, optional
+        Gradient-norm clipping (default: the model's; 0 disables).
     precision : {"fp32", "bf16"}
         "bf16" runs the training steps' forward pass under ``torch.autocast`` with bfloat16
         (convolutions and what follows them in bfloat16, ``mse_loss`` and the ops autocast
         lists as float32 in float32; weights, optimiser state, gradients and validation stay
         float32). About twice the steps per second on a CPU with native
         bfloat16 (AVX512-BF16 / AMX) or a recent GPU; slower where bfloat16 is emulated.
+    max_steps : int, optional
+        Stop after this many optimizer steps in total (the epoch in progress is then
+        validated and checkpointed as finished); for smoke tests.
+    device : str, optional
+        Default: CUDA when available, else CPU.
+    num_workers : int
+        DataLoader worker processes.
+    in_memory : bool, optional
+        See :class:`~nanoct.learn.data.ReconDataset`.
+    channels_last : bool, optional
+        Default: True on CPU (faster convolutions there), False on CUDA.
+    """
+
+    model: str = "unet"
+    input: str = "fbp"
+    epochs: int | None = None
+    batch_size: int | None = None
+    lr: float | None = None
+    seed: int = 0
+    scheduler: str | None = None
+    model_kwargs: dict[str, Any] | None = None
+    clip_grad: float | None = None
+    precision: str = "fp32"
+    max_steps: int | None = None
+    device: str | torch.device | None = None
+    num_workers: int = 0
+    in_memory: bool | None = None
+    channels_last: bool | None = None
+
+
+def train(
+    store_path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    config: TrainConfig | None = None,
+    *,
+    progress: bool = True,
+    on_epoch_end: Callable[[int, dict[str, Any]], None] | None = None,
+) -> Path:
+    """Train a post-processing network on ``reconstructions/<config.input>`` -> phantoms.
+
+    Parameters
+    ----------
+    store_path : path
+        Data-set store with ``reconstructions/<input>`` for the train and val splits.
+    out_dir : path
+        Run directory (created; resumed when it holds a run of the same request).
+    config : TrainConfig, optional
+        What to train and how (default: a UNet on FBP with the registry's settings).
+    progress : bool
+        Progress bars (rank 0 only).
     on_epoch_end : callable, optional
         ``f(epoch, row)`` after each epoch's checkpoint and log are written (rank 0).
 
@@ -241,18 +253,20 @@ def train(
         Missing or incomplete input, empty split, unknown model or bad settings, or an
         existing run in ``out_dir`` made with another request.
     """
+    c = config or TrainConfig()
+    model_name, input_name, seed = c.model, c.input, c.seed
     spec = model_spec(model_name)
-    epochs = spec.epochs if epochs is None else int(epochs)
-    batch_size = spec.batch_size if batch_size is None else int(batch_size)
-    lr = spec.lr if lr is None else float(lr)
-    clip = spec.clip_grad if clip_grad is None else (float(clip_grad) or None)
-    sched = (spec.scheduler or "none") if scheduler is None else str(scheduler)
-    _check_request(epochs, batch_size, lr, max_steps, sched, precision)
+    epochs = spec.epochs if c.epochs is None else int(c.epochs)
+    batch_size = spec.batch_size if c.batch_size is None else int(c.batch_size)
+    lr = spec.lr if c.lr is None else float(c.lr)
+    clip = spec.clip_grad if c.clip_grad is None else (float(c.clip_grad) or None)
+    sched = (spec.scheduler or "none") if c.scheduler is None else str(c.scheduler)
+    _check_request(epochs, batch_size, lr, c.max_steps, sched, c.precision)
 
     # ---------------------------------------------------------------- processes and device
     world = int(os.environ.get("WORLD_SIZE", "1"))
     local_rank = int(os.environ.get("LOCAL_RANK", "0"))
-    dev = resolve_device(device, local_rank)
+    dev = resolve_device(c.device, local_rank)
     own_group = False
     if world > 1 and not dist.is_initialized():
         if dev.type == "cuda":
@@ -263,7 +277,7 @@ def train(
     rank = dist.get_rank() if distributed else 0
     world = dist.get_world_size() if distributed else 1
     local_batch = batch_size // world
-    use_cl = (dev.type == "cpu") if channels_last is None else bool(channels_last)
+    use_cl = (dev.type == "cpu") if c.channels_last is None else bool(c.channels_last)
     main_rank = rank == 0
 
     settings = _Settings(
@@ -278,14 +292,14 @@ def train(
         seed=int(seed),
         dev=dev,
         use_cl=use_cl,
-        precision=precision,
+        precision=c.precision,
         progress=progress and main_rank,
-        max_steps=max_steps,
-        model_kwargs=dict(model_kwargs or {}),
+        max_steps=c.max_steps,
+        model_kwargs=dict(c.model_kwargs or {}),
         clip=clip,
         sched=sched,
-        num_workers=num_workers,
-        in_memory=in_memory,
+        num_workers=c.num_workers,
+        in_memory=c.in_memory,
         rank=rank,
         world=world,
         distributed=distributed,
@@ -659,52 +673,3 @@ def _run(s: _Settings) -> Path:
     if s.distributed:
         dist.barrier()
     return s.out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Command-line entry for ``python -m nanoct.learn.train`` (also under ``torchrun``)."""
-    p = argparse.ArgumentParser(prog="python -m nanoct.learn.train", description=__doc__.splitlines()[0])
-    p.add_argument("store")
-    p.add_argument("--model", default="unet")
-    p.add_argument("--input", default="fbp")
-    p.add_argument("--out", required=True)
-    p.add_argument("--epochs", type=int)
-    p.add_argument("--batch-size", type=int)
-    p.add_argument("--lr", type=float)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device")
-    p.add_argument("--max-steps", type=int)
-    p.add_argument("--model-kwargs", default="{}", help="JSON dict of architecture arguments")
-    p.add_argument("--clip-grad", type=float)
-    p.add_argument("--scheduler", choices=SCHEDULERS)
-    p.add_argument("--num-workers", type=int, default=0)
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    p.add_argument("--no-progress", action="store_true")
-    a = p.parse_args(argv)
-    try:
-        train(
-            a.store,
-            a.model,
-            a.input,
-            a.out,
-            epochs=a.epochs,
-            batch_size=a.batch_size,
-            lr=a.lr,
-            seed=a.seed,
-            device=a.device,
-            progress=not a.no_progress,
-            max_steps=a.max_steps,
-            model_kwargs=json.loads(a.model_kwargs),
-            clip_grad=a.clip_grad,
-            scheduler=a.scheduler,
-            num_workers=a.num_workers,
-            precision=a.precision,
-        )
-    except NanoctError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

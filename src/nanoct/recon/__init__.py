@@ -1,14 +1,15 @@
 """Reconstruction methods: FBP, Kaczmarz, Dremel, RESESOP-Kaczmarz.
 
-The methods are listed in one place, :data:`nanoct.recon.registry.METHODS`; the batch runner,
-the CLI and the study read it.
+The methods are listed in one place, :data:`nanoct.recon.registry.METHODS`; the array API, the
+batch runner, the CLI and the study read it and run a method through
+:meth:`~nanoct.recon.registry.MethodSpec.run`.
 
 The solver contract
 -------------------
 Every method is a plain function ``method(op, sino, [eta,] *, **params) -> ReconResult``:
 
-* ``op``: a :class:`~nanoct.geometry.Geometry` or an unperturbed
-  :class:`~nanoct.operators.RayTransform` with ``oversample=1`` (the inexact model);
+* ``op``: a :class:`~nanoct.core.geometry.Geometry` or an unperturbed
+  :class:`~nanoct.core.operators.RayTransform` with ``oversample=1`` (the inexact model);
   ``sino``: the (K, L) sinogram, finite; methods that use the model error
   (``MethodSpec.needs_eta``) take ``eta`` of shape (K,) or (K, L) third.
 * The same names for the same things: ``n_iter`` (number of sweeps; the limit for methods with
@@ -24,12 +25,14 @@ Every method is a plain function ``method(op, sino, [eta,] *, **params) -> Recon
   iteration; ``stop_reason`` one of :data:`STOP_REASONS` (``"direct"``, ``"max_iter"``,
   ``"discrepancy"``, ``"callback"``); ``motion`` or None; ``params`` every parameter used,
   with ``"method"``.
-* Each method's module has ``check_params(op, **params)`` with the same keyword names and
-  defaults as the solver's tunable parameters; it raises ``ValueError`` naming the parameter
-  and its accepted values, and returns the normalised values the solver records. The solver
-  calls it first, so bad values fail before any work; the batch runner calls it before it
-  writes anything. Parameters that only a batch run has (``eta``: where eta comes from;
-  Dremel's ``motion_slices``, ``shifts_from``) are checked by the registry's ``batch_checker``
+* Each method's module declares its tunable parameters once, as a frozen dataclass
+  (:class:`~nanoct.recon.params.MethodParams`: names, types, defaults, a numpydoc docstring);
+  constructing it raises ``ValueError`` naming the parameter and its accepted values, and
+  ``Params.check(op, **params)`` returns the normalised values the solver records. The solver
+  calls it first, so bad values fail before any work; the batch runner calls it (through
+  :meth:`~nanoct.recon.registry.MethodSpec.check`) before it writes anything. Parameters that
+  only a batch run has (``eta``: where eta comes from; Dremel's ``motion_slices``,
+  ``shifts_from``) are the registry entry's ``batch_params``
   (:mod:`nanoct.recon.eta_source`, :mod:`nanoct.recon.shared`) and never reach the solver.
 
 Choices where the paper is ambiguous, with the measurements behind the defaults, are in

@@ -1,7 +1,7 @@
 """Batch reconstruction of a data set: every sample of a split, resumable, over Dask.
 
 Besides the solver's own parameters a batch run takes the method's batch parameters
-(:attr:`~nanoct.recon.registry.MethodSpec.batch_checker`): where eta comes from
+(:attr:`~nanoct.recon.registry.MethodSpec.batch_params`): where eta comes from
 (:mod:`nanoct.recon.eta_source`) and, for Dremel, a motion shared by several slices or read
 from a file (:mod:`nanoct.recon.shared`). What they need from the store is checked and
 prepared here, in the calling process, before any sample task starts; a shared motion is
@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import NanoctError
-from ..fanout import run_tasks
-from ..geometry import Geometry
-from ..store import DataStore, Sample, open_cached
+from ..core.errors import NanoctError
+from ..core.fanout import run_tasks
+from ..core.geometry import Geometry
+from ..io.store import DataStore, Sample, open_cached
+from ..names import reconstruction_name
 from .eta_source import EtaPlan, plan_eta
-from .registry import check_method_params, method_spec, output_name
+from .registry import check_method_params, method_spec
 from .result import ReconResult
 from .shared import joint_shifts, read_shifts_file
 
@@ -39,8 +40,9 @@ def reconstruct_sample(
     per-view model error (scaled by ``params["eta_scale"]`` inside the method).
     """
     spec = method_spec(method)
-    data = (sample.sinogram, sample.eta if eta is None else eta) if spec.needs_eta else (sample.sinogram,)
-    return spec.solver()(geometry, *data, **params)
+    if spec.needs_eta and eta is None:
+        eta = sample.eta
+    return spec.run(geometry, sample.sinogram, eta, **params)
 
 
 @dataclass(frozen=True)
@@ -78,7 +80,7 @@ def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tupl
         params = {**params, "motion_slices": "all"}
         checked["motion_slices"] = "all"
     stored = dict(params)
-    if spec.batch_checker is not None:
+    if spec.batch_params is not None:
         defaults = check_method_params(method, {}, store.geometry)
         for key in spec.batch_parameter_names():
             stored.pop(key, None)
@@ -158,11 +160,11 @@ def reconstruct_dataset(
         the result, a second run with other parameters under the same name is refused unless
         ``overwrite``.
     name : str, optional
-        Output name (default :func:`~nanoct.recon.registry.output_name`).
+        Output name (default :func:`~nanoct.names.reconstruction_name`).
     overwrite : bool
         Delete an existing reconstruction of that name first.
     workers, scheduler, progress
-        See :func:`nanoct.fanout.run_tasks`.
+        See :func:`nanoct.core.fanout.run_tasks`.
 
     Returns
     -------
@@ -178,7 +180,7 @@ def reconstruct_dataset(
     spec = method_spec(method)
     store = DataStore.open(path, mode="r+")
     checked, stored = _batch_values(method, store, dict(params or {}))
-    name = name or output_name(method, stored)
+    name = name or reconstruction_name(method, stored)
     wanted = store.indices(split)
     not_done = ~store.done[wanted]
     if not_done.any():

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numba
@@ -60,21 +61,22 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
 
-from ..geometry import Geometry
-from ..operators import RayTransform
-from ..validation import check_array, check_bool, check_choice, check_float, check_int
+from ..core.geometry import Geometry
+from ..core.operators import RayTransform
+from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
+from .params import MethodParams
 from .result import ReconResult
 from .rowaction import (
-    check_common,
+    check_row_action,
     matrix_cache,
     prepare_problem,
-    resolve_geometry,
+    resolve_relaxation,
     row_dot,
     unsigned_indices,
     view_order,
 )
 
-__all__ = ["WEIGHTINGS", "check_params", "dremel", "shift_cross_corr"]
+__all__ = ["DremelParams", "WEIGHTINGS", "dremel", "shift_cross_corr"]
 
 
 # ------------------------------------------------------------------ cross-correlation
@@ -416,83 +418,12 @@ def _measured_correlation(y: np.ndarray, n_views: int, n_det: int, f_sr: int) ->
 
 
 # ------------------------------------------------------------------ public
-def check_params(
-    op: Geometry | RayTransform,
-    *,
-    n_iter: int = 32,
-    relaxation: float | None = None,
-    order: str = "random",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "running",
-    shift_relaxation: float = 1.0,
-    correction_start: int = 0,
-    f_sr: int = 2,
-    weighting: str = "additive",
-    subpixel: bool = False,
-    fix_shifts: bool = False,
-) -> dict[str, Any]:
-    """Check the tunable parameters of :func:`dremel` (same names and defaults); return them normalised.
-
-    Raises
-    ------
-    ValueError
-        Naming the first bad parameter and its accepted values.
-    """
-    common = check_common(
-        resolve_geometry(op),
-        n_iter=n_iter,
-        relaxation=relaxation,
-        order=order,
-        nonneg=nonneg,
-        seed=seed,
-        residual=residual,
-    )
-    return dict(
-        n_iter=common["n_iter"],
-        relaxation=common["relaxation"],
-        shift_relaxation=check_float(shift_relaxation, "shift_relaxation", low=0.0, high=1.0, low_open=True),
-        order=common["order"],
-        nonneg=common["nonneg"],
-        correction_start=check_int(correction_start, "correction_start", 0),
-        f_sr=check_int(f_sr, "f_sr", 1),
-        weighting=check_choice(weighting, "weighting", WEIGHTINGS),
-        subpixel=check_bool(subpixel, "subpixel"),
-        fix_shifts=check_bool(fix_shifts, "fix_shifts"),
-        seed=common["seed"],
-        residual=common["residual"],
-    )
-
-
-def dremel(
-    op: Geometry | RayTransform,
-    sino: Any,
-    *,
-    n_iter: int = 32,
-    relaxation: float | None = None,
-    order: str = "random",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "running",
-    shift_relaxation: float = 1.0,
-    correction_start: int = 0,
-    f_sr: int = 2,
-    weighting: str = "additive",
-    subpixel: bool = False,
-    fix_shifts: bool = False,
-    x0: Any = None,
-    shifts0: Any = None,
-    callback: Callable[[int, np.ndarray, np.ndarray], Any] | None = None,
-    matrix: sp.csr_matrix | None = None,
-) -> ReconResult:
-    """Dremel reconstruction with per-view object-shift estimation (the paper's Algorithm 1).
+@dataclass(frozen=True)
+class DremelParams(MethodParams):
+    """The parameters of :func:`dremel`.
 
     Parameters
     ----------
-    op : Geometry or RayTransform
-        Scan geometry of the unperturbed model.
-    sino : array_like of shape (K, L)
-        Measured (perturbed) sinogram; must be finite.
     n_iter : int, default 32
         Number of iterations (sweeps over all views); the paper: 32.
     relaxation : float, optional
@@ -528,6 +459,56 @@ def dremel(
     fix_shifts : bool, default False
         Keep the shifts at ``shifts0`` (no shift correction): SART with a known motion, e.g.
         one estimated jointly from several slices or read from another tool's file.
+    """
+
+    n_iter: int = 32
+    relaxation: float | None = None
+    order: str = "random"
+    nonneg: bool = True
+    seed: int = 0
+    residual: str = "running"
+    shift_relaxation: float = 1.0
+    correction_start: int = 0
+    f_sr: int = 2
+    weighting: str = "additive"
+    subpixel: bool = False
+    fix_shifts: bool = False
+
+    def __post_init__(self) -> None:
+        check_row_action(self)
+        self._set(
+            "shift_relaxation",
+            check_float(self.shift_relaxation, "shift_relaxation", low=0.0, high=1.0, low_open=True),
+        )
+        self._set("correction_start", check_int(self.correction_start, "correction_start", 0))
+        self._set("f_sr", check_int(self.f_sr, "f_sr", 1))
+        self._set("weighting", check_choice(self.weighting, "weighting", WEIGHTINGS))
+        self._set("subpixel", check_bool(self.subpixel, "subpixel"))
+        self._set("fix_shifts", check_bool(self.fix_shifts, "fix_shifts"))
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry`` (default relaxation from its number of views)."""
+        return resolve_relaxation(super().resolve(geometry), geometry)
+
+
+def dremel(
+    op: Geometry | RayTransform,
+    sino: Any,
+    *,
+    x0: Any = None,
+    shifts0: Any = None,
+    callback: Callable[[int, np.ndarray, np.ndarray], Any] | None = None,
+    matrix: sp.csr_matrix | None = None,
+    **params: Any,
+) -> ReconResult:
+    """Dremel reconstruction with per-view object-shift estimation (the paper's Algorithm 1).
+
+    Parameters
+    ----------
+    op : Geometry or RayTransform
+        Scan geometry of the unperturbed model.
+    sino : array_like of shape (K, L)
+        Measured (perturbed) sinogram; must be finite.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, "empty phantom").
     shifts0 : array_like of shape (K,), optional
@@ -536,7 +517,9 @@ def dremel(
         ``callback(iteration, x, shifts)`` after each iteration (``shifts`` a float32 copy);
         True stops ("callback").
     matrix : scipy.sparse.csr_matrix, optional
-        The system matrix (default :func:`nanoct.operators.system_matrix`).
+        The system matrix (default :func:`nanoct.core.operators.system_matrix`).
+    **params
+        The method's parameters: :class:`DremelParams`.
 
     Returns
     -------
@@ -554,21 +537,7 @@ def dremel(
     (``a cos phi_k + b sin phi_k``) is not determined by the data (the image can absorb it),
     so estimated shifts may differ from the true ones by such a term.
     """
-    p = check_params(
-        op,
-        n_iter=n_iter,
-        relaxation=relaxation,
-        order=order,
-        nonneg=nonneg,
-        seed=seed,
-        residual=residual,
-        shift_relaxation=shift_relaxation,
-        correction_start=correction_start,
-        f_sr=f_sr,
-        weighting=weighting,
-        subpixel=subpixel,
-        fix_shifts=fix_shifts,
-    )
+    p = DremelParams.check(op, **params)
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:

@@ -6,12 +6,12 @@
     The store's own eta (only a simulation has it).
 ``"estimate:residual"`` or ``"estimate:residual=NAME"``
     Per sample from a first reconstruction ``reconstructions/NAME`` (default ``dremel``):
-    :func:`nanoct.eta.eta_from_residual` with scale 1; ``--eta-scale`` scales it like any eta.
+    :func:`nanoct.recon.eta.eta_from_residual` with scale 1; ``--eta-scale`` scales it like any eta.
 ``"estimate:reference=PATH"``
     The per-view median of the eta of a simulated reference store of the same geometry
-    (:func:`nanoct.eta.eta_from_reference`), the same for every sample.
+    (:func:`nanoct.recon.eta.eta_from_reference`), the same for every sample.
 
-:func:`check_eta_param` checks the syntax with the method's parameters; :func:`plan_eta` checks
+:class:`EtaSourceParams` checks the syntax with the method's parameters; :func:`plan_eta` checks
 what depends on the store (the first reconstruction exists, the reference store matches) before
 anything is written, and computes what is shared by all samples.
 """
@@ -24,50 +24,51 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import NanoctError
-from ..geometry import Geometry
-from ..operators import RayTransform
+from ..core.errors import NanoctError
+from ..core.geometry import Geometry
+from ..io.store import DataStore
+from ..io.store_recon import check_name
+from ..names import reconstruct_command
+from .eta import eta_from_reference, eta_from_residual
+from .params import MethodParams
 
-__all__ = ["EtaPlan", "check_eta_param", "eta_label", "plan_eta"]
+__all__ = ["EtaPlan", "EtaSourceParams", "plan_eta"]
 
 _SYNTAX = "use true, estimate:residual[=RECONSTRUCTION] or estimate:reference=STORE"
 
 
-def check_eta_param(op: Geometry | RayTransform, *, eta: str = "true") -> dict[str, Any]:
-    """Check the ``eta`` batch parameter's syntax; return it normalised (a reference path made absolute).
-
-    Raises
-    ------
-    ValueError
-        For an unknown source (``eta=...`` named).
-    """
+def _normalise(eta: Any) -> str:
     text = str(eta).strip()
     kind, _, arg = text.partition("=")
     if text == "true":
-        return {"eta": "true"}
+        return "true"
     if kind == "estimate:residual":
-        from ..store_recon import check_name
-
         try:
             check_name(arg or "dremel")
         except NanoctError as exc:
             raise ValueError(f"eta={eta!r}: the first reconstruction's name is not valid; {_SYNTAX}") from exc
-        return {"eta": f"estimate:residual={arg or 'dremel'}"}
+        return f"estimate:residual={arg or 'dremel'}"
     if kind == "estimate:reference" and arg:
-        return {"eta": f"estimate:reference={Path(arg).resolve()}"}
+        return f"estimate:reference={Path(arg).resolve()}"
     raise ValueError(f"eta={eta!r} is unknown; {_SYNTAX}")
 
 
-def eta_label(eta: str) -> str:
-    """Short name of an eta source for output names: ``""`` (true), ``est-residual``, ``est-reference``.
+@dataclass(frozen=True)
+class EtaSourceParams(MethodParams):
+    """Batch parameters of a method that uses eta (used by the batch runner, not the solver).
 
-    A residual estimate from another first reconstruction than ``dremel`` adds it: ``est-residual-NAME``.
+    Parameters
+    ----------
+    eta : str, default "true"
+        Where eta comes from: ``true`` (the store's), ``estimate:residual[=RECONSTRUCTION]`` (from a
+        first reconstruction, default dremel) or ``estimate:reference=STORE`` (a simulated store's);
+        normalised (the first reconstruction named, a reference path made absolute).
     """
-    kind, _, arg = eta.partition("=")
-    if kind == "true" or not kind:
-        return ""
-    label = "est-" + kind.split(":", 1)[1]
-    return f"{label}-{arg}" if kind == "estimate:residual" and arg not in ("", "dremel") else label
+
+    eta: str = "true"
+
+    def __post_init__(self) -> None:
+        self._set("eta", _normalise(self.eta))
 
 
 @dataclass(frozen=True)
@@ -93,16 +94,11 @@ class EtaPlan:
             return sample.eta
         if self.kind == "reference":
             return self.reference  # type: ignore[return-value]
-        from ..eta import eta_from_residual
-
         first = store.read_reconstruction(self.first, [index])[0]
         return eta_from_residual(store.geometry, sample.sinogram, first)
 
 
 def _reference_eta(path: str, geometry: Geometry) -> np.ndarray:
-    from ..eta import eta_from_reference
-    from ..store import DataStore
-
     ref = DataStore.open(path)
     if ref.geometry != geometry:
         raise NanoctError(
@@ -138,8 +134,6 @@ def plan_eta(store: Any, eta: str, indices: np.ndarray) -> EtaPlan:
         return EtaPlan("true")
     if kind == "estimate:reference":
         return EtaPlan("reference", reference=_reference_eta(arg, store.geometry))
-    from .registry import reconstruct_command
-
     if arg not in store.reconstruction_names() or not store.reconstruction_done(arg, indices).all():
         raise NanoctError(
             f"--eta estimate:residual needs the first reconstruction '{arg}' of every sample to reconstruct; "

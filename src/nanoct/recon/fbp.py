@@ -10,18 +10,19 @@ covers parallel beam only and is used in the tests as an independent reference.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numba
 import numpy as np
 
-from ..geometry import Geometry
-from ..operators import RayTransform
-from ..validation import check_array, check_choice
+from ..core.geometry import Geometry
+from ..core.operators import RayTransform
+from ..core.validation import check_array, check_choice
+from .params import MethodParams, resolve_geometry
 from .result import ReconResult
-from .rowaction import resolve_geometry
 
-__all__ = ["FILTERS", "check_params", "fbp", "ramp_filter"]
+__all__ = ["FILTERS", "FbpParams", "fbp", "ramp_filter"]
 
 FILTERS = ("ram-lak", "hann")
 
@@ -104,53 +105,61 @@ def _backproject(geometry: Geometry, filtered: np.ndarray, spacing: float) -> np
     )
 
 
-def check_params(op: Geometry | RayTransform, *, filter: str = "ram-lak") -> dict[str, Any]:
-    """Check the parameters of :func:`fbp` (same names and defaults); return them normalised.
+@dataclass(frozen=True)
+class FbpParams(MethodParams):
+    """The parameters of :func:`fbp`.
 
-    Raises
-    ------
-    ValueError
-        For an unknown filter, or a fan-beam scan that does not cover a full turn.
+    Parameters
+    ----------
+    filter : {"ram-lak", "hann"}
+        Reconstruction filter (default Ram-Lak).
     """
-    geometry = resolve_geometry(op)
-    if geometry.kind == "fan" and not np.isclose(geometry.angle_range, 2 * np.pi):
-        raise ValueError("fan-beam FBP needs a full 2 pi scan (no short-scan weighting)")
-    return {"filter": check_choice(filter, "filter", FILTERS)}
+
+    filter: str = "ram-lak"
+
+    def __post_init__(self) -> None:
+        self._set("filter", check_choice(self.filter, "filter", FILTERS))
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry``; a fan-beam scan must cover a full turn (no short-scan weighting)."""
+        if geometry.kind == "fan" and not np.isclose(geometry.angle_range, 2 * np.pi):
+            raise ValueError("fan-beam FBP needs a full 2 pi scan (no short-scan weighting)")
+        return super().resolve(geometry)
 
 
-def fbp(op: Geometry | RayTransform, sino: Any, *, filter: str = "ram-lak") -> ReconResult:
+def fbp(op: Geometry | RayTransform, sino: Any, **params: Any) -> ReconResult:
     """Filtered back projection of an (unperturbed-model) sinogram.
 
     Parameters
     ----------
     op : Geometry or RayTransform
         Scan geometry (parallel over [0, pi) or fan over [0, 2 pi); explicit view angles are
-        weighted by :attr:`~nanoct.geometry.Geometry.angle_weights`, the rotation-axis offset
+        weighted by :attr:`~nanoct.core.geometry.Geometry.angle_weights`, the rotation-axis offset
         moves the back projection), or an unperturbed ray transform with ``oversample=1``, as
         for the iterative methods.
     sino : array_like of shape (K, L)
         Sinogram of line integrals in pixel units; must be finite.
-    filter : {"ram-lak", "hann"}
-        Reconstruction filter (default Ram-Lak).
+    **params
+        The method's parameters: :class:`FbpParams`.
 
     Returns
     -------
     ReconResult
         ``image`` is the (N, N) float32 reconstruction; ``stop_reason`` is ``"direct"``.
     """
-    params = check_params(op, filter=filter)
+    params = FbpParams.check(op, **params)
     geometry = resolve_geometry(op)
     sino = check_array(sino, "sinogram", shape=geometry.sino_shape).astype(np.float64)
     if geometry.kind == "parallel":
         spacing = geometry.det_spacing
-        filtered = ramp_filter(sino, spacing, filter)
+        filtered = ramp_filter(sino, spacing, params["filter"])
         scale = 1.0
     else:
         # virtual detector through the rotation axis
         spacing = geometry.det_spacing / geometry.magnification
         u = (np.arange(geometry.n_det) - (geometry.n_det - 1) / 2 - geometry.center_offset) * spacing
         src = geometry.source_radius
-        filtered = ramp_filter(sino * (src / np.sqrt(src**2 + u**2)), spacing, filter)
+        filtered = ramp_filter(sino * (src / np.sqrt(src**2 + u**2)), spacing, params["filter"])
         scale = 0.5  # every ray is measured twice over a full turn
     if geometry.view_angles is None:  # uniform views: one quadrature weight
         scale *= geometry.angle_weights[0]

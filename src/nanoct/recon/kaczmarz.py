@@ -8,28 +8,30 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numba
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Geometry
-from ..operators import RayTransform
+from ..core.geometry import Geometry
+from ..core.operators import RayTransform
+from .params import MethodParams
 from .result import ReconResult
 from .rowaction import (
-    check_common,
+    check_row_action,
     clip_nonneg,
     prepare_problem,
     residual_norm,
-    resolve_geometry,
+    resolve_relaxation,
     row_dot,
     row_norms_squared,
     unsigned_indices,
     view_order,
 )
 
-__all__ = ["check_params", "kaczmarz", "kaczmarz_reference"]
+__all__ = ["KaczmarzParams", "kaczmarz", "kaczmarz_reference"]
 
 
 # ---------------------------------------------------------------------------------- kernel
@@ -82,54 +84,12 @@ def kaczmarz_reference(
 
 
 # ---------------------------------------------------------------------------------- public
-def check_params(
-    op: Geometry | RayTransform,
-    *,
-    n_iter: int = 10,
-    relaxation: float | None = None,
-    order: str = "random",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "exact",
-) -> dict[str, Any]:
-    """Check the tunable parameters of :func:`kaczmarz` (same names and defaults); return them normalised.
-
-    Raises
-    ------
-    ValueError
-        Naming the first bad parameter and its accepted values.
-    """
-    geometry = resolve_geometry(op)
-    return check_common(
-        geometry, n_iter=n_iter, relaxation=relaxation, order=order, nonneg=nonneg, seed=seed, residual=residual
-    )
-
-
-def kaczmarz(
-    op: Geometry | RayTransform,
-    sino: Any,
-    *,
-    n_iter: int = 10,
-    relaxation: float | None = None,
-    order: str = "random",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "exact",
-    x0: Any = None,
-    callback: Callable[[int, np.ndarray, None], Any] | None = None,
-    matrix: sp.csr_matrix | None = None,
-) -> ReconResult:
-    """Kaczmarz' method (ART) with the unperturbed system matrix.
-
-    For each ray ``(k, l)`` with row ``a`` of the system matrix
-    ``x <- x + relaxation * (y_kl - <a, x>) / ||a||^2 * a``; rows of zero norm are skipped.
+@dataclass(frozen=True)
+class KaczmarzParams(MethodParams):
+    """The parameters of :func:`kaczmarz`.
 
     Parameters
     ----------
-    op : Geometry or RayTransform
-        Scan geometry (or an unperturbed ray transform with ``oversample=1``).
-    sino : array_like of shape (K, L)
-        Measured sinogram; must be finite.
     n_iter : int, default 10
         Number of sweeps over all rays.
     relaxation : float, optional
@@ -150,6 +110,43 @@ def kaczmarz(
         ``"exact"`` records ``||A x - y||`` after each sweep (one extra pass over the matrix);
         ``"running"`` records the root of the sum of squared residuals seen *before* each row
         update during the sweep (free, an upper-bound-like proxy).
+    """
+
+    n_iter: int = 10
+    relaxation: float | None = None
+    order: str = "random"
+    nonneg: bool = True
+    seed: int = 0
+    residual: str = "exact"
+
+    def __post_init__(self) -> None:
+        check_row_action(self)
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry`` (default relaxation from its number of views)."""
+        return resolve_relaxation(super().resolve(geometry), geometry)
+
+
+def kaczmarz(
+    op: Geometry | RayTransform,
+    sino: Any,
+    *,
+    x0: Any = None,
+    callback: Callable[[int, np.ndarray, None], Any] | None = None,
+    matrix: sp.csr_matrix | None = None,
+    **params: Any,
+) -> ReconResult:
+    """Kaczmarz' method (ART) with the unperturbed system matrix.
+
+    For each ray ``(k, l)`` with row ``a`` of the system matrix
+    ``x <- x + relaxation * (y_kl - <a, x>) / ||a||^2 * a``; rows of zero norm are skipped.
+
+    Parameters
+    ----------
+    op : Geometry or RayTransform
+        Scan geometry (or an unperturbed ray transform with ``oversample=1``).
+    sino : array_like of shape (K, L)
+        Measured sinogram; must be finite.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros).
     callback : callable, optional
@@ -157,7 +154,9 @@ def kaczmarz(
         (a view; do not modify). If it returns True the iteration stops with reason
         ``"callback"``.
     matrix : scipy.sparse.csr_matrix, optional
-        The system matrix (default :func:`nanoct.operators.system_matrix`), e.g. to reuse it.
+        The system matrix (default :func:`nanoct.core.operators.system_matrix`), e.g. to reuse it.
+    **params
+        The method's parameters: :class:`KaczmarzParams`.
 
     Returns
     -------
@@ -165,7 +164,7 @@ def kaczmarz(
         ``image`` (N, N) float32, ``residuals`` per sweep, ``stop_reason`` ``"max_iter"`` or
         ``"callback"``, ``motion`` None.
     """
-    p = check_params(op, n_iter=n_iter, relaxation=relaxation, order=order, nonneg=nonneg, seed=seed, residual=residual)
+    p = KaczmarzParams.check(op, **params)
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     norms = row_norms_squared(mat)
     indices = unsigned_indices(mat)

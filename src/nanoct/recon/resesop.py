@@ -48,28 +48,29 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numba
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Geometry
-from ..operators import RayTransform
-from ..validation import check_array, check_choice, check_float
+from ..core.geometry import Geometry
+from ..core.operators import RayTransform
+from ..core.validation import check_array, check_choice, check_float
+from .params import MethodParams
 from .result import ReconResult
 from .rowaction import (
-    check_common,
+    check_row_action,
     clip_nonneg,
     prepare_problem,
     residual_norm,
-    resolve_geometry,
     row_dot_f64,
     row_norms_squared,
     view_order,
 )
 
-__all__ = ["STOP_RULES", "check_params", "expand_eta", "resesop", "resesop_reference"]
+__all__ = ["ResesopParams", "STOP_RULES", "expand_eta", "resesop", "resesop_reference"]
 
 #: Stop rules of :func:`resesop` (see the module docstring, "Stopping flags").
 STOP_RULES = ("sweep", "sticky")
@@ -230,78 +231,12 @@ def resesop_reference(
     return n_upd
 
 
-def check_params(
-    op: Geometry | RayTransform,
-    *,
-    n_iter: int = 20,
-    order: str = "sequential",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "running",
-    eta_scale: float = 1.0,
-    delta: float = 0.0,
-    tau: float = 1.01,
-    stop_rule: str = "sweep",
-) -> dict[str, Any]:
-    """Check the tunable parameters of :func:`resesop` (same names and defaults); return them normalised.
-
-    Raises
-    ------
-    ValueError
-        Naming the first bad parameter and its accepted values.
-    """
-    common = check_common(
-        resolve_geometry(op),
-        n_iter=n_iter,
-        relaxation=False,
-        order=order,
-        nonneg=nonneg,
-        seed=seed,
-        residual=residual,
-    )
-    return dict(
-        eta_scale=check_float(eta_scale, "eta_scale", low=0.0),
-        delta=check_float(delta, "delta", low=0.0),
-        tau=check_float(tau, "tau", low=1.0, low_open=True),  # the discrepancy principle needs tau > 1
-        n_iter=common["n_iter"],
-        order=common["order"],
-        nonneg=common["nonneg"],
-        stop_rule=check_choice(stop_rule, "stop_rule", STOP_RULES),
-        seed=common["seed"],
-        residual=common["residual"],
-    )
-
-
-def resesop(
-    op: Geometry | RayTransform,
-    sino: Any,
-    eta: Any,
-    *,
-    n_iter: int = 20,
-    order: str = "sequential",
-    nonneg: bool = True,
-    seed: int = 0,
-    residual: str = "running",
-    eta_scale: float = 1.0,
-    delta: float = 0.0,
-    tau: float = 1.01,
-    stop_rule: str = "sweep",
-    x0: Any = None,
-    callback: Callable[[int, np.ndarray, None], Any] | None = None,
-    matrix: sp.csr_matrix | None = None,
-) -> ReconResult:
-    """RESESOP-Kaczmarz with two search directions (the paper's Algorithm 2).
+@dataclass(frozen=True)
+class ResesopParams(MethodParams):
+    """The parameters of :func:`resesop`.
 
     Parameters
     ----------
-    op : Geometry or RayTransform
-        Scan geometry of the (inexact, unperturbed) model ``A^eta``.
-    sino : array_like of shape (K, L)
-        Measured (perturbed, possibly noisy) sinogram ``y^delta``; must be finite.
-    eta : array_like of shape (K,) or (K, L)
-        Model inexactness per view (``eta_kl = eta_k``) or per ray, >= 0. The paper uses
-        ``eta_k = max_l |y_kl - y^eta_kl|``. ``eta = 0`` (with ``delta = 0``) is plain
-        SESOP-Kaczmarz, which never meets the discrepancy and runs ``n_iter`` sweeps.
     n_iter : int, default 20
         Sweep limit (the paper: 20); the discrepancy principle may stop earlier.
     order : {"sequential", "random", "golden"}, default "sequential"
@@ -326,13 +261,58 @@ def resesop(
         ``"sweep"``: stop after a sweep in which every ray met the discrepancy principle (no
         update). ``"sticky"``: the paper's literal flags, set once a ray meets the
         discrepancy and never cleared; stop when all are set.
+    """
+
+    n_iter: int = 20
+    order: str = "sequential"
+    nonneg: bool = True
+    seed: int = 0
+    residual: str = "running"
+    eta_scale: float = 1.0
+    delta: float = 0.0
+    tau: float = 1.01
+    stop_rule: str = "sweep"
+
+    def __post_init__(self) -> None:
+        check_row_action(self)
+        self._set("eta_scale", check_float(self.eta_scale, "eta_scale", low=0.0))
+        self._set("delta", check_float(self.delta, "delta", low=0.0))
+        # the discrepancy principle needs tau > 1
+        self._set("tau", check_float(self.tau, "tau", low=1.0, low_open=True))
+        self._set("stop_rule", check_choice(self.stop_rule, "stop_rule", STOP_RULES))
+
+
+def resesop(
+    op: Geometry | RayTransform,
+    sino: Any,
+    eta: Any,
+    *,
+    x0: Any = None,
+    callback: Callable[[int, np.ndarray, None], Any] | None = None,
+    matrix: sp.csr_matrix | None = None,
+    **params: Any,
+) -> ReconResult:
+    """RESESOP-Kaczmarz with two search directions (the paper's Algorithm 2).
+
+    Parameters
+    ----------
+    op : Geometry or RayTransform
+        Scan geometry of the (inexact, unperturbed) model ``A^eta``.
+    sino : array_like of shape (K, L)
+        Measured (perturbed, possibly noisy) sinogram ``y^delta``; must be finite.
+    eta : array_like of shape (K,) or (K, L)
+        Model inexactness per view (``eta_kl = eta_k``) or per ray, >= 0. The paper uses
+        ``eta_k = max_l |y_kl - y^eta_kl|``. ``eta = 0`` (with ``delta = 0``) is plain
+        SESOP-Kaczmarz, which never meets the discrepancy and runs ``n_iter`` sweeps.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, as the paper).
     callback : callable, optional
         ``callback(iteration, x, None)`` after each sweep that did not meet the discrepancy
         principle; returning True stops (reason ``"callback"``).
     matrix : scipy.sparse.csr_matrix, optional
-        The system matrix (default :func:`nanoct.operators.system_matrix`).
+        The system matrix (default :func:`nanoct.core.operators.system_matrix`).
+    **params
+        The method's parameters: :class:`ResesopParams`.
 
     Returns
     -------
@@ -348,18 +328,7 @@ def resesop(
     (where that is non-empty); with ``tau > 1`` the method stops after finitely many updates
     (Blanke et al. 2020). The ``x >= 0`` projection is one more convex set and keeps this.
     """
-    p = check_params(
-        op,
-        n_iter=n_iter,
-        order=order,
-        nonneg=nonneg,
-        seed=seed,
-        residual=residual,
-        eta_scale=eta_scale,
-        delta=delta,
-        tau=tau,
-        stop_rule=stop_rule,
-    )
+    p = ResesopParams.check(op, **params)
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
     width = (p["delta"] + p["eta_scale"] * expand_eta(eta, geometry)).ravel()
     norms = row_norms_squared(mat)

@@ -1,11 +1,11 @@
 """The row-action core shared by Kaczmarz, Dremel and RESESOP-Kaczmarz.
 
-The unperturbed ray transform is the float32 CSR matrix of :func:`nanoct.operators.system_matrix`
+The unperturbed ray transform is the float32 CSR matrix of :func:`nanoct.core.operators.system_matrix`
 (row ``k*L + l`` is ray ``(k, l)``); a *sweep* visits every view once in a chosen *view order*
 and, within a view, the rays in detector order ``l = 0 .. L-1``. This module holds what the
 three methods share: problem setup (:func:`prepare_problem`), view orders, the row product
 :func:`row_dot`, residuals, the projection onto ``x >= 0``, one per-matrix cache of derived
-arrays, and the checks of the common arguments (:func:`check_common`).
+arrays, and the checks of the common parameters (:func:`check_row_action`).
 
 View orders (:func:`view_order`)
 --------------------------------
@@ -36,21 +36,22 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Geometry
-from ..operators import RayTransform, system_matrix
-from ..validation import check_array, check_bool, check_choice, check_float, check_int
+from ..core.geometry import Geometry
+from ..core.operators import RayTransform, system_matrix
+from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
+from .params import MethodParams, resolve_geometry
 
 __all__ = [
     "AUTO_RELAXATION",
     "ORDERS",
     "RESIDUALS",
     "auto_relaxation",
-    "check_common",
+    "check_row_action",
     "clip_nonneg",
     "matrix_cache",
     "prepare_problem",
     "residual_norm",
-    "resolve_geometry",
+    "resolve_relaxation",
     "row_dot",
     "row_dot_f64",
     "row_norms_squared",
@@ -106,58 +107,41 @@ def view_order(n_views: int, order: str, rng: np.random.Generator | None = None)
     return np.argsort(np.argsort(keys, kind="stable"), kind="stable").astype(np.int64)
 
 
-def check_common(
-    geometry: Geometry,
-    *,
-    n_iter: Any,
-    relaxation: Any = None,
-    order: Any,
-    nonneg: Any,
-    seed: Any,
-    residual: Any,
-) -> dict[str, Any]:
-    """Check the arguments every row-action method shares; return them normalised.
+def check_row_action(p: MethodParams) -> None:
+    """Check and normalise, in place, the parameters every row-action method declares.
 
-    ``relaxation=None`` becomes :func:`auto_relaxation` of the geometry's number of views;
-    pass ``relaxation=False`` for a method without one (it is then left out of the result).
+    ``n_iter``, ``order``, ``nonneg``, ``seed``, ``residual`` and, where the method has one,
+    ``relaxation`` (``None`` stays None until :func:`resolve_relaxation`).
 
     Raises
     ------
     ValueError
-        Naming the first bad argument and its accepted values.
+        Naming the first bad parameter and its accepted values.
     """
-    out: dict[str, Any] = {"n_iter": check_int(n_iter, "n_iter", 1)}
-    if relaxation is not False:
-        if relaxation is None:
-            relaxation = auto_relaxation(geometry.n_angles)
-        # Kaczmarz / SART converge for 0 < omega < 2
-        out["relaxation"] = check_float(relaxation, "relaxation", low=0.0, high=2.0, low_open=True, high_open=True)
-    out["order"] = check_choice(order, "order", ORDERS)
-    out["nonneg"] = check_bool(nonneg, "nonneg")
-    out["seed"] = check_int(seed, "seed", 0)
-    out["residual"] = check_choice(residual, "residual", RESIDUALS)
-    return out
+    p._set("n_iter", check_int(p.n_iter, "n_iter", 1))
+    if getattr(p, "relaxation", None) is not None:
+        p._set("relaxation", _check_relaxation(p.relaxation))
+    p._set("order", check_choice(p.order, "order", ORDERS))
+    p._set("nonneg", check_bool(p.nonneg, "nonneg"))
+    p._set("seed", check_int(p.seed, "seed", 0))
+    p._set("residual", check_choice(p.residual, "residual", RESIDUALS))
 
 
-def resolve_geometry(op: Geometry | RayTransform) -> Geometry:
-    """Accept a :class:`Geometry` or an unperturbed :class:`RayTransform` with ``oversample=1``."""
-    if isinstance(op, Geometry):
-        return op
-    if isinstance(op, RayTransform):
-        if op.motion is not None:
-            raise ValueError(
-                "the reconstruction methods use the unperturbed (inexact) operator; "
-                "pass a RayTransform without motion, or its geometry"
-            )
-        if op.oversample != 1:
-            raise ValueError("pass a RayTransform with oversample=1 (the reconstruction grid)")
-        return op.geometry
-    raise ValueError(f"expected a Geometry or RayTransform, got {type(op).__name__}")
+def _check_relaxation(value: Any) -> float:
+    # Kaczmarz / SART converge for 0 < omega < 2
+    return check_float(value, "relaxation", low=0.0, high=2.0, low_open=True, high_open=True)
+
+
+def resolve_relaxation(values: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
+    """``values`` with ``relaxation=None`` replaced by :func:`auto_relaxation` of the geometry's views."""
+    if values["relaxation"] is None:
+        values["relaxation"] = _check_relaxation(auto_relaxation(geometry.n_angles))
+    return values
 
 
 def _check_matrix(matrix: Any, shape: tuple[int, int]) -> sp.csr_matrix:
     if not sp.issparse(matrix) or matrix.format != "csr":
-        raise ValueError("matrix must be a scipy CSR matrix (see nanoct.operators.system_matrix)")
+        raise ValueError("matrix must be a scipy CSR matrix (see nanoct.core.operators.system_matrix)")
     if matrix.shape != shape:
         raise ValueError(f"matrix has shape {matrix.shape}, expected {shape} for this geometry")
     if matrix.dtype != np.float32:

@@ -17,7 +17,7 @@ the method's own parameters before anything is written (:func:`check_motion_para
     from these slices. Default on an imported stack with shared motion: ``"all"``; on a
     simulated store: each sample its own motion.
 ``shifts_from``
-    A shifts file (``view shift_px``, :func:`nanoct.scanio.write_shifts`): the starting motion
+    A shifts file (``view shift_px``, :func:`nanoct.io.scanio.write_shifts`): the starting motion
     of every estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion
     used as given.
 
@@ -28,19 +28,22 @@ axis; the two differ by ``magnification / det_spacing`` (1 for the parallel pres
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import NanoctError
-from ..geometry import Geometry
-from ..operators import RayTransform
+from ..core.errors import NanoctError
+from ..core.geometry import Geometry
+from ..io.scanio import read_shifts, write_shifts
+from ..io.store import DataStore
+from .dremel import dremel
+from .params import MethodParams
 from .registry import methods_with_motion
-from .rowaction import resolve_geometry
 
 __all__ = [
-    "check_motion_params",
+    "SharedMotionParams",
     "joint_shifts",
     "parse_slices",
     "read_shifts_file",
@@ -96,33 +99,39 @@ def parse_slices(value: Any) -> str | None:
 
 def read_shifts_file(path: str | os.PathLike[str], geometry: Geometry) -> np.ndarray:
     """A shifts file (detector pixels) as Dremel shifts (image pixels along the detector axis), float64."""
-    from ..scanio import read_shifts
-
     return read_shifts(path, geometry.n_angles) / _det_per_obj(geometry)
 
 
-def check_motion_params(
-    op: Geometry | RayTransform, *, motion_slices: str | None = None, shifts_from: str | None = None
-) -> dict[str, Any]:
-    """Check the batch parameters of a method that estimates motion; return them normalised.
+@dataclass(frozen=True)
+class SharedMotionParams(MethodParams):
+    """Batch parameters of a method that estimates motion (used by the batch runner, not the solver).
 
-    ``shifts_from`` is read here (so a missing file or one with another number of views fails
-    before anything is written) and returned as an absolute path.
-
-    Raises
-    ------
-    ValueError
-        For a bad ``motion_slices``, an unreadable shifts file or one with another number of views.
+    Parameters
+    ----------
+    motion_slices : str, optional
+        One motion for several slices of a stack: ``all`` or sample indices ``0,5,9``, estimated
+        jointly before the slices are reconstructed with it.
+    shifts_from : str, optional
+        A shifts file whose motion starts (or, with ``fix_shifts=true``, fixes) the estimate.
     """
-    geometry = resolve_geometry(op)
-    out: dict[str, Any] = {"motion_slices": parse_slices(motion_slices), "shifts_from": None}
-    if shifts_from is not None:
-        try:
-            read_shifts_file(str(shifts_from), geometry)
-        except NanoctError as exc:
-            raise ValueError(f"shifts_from={shifts_from!r}: {exc}") from exc
-        out["shifts_from"] = str(Path(str(shifts_from)).resolve())
-    return out
+
+    motion_slices: str | None = None
+    shifts_from: str | None = None
+
+    def __post_init__(self) -> None:
+        self._set("motion_slices", parse_slices(self.motion_slices))
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry``: the shifts file is read (a missing one, or one with another
+        number of views, fails here, before anything is written) and its path made absolute."""
+        out = super().resolve(geometry)
+        if self.shifts_from is not None:
+            try:
+                read_shifts_file(str(self.shifts_from), geometry)
+            except NanoctError as exc:
+                raise ValueError(f"shifts_from={self.shifts_from!r}: {exc}") from exc
+            out["shifts_from"] = str(Path(str(self.shifts_from)).resolve())
+        return out
 
 
 def joint_shifts(
@@ -148,8 +157,6 @@ def joint_shifts(
     per_slice : ndarray of shape (S, K), float32
         The slices' own estimates (translation removed).
     """
-    from .dremel import dremel
-
     estimates = []
     for sino in np.asarray(sinograms):
         result = dremel(geometry, sino, **{**params, "fix_shifts": False}, shifts0=shifts0)
@@ -170,7 +177,7 @@ def write_store_shifts(
     name : str
         A reconstruction with shifts (Dremel's).
     out : path
-        The text file to write (detector pixels, :func:`nanoct.scanio.write_shifts`).
+        The text file to write (detector pixels, :func:`nanoct.io.scanio.write_shifts`).
     sample : int, optional
         Which sample's shifts; may be omitted when the reconstruction has one motion shared by
         all slices (an imported stack) or the store has a single sample.
@@ -180,9 +187,6 @@ def write_store_shifts(
     NanoctError
         For a reconstruction without shifts, or per-sample shifts and no ``sample``.
     """
-    from ..scanio import write_shifts
-    from ..store import DataStore
-
     store = DataStore.open(path)
     if name not in store.reconstruction_names():
         raise NanoctError(f"{store.path} has no reconstruction '{name}'; present: {store.reconstruction_names()}")

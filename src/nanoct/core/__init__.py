@@ -1,0 +1,1 @@
+"""Foundations: errors, input checks, scan geometry, ray transforms, Dask fan-out."""

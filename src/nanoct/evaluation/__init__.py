@@ -1,0 +1,1 @@
+"""Evaluation: metrics, the paper's tables and conclusions, figures."""

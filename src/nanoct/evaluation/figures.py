@@ -1,0 +1,308 @@
+"""Figures of a data set and of its post-processing networks (matplotlib, Agg backend, written to files)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..io.fileio import atomic_write_bytes
+from ..io.store import DataStore
+from ..names import parse_name, prediction_name
+from ..recon.fbp import fbp
+from ..sim.motion import plot_motion
+from .evaluate import format_uncertainty_table, read_std
+from .metrics import calibrated_std, reliability
+
+__all__ = [
+    "RELIABILITY_LEVELS",
+    "compare_reconstructions",
+    "reliability_diagram",
+    "show_sample",
+    "training_curves",
+    "uncertainty_maps",
+    "uncertainty_report",
+]
+
+#: Nominal probabilities of the central Gaussian intervals in the reliability diagram.
+RELIABILITY_LEVELS = np.array([0.05, *np.arange(0.1, 0.95, 0.1), 0.95, 0.99])
+
+
+def _save(fig, out: str | os.PathLike[str], dpi: int) -> Path:
+    """Write a figure as PNG atomically."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return atomic_write_bytes(out, buf.getvalue())
+
+
+def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Path:
+    """Write a figure of one sample, like the paper's figures 1-3.
+
+    Panels: the phantom; its motion per view; unperturbed and perturbed sinograms and their
+    difference; FBP of the unperturbed and of the perturbed data (the motion artefacts).
+
+    Parameters
+    ----------
+    store : DataStore
+        Data set.
+    index : int
+        Sample index.
+    out : path
+        PNG file to write (written to a temporary name, then renamed).
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    from matplotlib.figure import Figure
+
+    sample = store.read_sample(index)
+    geometry = store.geometry
+    fbp_eta = fbp(geometry, sample.sinogram_eta).image
+    fbp_meas = fbp(geometry, sample.sinogram).image
+    fig = Figure(figsize=(15, 8.5), layout="constrained")
+    grid = fig.add_gridspec(2, 4)
+    split_name = {0: "train", 1: "val", 2: "test"}[int(store.split[index])]
+
+    def image(ax, data, title, cmap="gray", vmin=None, vmax=None, extent=None, aspect="equal"):
+        im = ax.imshow(data, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent, aspect=aspect, interpolation="nearest")
+        ax.set_title(title, fontsize=10)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+        return im
+
+    image(fig.add_subplot(grid[0, 0]), sample.phantom, f"phantom #{index} ({split_name})", vmin=0, vmax=1)
+    plot_motion(sample.motion, ax=fig.add_subplot(grid[0, 1:3]), angles=geometry.angles)
+    ax = fig.add_subplot(grid[0, 3])
+    ax.plot(np.rad2deg(geometry.angles), sample.eta, lw=1)
+    ax.set_xlabel("view angle [deg]")
+    ax.set_ylabel("eta_k = max_l |y - y_eta|")
+    ax.set_title("per-view model error", fontsize=10)
+    deg = np.rad2deg(geometry.angle_range)
+    extent = (0, deg, geometry.n_det - 0.5, -0.5)
+    vmax = float(max(sample.sinogram.max(), sample.sinogram_eta.max()))
+    for col, (data, title) in enumerate(
+        ((sample.sinogram_eta, "unperturbed sinogram y_eta"), (sample.sinogram, "perturbed sinogram y"))
+    ):
+        ax = fig.add_subplot(grid[1, col])
+        image(ax, data.T, title, vmin=0, vmax=vmax, extent=extent, aspect="auto")
+        ax.set_xlabel("view angle [deg]")
+        ax.set_ylabel("detector pixel")
+    image(fig.add_subplot(grid[1, 2]), fbp_eta, "FBP of y_eta (no motion)", vmin=0, vmax=1)
+    image(fig.add_subplot(grid[1, 3]), fbp_meas, "FBP of y (motion artefacts)", vmin=0, vmax=1)
+    fig.suptitle(f"{store.path.name}: {geometry.kind} beam, N={geometry.n}, K={geometry.n_angles}, L={geometry.n_det}")
+    return _save(fig, out, dpi=100)
+
+
+def compare_reconstructions(
+    store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]
+) -> Path:
+    """Figure: ground truth and each reconstruction (top) with its difference image (below).
+
+    One block of two rows per sample; columns are the ground truth followed by ``names``.
+    Titles carry each image's PSNR/SSIM.
+    """
+    from matplotlib.figure import Figure
+
+    from .metrics import psnr, ssim
+
+    gts = store.read_phantoms(indices)
+    recos = {name: store.read_reconstruction(name, indices) for name in names}
+    cols = len(names) + 1
+    fig = Figure(figsize=(2.6 * cols, 2.5 * 2 * len(indices)), layout="constrained")
+    axes = fig.subplots(2 * len(indices), cols, squeeze=False)
+    for row, (index, gt) in enumerate(zip(indices, gts)):
+        top, bottom = axes[2 * row], axes[2 * row + 1]
+        top[0].imshow(gt, cmap="gray", vmin=0, vmax=1)
+        top[0].set_title(f"ground truth #{index}", fontsize=9)
+        bottom[0].axis("off")
+        for col, name in enumerate(names, start=1):
+            reco = recos[name][row]
+            top[col].imshow(reco, cmap="gray", vmin=0, vmax=1)
+            top[col].set_title(f"{name}\n{psnr(reco, gt):.1f} dB / {ssim(reco, gt):.3f}", fontsize=8)
+            im = bottom[col].imshow(reco - gt, cmap="RdBu_r", vmin=-0.3, vmax=0.3)
+            bottom[col].set_title(f"{name} - gt", fontsize=8)
+        fig.colorbar(im, ax=bottom[-1], shrink=0.8)
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return _save(fig, out, dpi=90)
+
+
+def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out: str | os.PathLike[str]) -> Path:
+    """Figure like the paper's uncertainty figures: per (model, sample) the input, mean, absolute error and std.
+
+    One row per (name, sample). The input is ``reconstructions/<input>`` of the name
+    (:func:`nanoct.names.parse_name`; an empty panel if absent); the std is the stored one
+    (calibrated where predict calibrated it, by the map or, for results of an earlier version, by
+    a factor, said in the title). Error and std share a
+    colour scale per row so they can be compared directly.
+    """
+    from matplotlib.figure import Figure
+
+    gts = store.read_phantoms(indices)
+    present = set(store.reconstruction_names())
+    rows = [(name, i, gt) for name in names for i, gt in zip(indices, gts)]
+    fig = Figure(figsize=(10.4, 2.5 * len(rows)), layout="constrained")
+    axes = fig.subplots(len(rows), 4, squeeze=False)
+    for ax_row, (name, index, gt) in zip(axes, rows):
+        input_name = str(store.reconstruction_params(name).get("input") or parse_name(name)[0])
+        reco = store.read_reconstruction(name, [index])[0]
+        std = store.read_uncertainty(name, [index])[0]
+        cal = store.reconstruction_params(name).get("calibration") or {}
+        err = np.abs(reco - gt)
+        top = float(max(err.max(), std.max())) or 1.0
+        if input_name in present and input_name != name:
+            ax_row[0].imshow(store.read_reconstruction(input_name, [index])[0], cmap="gray", vmin=0, vmax=1)
+        ax_row[0].set_title(f"input {input_name} #{index}", fontsize=9)
+        ax_row[1].imshow(reco, cmap="gray", vmin=0, vmax=1)
+        ax_row[1].set_title(f"{name} (mean)", fontsize=9)
+        ax_row[2].imshow(err, cmap="magma", vmin=0, vmax=top)
+        ax_row[2].set_title("|mean - gt|", fontsize=9)
+        im = ax_row[3].imshow(std, cmap="magma", vmin=0, vmax=top)
+        how = (
+            " (calibrated, map)"
+            if cal.get("std_map")
+            else f" (calibrated, s = {cal['scale']:.3g})"
+            if cal.get("scale")
+            else ""
+        )
+        ax_row[3].set_title("std" + how, fontsize=9)
+        fig.colorbar(im, ax=ax_row[3], shrink=0.8)
+        for ax in ax_row:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    return _save(fig, out, dpi=80)
+
+
+def reliability_diagram(
+    store: DataStore,
+    panels: dict[str, list[str]],
+    indices: list[int] | np.ndarray,
+    out: str | os.PathLike[str],
+    levels: np.ndarray = RELIABILITY_LEVELS,
+) -> Path:
+    """Reliability diagram: observed vs nominal coverage of central Gaussian intervals, raw and calibrated.
+
+    One column per panel (e.g. per model), one line per reconstruction name; the top row uses
+    the raw std (:func:`nanoct.evaluation.evaluate.read_std`), the middle row the raw std times the one
+    factor s, the bottom row the calibrated std (the map predict applied, or the factor for a
+    result calibrated without a map).
+    Pixels of all ``indices`` are pooled; the interval of level p is ``|err| <= k_p std`` with
+    ``k_p`` the two-sided Gaussian quantile (:func:`nanoct.evaluation.metrics.reliability`). A calibrated
+    Gaussian std lies on the diagonal; above it the std is too wide, below too narrow.
+    """
+    from matplotlib.figure import Figure
+
+    gts = store.read_phantoms(indices).astype(np.float64)
+    kinds = ("raw std", "one factor s", "calibrated std")
+    fig = Figure(figsize=(3.2 * len(panels), 9.0), layout="constrained")
+    axes = fig.subplots(len(kinds), len(panels), squeeze=False, sharex=True, sharey=True)
+    for col, (title, names) in enumerate(panels.items()):
+        for name in names:
+            reco = store.read_reconstruction(name, indices)
+            err = reco - gts
+            raw, cal = read_std(store, name, indices, reco)
+            axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
+            if cal.get("scale"):
+                axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
+            calibrated = calibrated_std(raw, cal, reco)
+            if calibrated is not None:
+                axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
+        for row, kind in enumerate(kinds):
+            ax = axes[row, col]
+            ax.plot([0, 1], [0, 1], color="0.5", ls="--", lw=1)
+            ax.set_title(f"{title}: {kind}", fontsize=9)
+            ax.set_xlim(0, 1)
+            ax.set_ylim(0, 1.01)
+            ax.grid(alpha=0.3)
+            ax.set_xlabel("nominal coverage")
+        axes[0, col].legend(fontsize=7, loc="lower right")
+    for row in range(len(kinds)):
+        axes[row, 0].set_ylabel("observed coverage")
+    return _save(fig, out, dpi=90)
+
+
+def _read_log(path: Path, column: str) -> tuple[list[float], list[float]]:
+    """(epochs, values of ``column``) of a training log.csv; empty lists if absent or without that column."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError:
+        return [], []
+    pairs = [(float(r["epoch"]), float(r[column])) for r in rows if r.get(column) not in (None, "")]
+    return [e for e, _ in pairs], [v for _, v in pairs]
+
+
+def training_curves(
+    panels: dict[str, dict[str, str | os.PathLike[str]]],
+    out: str | os.PathLike[str],
+    column: str = "val_loss",
+) -> Path:
+    """Validation loss per epoch of training runs, from each run's ``log.csv``.
+
+    ``panels`` maps a panel title (e.g. the model) to ``{line label: run directory}``; runs
+    without a log (or without ``column``) are left out of their panel. For the invertible
+    networks ``val_nll_bpd`` is the validation negative log-likelihood; their ``val_loss`` adds
+    the location term of a network trained with ``location_weight``.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3.4 * len(panels), 3.0), layout="constrained")
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    for ax, (title, runs) in zip(axes, panels.items()):
+        for label, run in runs.items():
+            epochs, values = _read_log(Path(run) / "log.csv", column)
+            if epochs:
+                ax.plot(epochs, values, marker=".", label=label)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("epoch")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    axes[0].set_ylabel(f"{column} (log.csv)")
+    return _save(fig, out, dpi=90)
+
+
+def uncertainty_report(
+    store: DataStore,
+    results: dict[str, dict[str, Any]],
+    models: list[str],
+    inputs: list[str],
+    runs_dir: str | os.PathLike[str],
+    report_dir: str | os.PathLike[str],
+    split: str = "test",
+) -> str:
+    """The uncertainty part of a study's report: its table and three figures; returns the Markdown.
+
+    For each sampling model in ``models`` (applied to ``inputs``, runs at
+    ``<runs_dir>/<model>-<input>``): ``uncertainty_<model>.png`` (:func:`uncertainty_maps` of
+    the first ``split`` sample, one row per input), one ``reliability.png`` (:func:`reliability_diagram`, all
+    ``split`` samples) and one ``training_curves.png`` (validation NLL per epoch). Names not in
+    ``results`` (incomplete) are left out; an empty string when no model has a std.
+    """
+    report = Path(report_dir)
+    names = {
+        m: [prediction_name(i, m) for i in inputs if "uncertainty" in results.get(prediction_name(i, m), {})]
+        for m in models
+    }
+    names = {m: n for m, n in names.items() if n}
+    if not names:
+        return ""
+    idx = store.indices(split)
+    text = ["## Uncertainty", "", format_uncertainty_table(results, f"Pixel-wise std, split '{split}'")]
+    for m, ns in names.items():
+        uncertainty_maps(store, ns, [int(idx[0])], report / f"uncertainty_{m}.png")
+        text.append(f"### {m}: input, mean, |error|, std\n\n![{m}](uncertainty_{m}.png)\n")
+    reliability_diagram(store, names, idx, report / "reliability.png")
+    text.append("### Reliability diagram (raw, one-factor and calibrated std)\n\n![reliability](reliability.png)\n")
+    runs = {m: {i: Path(runs_dir) / f"{m}-{i}" for i in inputs} for m in names}
+    training_curves(runs, report / "training_curves.png", column="val_nll_bpd")
+    text.append("### Validation NLL per epoch\n\n![training curves](training_curves.png)\n")
+    return "\n".join(text)

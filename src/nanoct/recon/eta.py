@@ -1,0 +1,111 @@
+"""Estimates of RESESOP's per-view model error eta when the ground truth is unknown.
+
+The paper's eta is ``eta_k = max_l |y_kl - y^eta_kl|``: the distance between the measured
+sinogram and the sinogram the unperturbed model would give, which only a simulation knows.
+On a measured scan it has to be estimated. Two estimators:
+
+``residual``
+    From a first reconstruction ``x0`` that already corrects most of the motion (Dremel):
+    ``eta_k = scale * max_l |y_kl - (A x0)_kl|``. ``A x0`` stands in for ``y^eta``; the
+    residual also holds the model's discretisation error and what ``x0`` got wrong, and
+    ``scale`` (1 by default, or fitted on a simulated reference set with
+    :func:`fit_scale`) corrects its average bias.
+``reference``
+    From a simulated reference data set of the same geometry whose eta is known: a per-view
+    statistic of its eta over samples (median by default). It assumes the scan's motion is
+    as strong as the simulation's, view by view, and ignores the scan's own data.
+
+Measured quality against the true eta and RESESOP with each estimate: docs/measured_data.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import NanoctError
+from ..core.geometry import Geometry
+from ..core.operators import system_matrix
+from ..core.validation import check_array, check_float
+
+__all__ = ["eta_from_reference", "eta_from_residual", "fit_scale"]
+
+_STATISTICS = ("median", "mean", "max")
+
+
+def eta_from_residual(
+    geometry: Geometry, sinogram: Any, image: Any, *, scale: float = 1.0, projector: str | None = None
+) -> np.ndarray:
+    """``scale * max_l |y - A x0|`` per view, from a first reconstruction ``x0``.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Scan geometry of the (unperturbed) model ``A``.
+    sinogram : array_like of shape (K, L)
+        Measured sinogram ``y``.
+    image : array_like of shape (N, N)
+        First reconstruction ``x0`` (Dremel's is the intended one: it has the motion mostly
+        corrected, so ``A x0`` is close to the unperturbed data).
+    scale : float
+        Factor on the residual's per-view maximum (>= 0).
+    projector : str, optional
+        ASTRA projector of ``A`` (default: the one reconstructions use).
+
+    Returns
+    -------
+    ndarray of shape (K,), float32
+    """
+    y = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
+    x = check_array(image, "image", shape=geometry.image_shape)
+    try:
+        scale = check_float(scale, "eta scale", low=0.0)
+    except ValueError as exc:
+        raise NanoctError(str(exc)) from exc
+    model = (system_matrix(geometry, projector) @ x.ravel()).reshape(geometry.sino_shape)
+    return (scale * np.abs(y.astype(np.float64) - model).max(axis=1)).astype(np.float32)
+
+
+def eta_from_reference(etas: Any, *, statistic: str = "median") -> np.ndarray:
+    """Per-view statistic of a reference data set's true eta.
+
+    Parameters
+    ----------
+    etas : array_like of shape (S, K)
+        eta of S simulated samples of the same geometry.
+    statistic : {"median", "mean", "max"}
+        How the S values of a view are combined.
+
+    Returns
+    -------
+    ndarray of shape (K,), float32
+    """
+    arr = check_array(etas, "reference eta", ndim=2, dtype=np.float64)
+    if arr.shape[0] == 0:
+        raise NanoctError("the reference data set has no samples with eta")
+    if statistic not in _STATISTICS:
+        raise NanoctError(f"statistic {statistic!r} is unknown; use one of {', '.join(_STATISTICS)}")
+    return getattr(np, statistic)(arr, axis=0).astype(np.float32)
+
+
+def fit_scale(true_eta: Any, estimated_eta: Any) -> float:
+    """Least-squares factor ``s`` minimising ``||true - s * estimated||`` over a reference set.
+
+    Parameters
+    ----------
+    true_eta, estimated_eta : array_like of the same shape
+        The true eta of simulated samples and an unscaled estimate of it (e.g. the residual
+        estimate with ``scale=1``).
+
+    Returns
+    -------
+    float
+        The factor (>= 0).
+    """
+    t = check_array(true_eta, "true eta", dtype=np.float64).ravel()
+    e = check_array(estimated_eta, "estimated eta", shape=np.shape(true_eta), dtype=np.float64).ravel()
+    denom = float(e @ e)
+    if denom == 0:
+        raise NanoctError("the estimated eta is zero everywhere; no scale can be fitted")
+    return max(float(t @ e) / denom, 0.0)

@@ -1,0 +1,1 @@
+"""The paper's data set: phantoms, per-view motion, simulation of one sample, whole data sets."""

@@ -1,0 +1,80 @@
+"""Generate a whole data set into a store, resumably, over Dask."""
+
+from __future__ import annotations
+
+import os
+from functools import partial
+from pathlib import Path
+
+from ..core.errors import NanoctError
+from ..core.fanout import run_tasks
+from ..core.geometry import Geometry
+from ..io.store import DataStore, open_cached
+from .simulate import SimulationConfig, simulate_sample
+
+__all__ = ["generate_dataset"]
+
+
+def _simulate_into(path: str, index: int) -> int:
+    store = open_cached(path)
+    config = SimulationConfig.from_dict(store.meta["simulation"])
+    store.write_sample(index, simulate_sample(store.geometry, config, store.seed, index))
+    return index
+
+
+def generate_dataset(
+    out: str | os.PathLike[str],
+    geometry: Geometry,
+    n: int,
+    *,
+    seed: int = 0,
+    config: SimulationConfig | None = None,
+    split_fractions: tuple[float, float, float] = (0.95, 0.04, 0.01),
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> DataStore:
+    """Simulate ``n`` samples into the store at ``out`` (resuming if it is partly there).
+
+    Parameters
+    ----------
+    out : path
+        Store directory. If it holds the same data set (same geometry, n, seed, simulation
+        parameters and split), only missing samples are made; if it holds another one, an
+        error is raised and nothing is changed.
+    geometry : Geometry
+        Scan geometry.
+    n : int
+        Number of samples (> 0).
+    seed : int
+        Data-set seed; sample i depends only on (seed, i).
+    config : SimulationConfig, optional
+        Simulation settings (default: the paper's for the geometry kind).
+    split_fractions : tuple of float
+        Train/val/test proportions (paper: 0.95/0.04/0.01).
+    workers, scheduler, progress
+        See :func:`nanoct.core.fanout.run_tasks`.
+
+    Returns
+    -------
+    DataStore
+        The complete data set.
+    """
+    if not isinstance(n, int) or n <= 0:
+        raise NanoctError(f"--n {n} must be a positive number of samples")
+    if seed < 0:
+        raise NanoctError(f"--seed {seed} must be >= 0")
+    if workers < 0:
+        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
+    config = config or SimulationConfig.for_geometry(geometry)
+    store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
+    pending = [int(i) for i in (~store.done).nonzero()[0]]
+    run_tasks(
+        partial(_simulate_into, str(store.path)),
+        pending,
+        workers=workers,
+        scheduler=scheduler,
+        desc="generate",
+        progress=progress,
+    )
+    return DataStore.open(store.path, mode="r+")

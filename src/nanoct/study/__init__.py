@@ -1,0 +1,1 @@
+"""The whole study from one call: stages, plan, report."""

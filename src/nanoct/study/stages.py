@@ -1,0 +1,156 @@
+"""The stages of a setting: data, first reconstructions, training, prediction.
+
+Every stage is cached in the setting's directory: the data set, each reconstruction, each
+training run and each prediction resume where they stopped and are skipped when complete.
+Training runs and predictions are independent jobs: on a local machine they run one after
+another in this process with all its cores as torch threads; with a Dask scheduler (a cluster)
+they go to its workers, one torch thread each.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+from ..core.fanout import run_tasks
+from ..core.geometry import get_preset
+from ..io.store import DataStore
+from ..learn.models import model_class
+from ..names import prediction_name, seed_name
+from ..recon.batch import reconstruct_dataset
+from ..sim.generate import generate_dataset
+from ..sim.simulate import SimulationConfig
+from .config import Jobs, Setting, Study
+
+__all__ = ["data_stage", "prediction_stage", "reconstruction_stage", "training_stage"]
+
+
+def _run_dir(runs: str, model: str, input_name: str, seed: int) -> Path:
+    return Path(runs) / (f"{model}-{input_name}" + (f"-seed{seed}" if seed else ""))
+
+
+def _with_threads(threads: int, job: Callable[[], object]) -> None:
+    """Run ``job()`` with ``threads`` torch threads, restoring the previous count after."""
+    import torch
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        job()
+    finally:
+        torch.set_num_threads(old)
+
+
+def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, int]], threads: int, index: int) -> int:
+    from ..learn.train import TrainConfig, train
+
+    model, input_name, seed = jobs[index]
+    config = TrainConfig(
+        model,
+        input_name,
+        epochs=study.epochs[model],
+        lr=study.lr.get(model),
+        scheduler=study.scheduler.get(model),
+        model_kwargs=study.model_kwargs.get(model),
+        seed=seed,
+        precision=study.precision,
+    )
+    run = partial(train, data, _run_dir(runs, model, input_name, seed), config, progress=False)
+    _with_threads(threads, run)
+    return index
+
+
+def _sampling(study: Study) -> dict[str, Any]:
+    """``reconstruct`` arguments of the invertible networks in ``study``."""
+    return {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
+
+
+def _predict_job(
+    data: str, runs: str, study: Study, jobs: list[tuple[str, str, str, int]], threads: int, index: int
+) -> int:
+    from ..learn.predict import predict
+
+    model, train_input, input_name, seed = jobs[index]
+    kwargs = _sampling(study) if model_class(model).has_uncertainty else None
+    name = seed_name(prediction_name(input_name, model, train_input), seed) if seed else None
+    run = partial(
+        predict,
+        data,
+        _run_dir(runs, model, train_input, seed),
+        input_name,
+        split="test",
+        progress=False,
+        name=name,
+        reconstruct_kwargs=kwargs,
+    )
+    _with_threads(threads, run)
+    return index
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def data_stage(setting: Setting, study: Study, jobs: Jobs, seed: int, fan: dict[str, Any]) -> DataStore:
+    """Simulate the setting's data set (resumable) and return its store."""
+    geometry = get_preset(setting.preset)
+    config = SimulationConfig.for_geometry(geometry, perturbed=setting.perturbed)
+    return generate_dataset(
+        setting.out / "data",
+        geometry,
+        jobs.samples,
+        seed=seed,
+        config=config,
+        split_fractions=study.split_fractions,
+        **fan,
+    )
+
+
+def reconstruction_stage(setting: Setting, fan: dict[str, Any]) -> None:
+    """Every first reconstruction of the setting over every sample (resumable)."""
+    for name, (method, params) in setting.recons.items():
+        reconstruct_dataset(setting.out / "data", method, params=params, name=name, **fan)
+
+
+def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
+    """Fan-out arguments and torch threads per job for training and prediction jobs.
+
+    With a scheduler (a cluster) the jobs go to its workers, one torch thread each. On the local
+    machine they run one after another in this process with all its cores as torch threads:
+    two torch jobs side by side in separate processes were much slower than one after another
+    on the 2-core machine the tiny study is timed on (``benchmarks/bench_concurrency.py``,
+    benchmarks/README.md).
+    """
+    if fan.get("scheduler") is not None:
+        return fan, 1
+    return fan | {"workers": 0}, _cores()
+
+
+def _torch_stage(job: Callable[..., int], jobs: list, desc: str, setting: Setting, study: Study, fan: dict) -> None:
+    """Run ``job`` for every entry of ``jobs`` where :func:`_torch_fan` puts torch jobs."""
+    if jobs:
+        torch_fan, threads = _torch_fan(fan)
+        run_tasks(
+            partial(job, str(setting.out / "data"), str(setting.out / "runs"), study, jobs, threads),
+            range(len(jobs)),
+            desc=desc,
+            unit="run",
+            **torch_fan,
+        )
+
+
+def training_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
+    """One network per (model, input, seed); finished runs are skipped, killed ones resume.
+
+    Torch threads are set explicitly per job (torch may have been imported under
+    ``OMP_NUM_THREADS=1``); where the jobs run: :func:`_torch_fan`.
+    """
+    _torch_stage(_train_job, jobs.train, "train", setting, study, fan)
+
+
+def prediction_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
+    """Every prediction on the test split (done ones are skipped by :func:`nanoct.learn.predict.predict`)."""
+    _torch_stage(_predict_job, jobs.predict, "predict", setting, study, fan)

@@ -1,0 +1,104 @@
+"""``nanoct reproduce --plan``: stages, job counts, disk and time estimates without running anything."""
+
+import sys
+import time
+
+import pytest
+
+from nanoct.cli import main
+from nanoct.core.errors import NanoctError
+from nanoct.study.config import STUDIES
+from nanoct.study.plan import STAGES, format_plan, plan_study
+
+# the paper's rows, counted by hand: parallel 5 inputs x 5 networks, mixing 5 networks x 5 x 4;
+# fan 3 inputs (FBP added) x 5 networks; unperturbed: the 5 networks on FBP only.
+EXPECTED = {
+    "parallel": {"reconstructions": 5, "training": 25, "prediction": 25 + 5 * 20},
+    "fan": {"reconstructions": 3, "training": 15, "prediction": 15},
+    "unperturbed": {"reconstructions": 3, "training": 5, "prediction": 5},
+}
+
+
+@pytest.mark.parametrize("scale", ["tiny", "small", "paper"])
+def test_plan_every_scale_in_seconds(scale):
+    t = time.perf_counter()
+    plan = plan_study(scale, cores=16)
+    assert time.perf_counter() - t < 10
+    n = STUDIES[scale].n
+    assert [(p.setting, p.stage) for p in plan] == [(s, st) for s in EXPECTED for st in STAGES]
+    for p in plan:
+        if p.stage == "data":
+            assert p.jobs == n and p.disk_bytes > 0 and p.seconds > 0
+        elif p.stage == "reconstructions":
+            assert p.jobs == EXPECTED[p.setting]["reconstructions"] * n
+        elif p.stage in ("training", "prediction"):
+            assert p.jobs == EXPECTED[p.setting][p.stage] and p.seconds > 0
+    text = format_plan(plan)
+    assert "total" in text and "benchmarks/README.md" in text
+
+
+def test_plan_scales_with_cores_gpus_and_seeds():
+    two, eight = plan_study("small", cores=2), plan_study("small", cores=8)
+    for a, b in zip(two, eight):
+        assert a.jobs == b.jobs and (a.stage == "report" or b.seconds == pytest.approx(a.seconds / 4))
+    gpu = plan_study("small", cores=2, gpus=2)
+    assert all((p.seconds is None) == (p.stage in ("training", "prediction")) for p in gpu)
+    assert "? (no figure)" in format_plan(gpu)
+    fast = plan_study("small", cores=2, gpus=2, gpu_speedup=50)
+    train = [p for p in fast if p.stage == "training"][0]
+    assert train.seconds == pytest.approx([p for p in two if p.stage == "training"][0].seconds * 2 / 100)
+    seeded = plan_study("tiny", seeds=3)
+    assert [p.jobs for p in seeded if p.stage == "training"] == [75, 45, 15]
+    assert [p.jobs for p in seeded if p.stage == "prediction"] == [75 + 100, 45, 15]
+    one = plan_study(None, preset="tiny-fan", n=40, models=("unet",))
+    assert [p.jobs for p in one] == [40, 5 * 40, 5, 5 + 5 * 4, 1]  # the tiny study mixes the UNet
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"cores": 0}, {"gpus": -1}, {"gpus": 1, "gpu_speedup": 0.0}, {"scale": "huge"}, {"preset": "nope"}]
+)
+def test_plan_rejects_bad_input(kwargs):
+    scale = kwargs.pop("scale", None if "preset" in kwargs else "tiny")
+    with pytest.raises(NanoctError):
+        plan_study(scale, **kwargs)
+
+
+def _cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["nanoct", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code or 0
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_plan_runs_nothing(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "paper", "--plan", "--cores", "64")
+    assert code == 0, err
+    assert "parallel" in out and "reconstructions" in out and "160,475" in out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_scale_rejects_preset_options(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "tiny", "--no-motion", "--plan")
+    assert code == 2 and "--no-motion" in err
+
+
+def test_prediction_cost_counts_one_calibration_per_invertible_run():
+    """Test images for every prediction, validation images once per invertible run (mixing reuses the fit)."""
+    from nanoct.study.config import Study
+    from nanoct.study.plan import _PREDICT
+
+    study = Study(n=200, split_fractions=(0.8, 0.1, 0.1), n_samples=10, mixing=("cinn-res",))
+    (pred,) = [
+        p
+        for p in plan_study(None, preset="tiny-parallel", models=("cinn-res",), study=study, cores=1)
+        if p.stage == "prediction"
+    ]
+    assert pred.jobs == 25  # 5 inputs x 5 inputs
+    per_image = _PREDICT[63]["inn"] * study.n_samples
+    assert pred.seconds == pytest.approx(per_image * (25 * 20 + 5 * 20))
