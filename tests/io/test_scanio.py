@@ -218,7 +218,7 @@ def test_shifts_round_trip(tmp_path):
     np.testing.assert_allclose(read_shifts(one_column, 17), shifts)
     with pytest.raises(NanoctError, match="has 17 views"):
         read_shifts(path, 16)
-    (tmp_path / "bad.txt").write_text("0 1.0\n0 2.0\n")
+    (tmp_path / "bad.txt").write_text("# view shift_px\n0 1.0\n0 2.0\n")
     with pytest.raises(NanoctError, match="once each"):
         read_shifts(tmp_path / "bad.txt", 2)
 

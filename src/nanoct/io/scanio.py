@@ -8,13 +8,30 @@ and binned along the detector. Files are read with h5py and tifffile; nothing he
 file format by hand.
 
 Conventions at this border (inside nanoct angles are radians and sinograms ``(K, L)``):
-NXtomo ``rotation_angle`` and Data Exchange ``theta`` are degrees (as NeXus, TomoPy's files
-and CIL use them); angle files are text with one angle per view, degrees unless stated.
+NXtomo ``rotation_angle`` is read in the unit of its ``units`` attribute (degrees without
+one, :mod:`nanoct.io.nxtomo`), Data Exchange ``theta`` in degrees (as TomoPy's files and CIL
+use it); angle files are text with one angle per view, degrees unless stated.
+
+What is refused or corrected (``docs/measured_data.md``): files that cannot be read whole
+(a truncated HDF5 or TIFF), angles that are all equal or whose span says they are in the
+other unit, flats or darks of another detector size, and frames with NaN or infinite values
+(named; ``drop_bad_views`` leaves such projections out, with their angles, and says so).
+Views are kept in acquisition order, however the angles run (not monotone, repeated):
+every reconstruction uses the angle of each view, and the shifts files list the views in
+that order, as nabu does.
+
+Shifts files (:func:`write_shifts`, :func:`read_shifts`) use nabu's
+``translation_movements_file`` layout: one row ``horizontal vertical`` per projection, in
+detector pixels, ``horizontal`` the displacement of the projection along increasing
+detector columns (nabu adds it to the axis position in its back projection). nanoct's own
+shifts (Dremel's ``t . e_u``, :mod:`nanoct.recon.dremel`) move the projection the other way,
+so ``horizontal = -shift``.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -24,12 +41,16 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from .fileio import atomic_target
+from .nxtomo import nxtomo_entries, read_nxtomo, to_unit
 
 __all__ = [
     "EXPORT_FORMATS",
     "FORMATS",
+    "SHIFTS_HEADER",
     "RawScan",
+    "check_angles",
     "detect_format",
+    "drop_bad_views",
     "import_scan",
     "line_integrals",
     "read_angles",
@@ -42,11 +63,8 @@ __all__ = [
 
 FORMATS = ("nxtomo", "dxchange", "tiff", "npy")
 EXPORT_FORMATS = {".tif": "tiff", ".tiff": "tiff", ".npy": "npy", ".h5": "hdf5", ".hdf5": "hdf5"}
-
-# NXtomo: where the detector data, image keys and angles usually live (first found is used)
-_NX_DATA = ("entry/instrument/detector/data", "entry/data/data", "entry1/instrument/detector/data")
-_NX_KEYS = ("entry/instrument/detector/image_key", "entry/data/image_key", "entry1/instrument/detector/image_key")
-_NX_ANGLES = ("entry/sample/rotation_angle", "entry/data/rotation_angle", "entry1/sample/rotation_angle")
+SHIFTS_HEADER = "horizontal vertical"  # nabu's column order, the header line of a shifts file
+_MIN_VIEWS_UNIT_CHECK = 8  # fewer views than this may span a few degrees on purpose (a test, an alignment)
 
 
 @dataclass(frozen=True)
@@ -131,11 +149,11 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         with _open_h5(path) as f:
             if "exchange/data" in f:
                 return "dxchange"
-            if _first(f, _NX_DATA) is not None:
+            if nxtomo_entries(f):
                 return "nxtomo"
         raise NanoctError(
-            f"{path} is HDF5 but neither NXtomo ({_NX_DATA[0]}) nor Data Exchange (exchange/data); "
-            "pass --format and the dataset layout, or convert the file"
+            f"{path} is HDF5 but neither NXtomo (an NXentry with definition NXtomo, or entry/instrument/detector/data) "
+            "nor Data Exchange (exchange/data); convert the file to one of them"
         )
     raise NanoctError(f"cannot tell the format of {path} from its extension; pass --format ({', '.join(FORMATS)})")
 
@@ -146,12 +164,54 @@ def read_angles(path: str | os.PathLike[str], *, degrees: bool = True) -> np.nda
     Raises
     ------
     NanoctError
-        If the file is missing or not numeric.
+        If the file is missing or not numeric, or the angles fail :func:`check_angles`.
     """
     table = _load_table(path, "angles")
     # one angle per line, "view angle" lines, or all angles on one line
     values = table[0] if table.shape[0] == 1 else table[:, -1]
-    return np.deg2rad(values) if degrees else values
+    angles = np.deg2rad(values) if degrees else values
+    check_angles(angles, degrees=degrees, where=f"the angles file {path}", fix="--radians")
+    return angles
+
+
+def check_angles(angles: np.ndarray, *, degrees: bool, where: str, fix: str) -> None:
+    """Refuse view angles that cannot be what the scan meant.
+
+    Parameters
+    ----------
+    angles : ndarray of shape (K,)
+        Radians.
+    degrees : bool
+        The source gave them in degrees.
+    where : str
+        The file (and dataset), for the message.
+    fix : str
+        What sets the other unit (``--radians``, the ``units`` attribute).
+
+    Raises
+    ------
+    NanoctError
+        Non-finite angles; more than one view and all angles equal; at least
+        :data:`_MIN_VIEWS_UNIT_CHECK` views in degrees spanning at most one turn in radians
+        (``2 pi`` degrees: the values are radians), or in radians spanning more than two turns
+        (the values are degrees).
+    """
+    if not np.isfinite(angles).all():
+        raise NanoctError(f"{where}: {int((~np.isfinite(angles)).sum())} angle(s) are NaN or infinite")
+    if angles.size < 2:
+        return
+    span = float(np.ptp(angles))
+    if span == 0:
+        raise NanoctError(f"{where}: all {angles.size} views have the angle {np.rad2deg(angles[0]):g} degrees")
+    if angles.size >= _MIN_VIEWS_UNIT_CHECK and degrees and np.rad2deg(span) <= 2 * np.pi * (1 + 1e-6):
+        raise NanoctError(
+            f"{where}: {angles.size} views span only {np.rad2deg(span):.4g} degrees; these look like radians "
+            f"({fix} if they are)"
+        )
+    if angles.size >= _MIN_VIEWS_UNIT_CHECK and not degrees and span > 4 * np.pi:
+        raise NanoctError(
+            f"{where}: {angles.size} views span {span:.4g} radians (more than two turns); these look like degrees"
+        )
 
 
 def read_scan(
@@ -163,6 +223,7 @@ def read_scan(
     flats: str | os.PathLike[str] | None = None,
     darks: str | os.PathLike[str] | None = None,
     is_line_integral: bool = False,
+    entry: str | None = None,
 ) -> RawScan:
     """Read a measured scan.
 
@@ -182,6 +243,8 @@ def read_scan(
         TIFF or ``.npy`` flat and dark fields for TIFF and ``.npy`` scans.
     is_line_integral : bool
         The data are already line integrals (no flat/dark correction, no ``-log``).
+    entry : str, optional
+        The NXtomo entry to read, needed when the file has several.
 
     Returns
     -------
@@ -190,25 +253,29 @@ def read_scan(
     Raises
     ------
     NanoctError
-        A missing file, dataset or key, angle count != projection count, flats or darks of
-        another shape, an unknown format; each message names the file and what to do.
+        A missing, truncated or damaged file, a missing dataset or key, angle count !=
+        projection count, angles that fail :func:`check_angles`, flats or darks of another
+        shape, an unknown format; each message names the file and what to do.
     """
     fmt = fmt or detect_format(path)
     if fmt not in FORMATS:
         raise NanoctError(f"--format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
+    if entry is not None and fmt != "nxtomo":
+        raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
     if fmt == "nxtomo":
-        scan = _read_nxtomo(Path(path))
+        scan = _read_nxtomo(Path(path), entry)
     elif fmt == "dxchange":
         scan = _read_dxchange(Path(path))
     else:
         if angles_file is None:
             raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
         stack = _read_array(Path(path), fmt)
+        detector = stack.shape[1:] if stack.ndim == 3 else stack.shape[1:2]
         scan = RawScan(
             stack,
             read_angles(angles_file, degrees=degrees),
-            flats=None if flats is None else _read_array(Path(flats), None),
-            darks=None if darks is None else _read_array(Path(darks), None),
+            flats=None if flats is None else _read_field(Path(flats), "flats", detector),
+            darks=None if darks is None else _read_field(Path(darks), "darks", detector),
             source={"file": str(path), "format": fmt},
         )
     if angles_file is not None and fmt in ("nxtomo", "dxchange"):
@@ -236,8 +303,7 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     if not 0 <= tolerance < 1:
         raise NanoctError(f"--tolerance {tolerance} must lie in [0, 1)")
     proj = scan.projections
-    if not np.isfinite(proj).all():
-        raise NanoctError(f"the projections contain {int((~np.isfinite(proj)).sum())} NaN or infinite value(s)")
+    drop_bad_views(scan, drop=False)  # names the frames with NaN or infinite values
     if scan.is_line_integral:
         return proj.copy()
     dark = np.zeros(proj.shape[1:], np.float32) if scan.darks is None else scan.darks.mean(axis=0)
@@ -339,6 +405,8 @@ def import_scan(
     center_offset: float = 0.0,
     size: int | None = None,
     tolerance: float = 1e-3,
+    entry: str | None = None,
+    drop_bad: bool = False,
 ) -> Any:
     """Import a measured parallel-beam scan into a new data set, one sample per detector row.
 
@@ -369,6 +437,11 @@ def import_scan(
         and binning; one image pixel = one binned detector pixel).
     tolerance : float
         Fraction of non-positive flat/dark-corrected values tolerated (see :func:`line_integrals`).
+    entry : str, optional
+        NXtomo entry (see :func:`read_scan`).
+    drop_bad : bool
+        Leave out projections (and flat or dark frames) with NaN or infinite values in the
+        selected rows and columns instead of refusing the scan (:func:`drop_bad_views`).
 
     Returns
     -------
@@ -385,15 +458,17 @@ def import_scan(
 
     raw = read_scan(
         src, fmt=fmt, angles_file=angles_file, degrees=degrees, flats=flats, darks=darks,
-        is_line_integral=is_line_integral,
+        is_line_integral=is_line_integral, entry=entry,
     )  # fmt: skip
-    n_cols = raw.projections.shape[2]
+    n_rows, n_cols = raw.projections.shape[1:]
+    # select rows and columns before the checks and the correction: only the kept pixels are judged
+    kept, dropped = drop_bad_views(_select(raw, rows, crop), drop=drop_bad)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
     try:
         geometry = Geometry.from_angles(
-            raw.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset
+            kept.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset
         )
     except ValueError as exc:
         raise NanoctError(f"cannot build the scan geometry: {exc}") from exc
@@ -404,17 +479,92 @@ def import_scan(
         "binning": binning,
         "center_offset_raw": center_offset,
         "line_integrals": raw.is_line_integral,
-        "flats": 0 if raw.flats is None else int(raw.flats.shape[0]),
-        "darks": 0 if raw.darks is None else int(raw.darks.shape[0]),
+        "flats": 0 if kept.flats is None else int(kept.flats.shape[0]),
+        "darks": 0 if kept.darks is None else int(kept.darks.shape[0]),
         "shared_motion": True,
+        "notes": [*raw.source.get("notes", []), *_angle_notes(kept.angles), *dropped],
     }
+    if "raw_pixel_size_m" in raw.source:  # one stored detector pixel, after binning
+        n_kept_rows = (rows.stop - rows.start) if rows is not None else n_rows
+        x, y = raw.source["raw_pixel_size_m"]
+        scan["pixel_size_m"] = [x * binning, y * (binning if n_kept_rows >= binning else 1)]
     if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
             return store  # the same import again: nothing to do
-    # select rows and columns before the correction: only the kept pixels are corrected and judged
-    stack = sinograms(line_integrals(_select(raw, rows, crop), tolerance=tolerance), binning=binning)
+    stack = sinograms(line_integrals(kept, tolerance=tolerance), binning=binning)
     return create_scan(out, geometry, stack, scan)
+
+
+def _angle_notes(angles: np.ndarray) -> list[str]:
+    """What an import tells about angles it keeps as they are (acquisition order, repeats)."""
+    notes = []
+    steps = np.diff(angles)
+    if steps.size and not ((steps >= 0).all() or (steps <= 0).all()):
+        notes.append("the angles are not monotone; the views are kept in acquisition order, each with its angle")
+    repeated = angles.size - np.unique(angles).size
+    if repeated:
+        notes.append(f"{repeated} view(s) repeat an angle of another view; all are kept (they are measured data)")
+    return notes
+
+
+def _bad_frames(stack: np.ndarray | None) -> np.ndarray:
+    """Indices of the frames of a ``(F, R, L)`` stack that hold NaN or infinite values."""
+    if stack is None:
+        return np.zeros(0, int)
+    return np.flatnonzero(~np.isfinite(stack).all(axis=(1, 2)))
+
+
+def _listed(indices: np.ndarray, limit: int = 8) -> str:
+    shown = ", ".join(str(i) for i in indices[:limit])
+    return shown + (f" ... ({indices.size} in all)" if indices.size > limit else "")
+
+
+def drop_bad_views(scan: RawScan, *, drop: bool) -> tuple[RawScan, list[str]]:
+    """Refuse, or leave out, the frames that hold NaN or infinite values.
+
+    Parameters
+    ----------
+    scan : RawScan
+    drop : bool
+        Leave such projections out (with their angles) and such flat or dark frames out of
+        the mean, instead of refusing the scan.
+
+    Returns
+    -------
+    RawScan
+        The scan without the bad frames (the same scan when there are none).
+    list of str
+        One note per kind of frame left out.
+
+    Raises
+    ------
+    NanoctError
+        Bad frames and not ``drop`` (the message names the frames, by index among the
+        projections / flats / darks, and the angles); every frame of a kind bad.
+    """
+    where = scan.source.get("file", "the scan")
+    notes: list[str] = []
+    out = {}
+    for name in ("projections", "flats", "darks"):
+        stack = getattr(scan, name)
+        bad = _bad_frames(stack)
+        if bad.size == 0:
+            continue
+        what = f"{where}: {name} {_listed(bad)}"
+        if name == "projections":
+            what += f" (angles {_listed(np.round(np.rad2deg(scan.angles[bad]), 3))} degrees)"
+        if not drop:
+            raise NanoctError(
+                f"{what} hold NaN or infinite values; pass --drop-bad-views to leave them out, or repair the file"
+            )
+        if bad.size == stack.shape[0]:
+            raise NanoctError(f"{what}: every one of the {stack.shape[0]} {name} holds NaN or infinite values")
+        out[name] = np.delete(stack, bad, axis=0)
+        if name == "projections":
+            out["angles"] = np.delete(scan.angles, bad)
+        notes.append(f"left out {bad.size} of {stack.shape[0]} {name} with NaN or infinite values ({_listed(bad)})")
+    return (replace(scan, **out) if out else scan), notes
 
 
 def _select(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None) -> RawScan:
@@ -453,66 +603,116 @@ def _open_h5(path: Path) -> Any:
         raise NanoctError(f"cannot open {path} as HDF5 ({exc}); is it a complete .h5/.nxs file?") from exc
 
 
-def _first(f: Any, candidates: tuple[str, ...]) -> str | None:
-    return next((c for c in candidates if c in f), None)
-
-
-def _read_nxtomo(path: Path) -> RawScan:
+def _read_nxtomo(path: Path, entry: str | None) -> RawScan:
     with _open_h5(path) as f:
-        data_path = _first(f, _NX_DATA)
-        if data_path is None:
-            raise NanoctError(f"{path}: no NXtomo detector data (looked for {', '.join(_NX_DATA)})")
-        keys_path, angles_path = _first(f, _NX_KEYS), _first(f, _NX_ANGLES)
-        if angles_path is None:
-            raise NanoctError(f"{path}: no rotation angles (looked for {', '.join(_NX_ANGLES)}); pass --angles FILE")
-        data = np.asarray(f[data_path][()], dtype=np.float32)
-        angles = np.asarray(f[angles_path][()], dtype=np.float64).ravel()
-        keys = np.zeros(data.shape[0], int) if keys_path is None else np.asarray(f[keys_path][()]).ravel()
-    if keys.size != data.shape[0] or angles.size != data.shape[0]:
-        raise NanoctError(
-            f"{path}: {data.shape[0]} detector frames but {keys.size} image keys and {angles.size} angles; "
-            "NXtomo lists one key and one angle per frame"
-        )
-    proj = keys == 0
-    if not proj.any():
-        raise NanoctError(f"{path}: no projection frames (image_key 0)")
+        frames = read_nxtomo(path, f, entry)
+    units = frames.source["angle_units"]
+    in_degrees = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1.0))
+    where = f"{path}:{frames.source['entry']}/sample/rotation_angle"
+    check_angles(frames.angles, degrees=in_degrees, where=where, fix="correct its units attribute or pass --angles")
     return RawScan(
-        data[proj],
-        np.deg2rad(angles[proj]),
-        flats=data[keys == 1] if (keys == 1).any() else None,
-        darks=data[keys == 2] if (keys == 2).any() else None,
-        source={"file": str(path), "format": "nxtomo", "data": data_path, "image_key": keys_path},
+        frames.projections,
+        frames.angles,
+        flats=frames.flats,
+        darks=frames.darks,
+        source={"file": str(path), "format": "nxtomo", **frames.source},
     )
+
+
+def _h5_array(f: Any, path: Path, name: str, dtype: Any) -> np.ndarray:
+    try:
+        return np.asarray(f[name][()], dtype=dtype)
+    except (OSError, KeyError, RuntimeError) as exc:
+        raise NanoctError(
+            f"{path}: cannot read {name} ({exc}); the file may be truncated or still being written - copy it again"
+        ) from None
 
 
 def _read_dxchange(path: Path) -> RawScan:
     with _open_h5(path) as f:
         if "exchange/theta" not in f:
             raise NanoctError(f"{path}: no /exchange/theta (angles in degrees); pass --angles FILE")
-        data = np.asarray(f["exchange/data"][()], dtype=np.float32)
-        theta = np.asarray(f["exchange/theta"][()], dtype=np.float64)
-        flats = np.asarray(f["exchange/data_white"][()], np.float32) if "exchange/data_white" in f else None
-        darks = np.asarray(f["exchange/data_dark"][()], np.float32) if "exchange/data_dark" in f else None
-    return RawScan(data, np.deg2rad(theta), flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
+        data = _h5_array(f, path, "exchange/data", np.float32)
+        theta = _h5_array(f, path, "exchange/theta", np.float64).ravel()
+        flats = _h5_array(f, path, "exchange/data_white", np.float32) if "exchange/data_white" in f else None
+        darks = _h5_array(f, path, "exchange/data_dark", np.float32) if "exchange/data_dark" in f else None
+    angles = np.deg2rad(theta)
+    check_angles(angles, degrees=True, where=f"{path}:exchange/theta", fix="pass --angles FILE --radians")
+    return RawScan(data, angles, flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
+
+
+def _read_field(path: Path, what: str, detector: tuple[int, ...]) -> np.ndarray:
+    """Flat or dark fields from a TIFF or ``.npy`` file, checked against the detector size ``(R, L)``."""
+    field = _read_array(path, None)
+    frame = field.shape[-len(detector) :] if field.ndim >= len(detector) else field.shape
+    if field.ndim not in (len(detector), len(detector) + 1) or tuple(frame) != tuple(detector):
+        raise NanoctError(
+            f"--{what} {path}: {what} have shape {field.shape}, but one projection is {tuple(detector)} "
+            f"(rows, columns); give {what} recorded with the same detector size and binning as the projections"
+        )
+    return field
 
 
 def _read_array(path: Path, fmt: str | None) -> np.ndarray:
     if not path.exists():
         raise NanoctError(f"{path} does not exist")
     fmt = fmt or ("npy" if path.suffix.lower() == ".npy" else "tiff")
-    try:
-        if fmt == "npy":
+    if fmt == "npy":
+        try:
             return np.load(path, allow_pickle=False)
-        import tifffile
+        except (OSError, ValueError, EOFError) as exc:
+            raise NanoctError(f"cannot read {path} as .npy ({exc}); is the file complete?") from exc
+    if not path.is_dir():
+        return _read_tiff(path)
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
+    if not files:
+        raise NanoctError(f"{path} holds no .tif/.tiff files")
+    images = [_read_tiff(p) for p in files]
+    odd = next((p for p, image in zip(files, images) if image.shape != images[0].shape), None)
+    if odd is not None:
+        shape = images[files.index(odd)].shape
+        raise NanoctError(
+            f"{odd} has shape {shape}, but {files[0].name} has {images[0].shape}; "
+            f"every TIFF of {path} must be one projection of the same size"
+        )
+    return np.stack(images)
 
-        if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
-            if not files:
-                raise NanoctError(f"{path} holds no .tif/.tiff files")
-            return np.stack([tifffile.imread(p) for p in files])
-        return tifffile.imread(path)
-    except (OSError, ValueError) as exc:
-        raise NanoctError(f"cannot read {path} as {fmt} ({exc})") from exc
+
+# what tifffile logs (rather than raises) when the page list of a file is cut or damaged
+_TIFF_DAMAGE = ("invalid page offset", "corrupted", "truncated", "failed to read")
+
+
+class _Complaints(logging.Handler):
+    """Collects tifffile's log messages that say a file is damaged (they are logged, not raised)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        if any(word in message for word in _TIFF_DAMAGE):
+            self.messages.append(message)
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    """A TIFF file as an array; a truncated or damaged file is refused rather than read in part."""
+    import tifffile
+
+    complaints = _Complaints()
+    logger = logging.getLogger("tifffile")
+    logger.addHandler(complaints)
+    try:
+        image = tifffile.imread(path)
+    except (OSError, ValueError, EOFError) as exc:
+        raise NanoctError(f"cannot read {path} as TIFF ({exc}); the file may be truncated - copy it again") from exc
+    finally:
+        logger.removeHandler(complaints)
+    if complaints.messages:
+        raise NanoctError(
+            f"{path} is damaged or truncated (tifffile: {complaints.messages[0]}); copy it again or rewrite it"
+        )
+    return image
 
 
 # ---------------------------------------------------------------------------------- writers
@@ -564,52 +764,139 @@ def write_images(
     return path
 
 
-def write_shifts(path: str | os.PathLike[str], shifts: Any, *, angles: Any = None) -> Path:
-    """Per-view shifts as a two-column text file ``view shift_px`` (nabu-style), atomically.
+def write_shifts(
+    path: str | os.PathLike[str],
+    shifts: Any,
+    *,
+    angles: Any = None,
+    pixel_size_m: float | None = None,
+    notes: list[str] | None = None,
+) -> Path:
+    """Per-view shifts as nabu's ``translation_movements_file``, atomically.
+
+    One row ``horizontal vertical`` per view, in detector pixels, loadable with
+    ``np.loadtxt`` into shape ``(K, 2)`` (nabu's reader): ``horizontal = -shifts`` (the
+    displacement of the projection along increasing detector columns, nabu's sign; see the
+    module docstring), ``vertical = 0`` (nanoct estimates no vertical motion). Comment lines
+    (``#``) say so; with ``pixel_size_m`` each row ends with a comment giving the horizontal
+    value in nanometres.
 
     Parameters
     ----------
     path : path
         Output text file.
     shifts : array_like of shape (K,)
-        Shift of the object along the detector axis per view, in detector pixels (sign of
-        ``t . e_u``, as Dremel estimates it).
+        nanoct's shift of the object along the detector axis per view, in detector pixels
+        (sign of ``t . e_u``, as Dremel estimates it).
     angles : array_like of shape (K,), optional
-        View angles in radians, written as a comment line for the reader's benefit.
+        View angles in radians, written as a comment line.
+    pixel_size_m : float, optional
+        Size of one detector pixel at the sample, in metres.
+    notes : list of str, optional
+        More comment lines (e.g. views an import left out).
 
     Returns
     -------
     Path
+
+    Raises
+    ------
+    NanoctError
+        For NaN or infinite shifts or a pixel size that is not positive (nothing is written).
     """
     from .fileio import atomic_write_text
 
     values = np.asarray(shifts, dtype=np.float64).ravel()
     if not np.isfinite(values).all():
         raise NanoctError("the shifts contain NaN or infinite values; nothing was written")
-    lines = ["# view shift_px (object shift along the detector axis, detector pixels; nanoct)"]
+    if pixel_size_m is not None and not (np.isfinite(pixel_size_m) and pixel_size_m > 0):
+        raise NanoctError(f"pixel size {pixel_size_m!r} m must be a positive number; nothing was written")
+    horizontal = -values + 0.0  # + 0.0: no "-0.000000"
+    lines = [
+        f"# {SHIFTS_HEADER}: nabu translation_movements_file, one row per projection, detector pixels",
+        "# horizontal = displacement of the projection towards higher detector columns (nabu's sign);",
+        "# nanoct's object shift t.e_u (Dremel) is -horizontal; vertical: not estimated (0)",
+    ]
+    if pixel_size_m is not None:
+        lines.append(f"# pixel size {pixel_size_m * 1e9:.6g} nm; the comment after each row: horizontal in nm")
+    lines += [f"# {note}" for note in notes or []]
     if angles is not None:
         lines.append("# angles_deg " + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel())))
-    lines += [f"{k} {v:.6f}" for k, v in enumerate(values)]
+    if pixel_size_m is None:
+        lines += [f"{h:.6f} 0.000000" for h in horizontal]
+    else:
+        lines += [f"{h:.6f} 0.000000  # {h * pixel_size_m * 1e9:.3f} nm" for h in horizontal]
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def read_shifts(path: str | os.PathLike[str], n_views: int) -> np.ndarray:
-    """Read per-view shifts: a two-column ``view shift`` text file or one shift per line.
+def read_shifts(path: str | os.PathLike[str], n_views: int, *, binning: int = 1) -> np.ndarray:
+    """Read per-view shifts as nanoct's object shifts along the detector axis (pixels of a data set).
+
+    Three layouts are read:
+
+    * nabu's ``translation_movements_file`` (:func:`write_shifts`): rows ``horizontal
+      vertical`` in raw detector pixels; returns ``-horizontal / binning``. The vertical
+      column must be 0 (nanoct reconstructs slice by slice and cannot apply it).
+    * nanoct's two-column ``view shift_px`` files, marked by that header: returned as
+      written (they hold the data set's pixels and nanoct's sign).
+    * one shift per line: nanoct's sign and the data set's pixels.
+
+    A two-column file without a header whose first column is exactly ``0, 1, ..., K-1`` could
+    be either of the first two and is refused.
+
+    Parameters
+    ----------
+    path : path
+        The text file.
+    n_views : int
+        Views of the data set; the file must have one row per view.
+    binning : int
+        Detector binning of the data set (nabu files are in raw detector pixels).
+
+    Returns
+    -------
+    ndarray of shape (n_views,), float64
 
     Raises
     ------
     NanoctError
-        If the file is missing, not numeric, or has another number of views.
+        If the file is missing, not numeric, has another number of rows or columns, a
+        non-zero vertical column, or the ambiguous layout above.
     """
     table = _load_table(path, "shifts")
+    header = _comment_text(path)
+    legacy = "view shift_px" in header
     if table.shape[1] == 1:
         shifts = table[:, 0]
-    else:
+    elif table.shape[1] != 2:
+        raise NanoctError(
+            f"the shifts file {path} has {table.shape[1]} columns; expected 'horizontal vertical' (nabu) per row"
+        )
+    elif legacy:
         views = table[:, 0].astype(int)
         if not np.array_equal(np.sort(views), np.arange(views.size)):
             raise NanoctError(f"the shifts file {path} must list the views 0..{views.size - 1} once each")
         shifts = np.empty(views.size)
         shifts[views] = table[:, 1]
+    else:
+        if SHIFTS_HEADER not in header and table.shape[0] > 2 and np.array_equal(table[:, 0], np.arange(len(table))):
+            raise NanoctError(
+                f"the shifts file {path} has no header and its first column is 0, 1, 2, ...: view numbers "
+                f"(add the line '# view shift_px') or horizontal shifts (add '# {SHIFTS_HEADER}')?"
+            )
+        vertical = np.abs(table[:, 1]).max()
+        if vertical > 1e-3:
+            raise NanoctError(
+                f"the shifts file {path} has vertical shifts up to {vertical:.3g} px; nanoct reconstructs slice by "
+                "slice and cannot apply them: set the second column to 0 to use the horizontal ones"
+            )
+        shifts = -table[:, 0] / binning
     if shifts.size != n_views:
         raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}")
-    return shifts
+    return shifts + 0.0
+
+
+def _comment_text(path: str | os.PathLike[str]) -> str:
+    """The ``#`` comments of a text file, joined (read after :func:`_load_table` succeeded)."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        return " ".join(line.split("#", 1)[1] for line in f if "#" in line)

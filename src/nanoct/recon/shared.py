@@ -17,12 +17,14 @@ the method's own parameters before anything is written (:func:`check_motion_para
     from these slices. Default on an imported stack with shared motion: ``"all"``; on a
     simulated store: each sample its own motion.
 ``shifts_from``
-    A shifts file (``view shift_px``, :func:`nanoct.io.scanio.write_shifts`): the starting motion
-    of every estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion
-    used as given.
+    A shifts file (nabu's ``translation_movements_file`` layout, or nanoct's older ``view
+    shift_px`` files, :func:`nanoct.io.scanio.read_shifts`): the starting motion of every
+    estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion used as
+    given; e.g. a beamline's estimate from nabu.
 
-Shifts files are in detector pixels; Dremel's shifts are in image pixels along the detector
-axis; the two differ by ``magnification / det_spacing`` (1 for the parallel presets).
+Shifts files are in detector pixels (nabu's: raw detector pixels, before the import's
+binning); Dremel's shifts are in image pixels along the detector axis; the two differ by
+``magnification / det_spacing`` (1 for the parallel presets).
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ __all__ = [
     "parse_slices",
     "read_shifts_file",
     "remove_translation",
+    "scan_binning",
     "write_store_shifts",
 ]
 
@@ -97,9 +100,18 @@ def parse_slices(value: Any) -> str | None:
     return ",".join(str(i) for i in indices)
 
 
-def read_shifts_file(path: str | os.PathLike[str], geometry: Geometry) -> np.ndarray:
-    """A shifts file (detector pixels) as Dremel shifts (image pixels along the detector axis), float64."""
-    return read_shifts(path, geometry.n_angles) / _det_per_obj(geometry)
+def read_shifts_file(path: str | os.PathLike[str], geometry: Geometry, binning: int = 1) -> np.ndarray:
+    """A shifts file (detector pixels, :func:`~nanoct.io.scanio.read_shifts`) as Dremel shifts, float64.
+
+    Dremel's shifts are image pixels along the detector axis; ``binning`` is the detector
+    binning of the data set (:func:`scan_binning`), by which nabu's raw detector pixels are divided.
+    """
+    return read_shifts(path, geometry.n_angles, binning=binning) / _det_per_obj(geometry)
+
+
+def scan_binning(store: DataStore) -> int:
+    """The detector binning an imported data set was made with (1 for simulated data)."""
+    return int((store.meta.get("scan") or {}).get("binning") or 1)
 
 
 @dataclass(frozen=True)
@@ -168,7 +180,10 @@ def joint_shifts(
 def write_store_shifts(
     path: str | os.PathLike[str], name: str, out: str | os.PathLike[str], sample: int | None = None
 ) -> Path:
-    """Write the shifts of reconstruction ``name`` of a store as a shifts file (``view shift_px``).
+    """Write the shifts of reconstruction ``name`` of a store as nabu's ``translation_movements_file``.
+
+    The rows are in raw detector pixels (the data set's pixels times its binning), nabu's sign
+    (:func:`nanoct.io.scanio.write_shifts`); an imported scan with a pixel size adds nm.
 
     Parameters
     ----------
@@ -200,4 +215,12 @@ def write_store_shifts(
                 f"reconstruction '{name}' of {store.path} has one motion per sample; choose the sample to export"
             )
         shifts = store.read_shifts(name, [0 if sample is None else sample])[0]
-    return write_shifts(out, np.asarray(shifts) * _det_per_obj(store.geometry), angles=store.geometry.angles)
+    scan = store.meta.get("scan") or {}
+    pixel = scan.get("raw_pixel_size_m")
+    return write_shifts(
+        out,
+        np.asarray(shifts) * _det_per_obj(store.geometry) * scan_binning(store),
+        angles=store.geometry.angles,
+        pixel_size_m=None if pixel is None else float(pixel[0]),
+        notes=[note for note in scan.get("notes", []) if note.startswith("left out")],
+    )
