@@ -142,8 +142,10 @@ def test_a_truncated_nxtomo_file_is_refused(tmp_path, truth):
             read_scan(cut)
 
 
-def test_nxtomo_round_trip_import_and_reconstruct(tmp_path, capsys):
-    """Phantoms -> intensities -> nxtomo file -> nanoct import (binning 2) -> FBP close to the phantoms."""
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    """Phantoms -> intensities -> a file written by nxtomo (pixel 65 nm) -> nanoct import with binning 2."""
+    tmp = tmp_path_factory.mktemp("nx")
     g = get_preset("tiny-parallel")
     rng = np.random.default_rng(2)
     phantoms = np.stack([random_phantom(np.random.default_rng(40 + s), g.n) for s in range(2)])
@@ -152,27 +154,48 @@ def test_nxtomo_round_trip_import_and_reconstruct(tmp_path, capsys):
     flat = rng.uniform(900, 1100, line.shape[1:]).astype(np.float32)
     dark = rng.uniform(5, 10, line.shape[1:]).astype(np.float32)
     proj = ((flat - dark) * np.exp(-line) + dark).astype(np.float32)
-    deg = np.rad2deg(g.angles)
-    t = {"proj": proj, "flat": flat, "dark": dark, "deg": deg}
     nx = nxtomo.NXtomo()
     nx.instrument.detector.data = np.concatenate([dark[None], flat[None], proj])
     nx.instrument.detector.image_key_control = np.r_[2, 1, np.zeros(len(proj), int)]
-    nx.sample.rotation_angle = np.r_[0.0, 0.0, t["deg"]] * UREG.degree
+    nx.sample.rotation_angle = np.r_[0.0, 0.0, np.rad2deg(g.angles)] * UREG.degree
     nx.sample.x_pixel_size = PIXEL * UREG.meter
     nx.sample.y_pixel_size = PIXEL * UREG.meter
-    src = tmp_path / "scan.nx"
+    src = tmp / "scan.nx"
     nx.save(str(src), data_path="entry0000")
-    out = tmp_path / "data"
-    # the binned detector (45 pixels) keeps the field of view: image 31 pixels of twice the size
-    assert run(["import", str(src), "--out", str(out), "--binning", "2", "--size", "45"]) == 0
-    assert "pixel 130 nm" in capsys.readouterr().out
-    store = DataStore.open(out)
-    assert store.n == 2 and store.geometry.n_angles == g.n_angles
+    out = tmp / "data"
+    # the binned detector (45 pixels) keeps the field of view: image 45 pixels of twice the size
+    code = run(["import", str(src), "--out", str(out), "--binning", "2", "--size", "45"])
+    return {"code": code, "out": out, "phantoms": phantoms, "geometry": g}
+
+
+def test_nxtomo_round_trip_import_and_reconstruct(imported, capsys):
+    assert imported["code"] == 0
+    store = DataStore.open(imported["out"])
+    assert store.n == 2 and store.geometry.n_angles == imported["geometry"].n_angles
     assert store.meta["scan"]["pixel_size_m"] == pytest.approx([2 * PIXEL, 2 * PIXEL])
-    reconstruct_dataset(out, "fbp", workers=0, progress=False)
+    assert store.meta["scan"]["raw_pixel_size_m"] == pytest.approx([PIXEL, PIXEL])
+    reconstruct_dataset(imported["out"], "fbp", workers=0, progress=False)
     images = store.read_reconstruction("fbp")
-    for image, phantom in zip(images, phantoms):
+    for image, phantom in zip(images, imported["phantoms"]):
         truth_binned = phantom[:62, :62].reshape(31, 2, 31, 2).mean(axis=(1, 3)) / 8.0 * 2  # pixel twice as wide
         centre = image[7:38, 7:38]
         assert psnr(centre, truth_binned) > 20.0  # measured 22.7 and 23.5 dB
         assert np.corrcoef(centre.ravel(), truth_binned.ravel())[0, 1] > 0.95  # measured 0.988 and 0.980
+
+
+def test_a_beamline_shifts_file_goes_in_and_comes_out_in_raw_pixels_and_nm(imported, tmp_path, capsys):
+    """A nabu file (raw detector pixels) fixes Dremel's motion on the binned data set; the export gives it back."""
+    g = DataStore.open(imported["out"]).geometry
+    horizontal = np.round(np.random.default_rng(9).normal(0, 1.5, g.n_angles), 3)
+    beamline = tmp_path / "movements.txt"
+    np.savetxt(beamline, np.c_[horizontal, np.zeros(g.n_angles)])  # as nabu's estimate_motion writes it
+    params = ["-w", "0", "-q", "--param", "n_iter=1", "--param", f"shifts_from={beamline}"]
+    params += ["--param", "fix_shifts=true"]
+    assert run(["reconstruct", str(imported["out"]), "--method", "dremel", "--name", "fixed", *params]) == 0
+    stored = DataStore.open(imported["out"]).read_shifts("fixed", [0])[0]
+    np.testing.assert_allclose(stored, -horizontal / 2, atol=1e-5)  # binned pixels, nanoct's sign
+    out = tmp_path / "shifts.txt"
+    assert run(["export", str(imported["out"]), "--name", "fixed", "--out", str(out)]) == 0
+    np.testing.assert_allclose(np.loadtxt(out), np.c_[horizontal, np.zeros(g.n_angles)], atol=2e-5)
+    nm = [float(line.split("#")[1].split()[0]) for line in out.read_text().splitlines() if not line.startswith("#")]
+    np.testing.assert_allclose(nm, horizontal * PIXEL * 1e9, atol=2e-3)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import struct
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -679,7 +680,7 @@ def _read_array(path: Path, fmt: str | None) -> np.ndarray:
 
 
 # what tifffile logs (rather than raises) when the page list of a file is cut or damaged
-_TIFF_DAMAGE = ("invalid page offset", "corrupted", "truncated", "failed to read")
+_TIFF_DAMAGE = ("invalid page offset", "invalid offset to page", "corrupted", "truncated", "failed to read")
 
 
 class _Complaints(logging.Handler):
@@ -703,8 +704,17 @@ def _read_tiff(path: Path) -> np.ndarray:
     logger = logging.getLogger("tifffile")
     logger.addHandler(complaints)
     try:
-        image = tifffile.imread(path)
-    except (OSError, ValueError, EOFError) as exc:
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series
+            # a file written page by page can hold one series per image: read them all, not the first
+            shapes = {(s.shape, s.dtype) for s in series}
+            if len(series) > 1 and len(shapes) > 1:
+                raise NanoctError(
+                    f"{path} holds {len(series)} image series of different shapes or types "
+                    f"({', '.join(sorted({str(s.shape) for s in series}))}); write one stack of equal images"
+                )
+            image = np.stack([s.asarray() for s in series]) if len(series) > 1 else tif.asarray()
+    except (OSError, ValueError, EOFError, struct.error) as exc:
         raise NanoctError(f"cannot read {path} as TIFF ({exc}); the file may be truncated - copy it again") from exc
     finally:
         logger.removeHandler(complaints)
