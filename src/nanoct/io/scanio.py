@@ -15,10 +15,12 @@ use it); angle files are text with one angle per view, degrees unless stated.
 What is refused or corrected (``docs/measured_data.md``): files that cannot be read whole
 (a truncated HDF5 or TIFF), angles that are all equal or whose span says they are in the
 other unit, flats or darks of another detector size, and frames with NaN or infinite values
-(named; ``drop_bad_views`` leaves such projections out, with their angles, and says so).
-Views are kept in acquisition order, however the angles run (not monotone, repeated):
-every reconstruction uses the angle of each view, and the shifts files list the views in
-that order, as nabu does.
+(named; :func:`drop_bad_views` leaves such projections out, with their angles, and says so).
+Views are kept in acquisition order however the angles run: every reconstruction uses the
+angle of each view, and the shifts files list the views in that order, as nabu does. A view
+whose angle repeats an earlier one (modulo 360 degrees, e.g. the last view of a scan over
+``[0, 360]``) is left out with a note (:func:`drop_repeated_views`): a geometry has one view
+per direction.
 
 Shifts files (:func:`write_shifts`, :func:`read_shifts`) use nabu's
 ``translation_movements_file`` layout: one row ``horizontal vertical`` per projection, in
@@ -52,6 +54,7 @@ __all__ = [
     "check_angles",
     "detect_format",
     "drop_bad_views",
+    "drop_repeated_views",
     "import_scan",
     "line_integrals",
     "read_angles",
@@ -464,6 +467,7 @@ def import_scan(
     n_rows, n_cols = raw.projections.shape[1:]
     # select rows and columns before the checks and the correction: only the kept pixels are judged
     kept, dropped = drop_bad_views(_select(raw, rows, crop), drop=drop_bad)
+    kept, repeated = drop_repeated_views(kept)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
@@ -483,7 +487,7 @@ def import_scan(
         "flats": 0 if kept.flats is None else int(kept.flats.shape[0]),
         "darks": 0 if kept.darks is None else int(kept.darks.shape[0]),
         "shared_motion": True,
-        "notes": [*raw.source.get("notes", []), *_angle_notes(kept.angles), *dropped],
+        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)],
     }
     if "raw_pixel_size_m" in raw.source:  # one stored detector pixel, after binning
         n_kept_rows = (rows.stop - rows.start) if rows is not None else n_rows
@@ -498,15 +502,39 @@ def import_scan(
 
 
 def _angle_notes(angles: np.ndarray) -> list[str]:
-    """What an import tells about angles it keeps as they are (acquisition order, repeats)."""
-    notes = []
+    """What an import tells about angles it keeps as they are (acquisition order)."""
     steps = np.diff(angles)
     if steps.size and not ((steps >= 0).all() or (steps <= 0).all()):
-        notes.append("the angles are not monotone; the views are kept in acquisition order, each with its angle")
-    repeated = angles.size - np.unique(angles).size
-    if repeated:
-        notes.append(f"{repeated} view(s) repeat an angle of another view; all are kept (they are measured data)")
-    return notes
+        return ["the angles are not monotone; the views are kept in acquisition order, each with its angle"]
+    return []
+
+
+def drop_repeated_views(scan: RawScan) -> tuple[RawScan, list[str]]:
+    """Leave out the views whose angle repeats that of an earlier view (modulo 360 degrees).
+
+    A geometry has one view per direction (:class:`~nanoct.core.geometry.Geometry` refuses
+    repeats), so the first view of each angle is kept: e.g. the 360-degree view of a scan
+    over ``[0, 360]`` degrees, or a view measured again. Angles are compared as the geometry
+    compares them (radians modulo ``2 pi``, rounded to 12 decimals).
+
+    Returns
+    -------
+    RawScan
+        The scan without the repeats (the same scan when there are none).
+    list of str
+        A note naming the views left out (indices among the projections), if any.
+    """
+    phase = np.round(np.mod(scan.angles, 2 * np.pi), 12)
+    _, first = np.unique(phase, return_index=True)
+    repeats = np.setdiff1d(np.arange(scan.n_views), first)
+    if repeats.size == 0:
+        return scan, []
+    note = (
+        f"left out {repeats.size} view(s) repeating the angle of an earlier view (modulo 360 degrees): "
+        f"{_listed(repeats)}"
+    )
+    keep = np.sort(first)
+    return replace(scan, projections=scan.projections[keep], angles=scan.angles[keep]), [note]
 
 
 def _bad_frames(stack: np.ndarray | None) -> np.ndarray:
