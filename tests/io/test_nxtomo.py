@@ -199,3 +199,21 @@ def test_a_beamline_shifts_file_goes_in_and_comes_out_in_raw_pixels_and_nm(impor
     np.testing.assert_allclose(np.loadtxt(out), np.c_[horizontal, np.zeros(g.n_angles)], atol=2e-5)
     nm = [float(line.split("#")[1].split()[0]) for line in out.read_text().splitlines() if not line.startswith("#")]
     np.testing.assert_allclose(nm, horizontal * PIXEL * 1e9, atol=2e-3)
+
+
+def test_a_virtual_dataset_with_missing_sources_is_refused(tmp_path, truth):
+    """nxtomo links the acquisition files as virtual datasets; a missing source would read as zeros."""
+    frames = np.concatenate([truth["dark"][None], truth["flat"][None], truth["proj"]])
+    with h5py.File(tmp_path / "acquisition.h5", "w") as f:
+        f["frames"] = frames
+    layout = h5py.VirtualLayout(shape=frames.shape, dtype=np.float32)
+    layout[:] = h5py.VirtualSource("acquisition.h5", "frames", shape=frames.shape)
+    path = tmp_path / "linked.nx"
+    with h5py.File(path, "w") as f:
+        f.create_virtual_dataset("entry/instrument/detector/data", layout, fillvalue=0)
+        f["entry/instrument/detector/image_key"] = np.r_[2, 1, np.zeros(K, int)]
+        f["entry/sample/rotation_angle"] = np.r_[0.0, 0.0, truth["deg"]]
+    np.testing.assert_allclose(line_integrals(read_scan(path)), truth["sino"], atol=2e-5)  # sources next to it
+    (tmp_path / "acquisition.h5").rename(tmp_path / "elsewhere.h5")
+    with pytest.raises(NanoctError, match="source file.*acquisition.h5 are missing"):
+        read_scan(path)

@@ -19,6 +19,7 @@ The NXtomo application definition lets the ``NXentry`` have any name (``nxtomo``
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import numpy as np
 
 from ..core.errors import NanoctError
 
-__all__ = ["NXtomoFrames", "nxtomo_entries", "read_nxtomo", "to_unit"]
+__all__ = ["NXtomoFrames", "nxtomo_entries", "read_h5_dataset", "read_nxtomo", "to_unit"]
 
 KEY_PROJECTION, KEY_FLAT, KEY_DARK, KEY_INVALID, KEY_ALIGNMENT = 0, 1, 2, 3, -1
 
@@ -128,15 +129,40 @@ def to_unit(value: Any, units: str | None, target: str, *, default: str, where: 
     return np.asarray(value, dtype=np.float64) * float(factor)
 
 
-def _read(f: Any, path: Path, name: str) -> tuple[np.ndarray, str | None]:
-    """Dataset ``name`` and its ``units`` attribute; a damaged file gives a clear error."""
+def read_h5_dataset(f: Any, path: Path, name: str) -> tuple[np.ndarray, str | None]:
+    """Dataset ``name`` of an open HDF5 file and its ``units`` attribute (None without one).
+
+    A virtual dataset (how ``nxtomo`` links the frames of the acquisition files) whose source
+    files are missing would read as its fill value (zeros): it is refused, naming the files.
+
+    Raises
+    ------
+    NanoctError
+        For a dataset that cannot be read (truncated file, broken link) or missing sources.
+    """
     try:
         ds = f[name]
+        if ds.is_virtual:
+            missing = sorted({s.file_name for s in ds.virtual_sources() if not _source_exists(s.file_name, path)})
+            if missing:
+                raise NanoctError(
+                    f"{path}:{name} is a virtual dataset whose source file(s) {', '.join(missing)} are missing "
+                    f"(looked next to {path.name}); copy them with the file, or convert it with the data included"
+                )
         return np.asarray(ds[()]), (_text(ds.attrs["units"]) if "units" in ds.attrs else None)
     except (OSError, KeyError, RuntimeError) as exc:
         raise NanoctError(
             f"{path}: cannot read {name} ({exc}); the file may be truncated or still being written - copy it again"
         ) from None
+
+
+def _source_exists(name: str, path: Path) -> bool:
+    """Whether a virtual dataset's source file is where HDF5 looks for it (the file itself: ``.``)."""
+    if name == ".":
+        return True
+    prefix = os.environ.get("HDF5_VDS_PREFIX")
+    candidates = [Path(name), path.parent / name] + ([Path(prefix) / name] if prefix else [])
+    return any(c.is_file() for c in candidates)
 
 
 def _pixel_size(f: Any, path: Path, entry: str) -> tuple[list[float] | None, str | None]:
@@ -148,7 +174,7 @@ def _pixel_size(f: Any, path: Path, entry: str) -> tuple[list[float] | None, str
                 if name not in f:
                     sizes.append(sizes[0])  # a square pixel when only x is given
                     continue
-                value, units = _read(f, path, name)
+                value, units = read_h5_dataset(f, path, name)
                 sizes.append(float(to_unit(value, units, "m", default="m", where=f"{path}:{name}").ravel()[0]))
             if all(np.isfinite(s) and s > 0 for s in sizes):
                 return sizes, names[0]
@@ -195,11 +221,13 @@ def read_nxtomo(path: Path, f: Any, entry: str | None = None) -> NXtomoFrames:
     if angles_name is None:
         raise NanoctError(f"{path}: entry {entry} has no rotation angles ({', '.join(_ANGLES)}); pass --angles FILE")
     keys_name = next((f"{entry}/{p}" for p in _KEYS if f"{entry}/{p}" in f), None)
-    data = _read(f, path, data_name)[0].astype(np.float32, copy=False)
+    data = read_h5_dataset(f, path, data_name)[0].astype(np.float32, copy=False)
     if data.ndim != 3:
         raise NanoctError(f"{path}:{data_name} has shape {data.shape}; expected (frames, rows, columns)")
-    raw_angles, angle_units = _read(f, path, angles_name)
-    keys = np.zeros(data.shape[0], int) if keys_name is None else _read(f, path, keys_name)[0].astype(int).ravel()
+    raw_angles, angle_units = read_h5_dataset(f, path, angles_name)
+    keys = np.zeros(data.shape[0], int)
+    if keys_name is not None:
+        keys = read_h5_dataset(f, path, keys_name)[0].astype(int).ravel()
     raw_angles = raw_angles.ravel()
     if keys.size != data.shape[0] or raw_angles.size != data.shape[0]:
         raise NanoctError(

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from .fileio import atomic_target
-from .nxtomo import nxtomo_entries, read_nxtomo, to_unit
+from .nxtomo import nxtomo_entries, read_h5_dataset, read_nxtomo, to_unit
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -649,12 +649,7 @@ def _read_nxtomo(path: Path, entry: str | None) -> RawScan:
 
 
 def _h5_array(f: Any, path: Path, name: str, dtype: Any) -> np.ndarray:
-    try:
-        return np.asarray(f[name][()], dtype=dtype)
-    except (OSError, KeyError, RuntimeError) as exc:
-        raise NanoctError(
-            f"{path}: cannot read {name} ({exc}); the file may be truncated or still being written - copy it again"
-        ) from None
+    return read_h5_dataset(f, path, name)[0].astype(dtype, copy=False)
 
 
 def _read_dxchange(path: Path) -> RawScan:
