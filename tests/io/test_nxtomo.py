@@ -129,6 +129,9 @@ def test_odd_nxtomo_files_are_refused(tmp_path, truth, case, message):
             del f["entry0000/definition"]
     with pytest.raises(NanoctError, match=message):
         read_scan(path)
+    if case == "radians-labelled-degrees":  # angles given separately replace the file's
+        np.savetxt(tmp_path / "a.txt", truth["deg"])
+        np.testing.assert_allclose(read_scan(path, angles_file=tmp_path / "a.txt").angles, np.deg2rad(truth["deg"]))
 
 
 def test_a_truncated_nxtomo_file_is_refused(tmp_path, truth):

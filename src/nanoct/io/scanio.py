@@ -266,10 +266,11 @@ def read_scan(
         raise NanoctError(f"--format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
     if entry is not None and fmt != "nxtomo":
         raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
+    check = angles_file is None  # angles given separately replace the file's, whatever they are
     if fmt == "nxtomo":
-        scan = _read_nxtomo(Path(path), entry)
+        scan = _read_nxtomo(Path(path), entry, check=check)
     elif fmt == "dxchange":
-        scan = _read_dxchange(Path(path))
+        scan = _read_dxchange(Path(path), check=check)
     else:
         if angles_file is None:
             raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
@@ -632,13 +633,14 @@ def _open_h5(path: Path) -> Any:
         raise NanoctError(f"cannot open {path} as HDF5 ({exc}); is it a complete .h5/.nxs file?") from exc
 
 
-def _read_nxtomo(path: Path, entry: str | None) -> RawScan:
+def _read_nxtomo(path: Path, entry: str | None, *, check: bool) -> RawScan:
     with _open_h5(path) as f:
         frames = read_nxtomo(path, f, entry)
-    units = frames.source["angle_units"]
-    in_degrees = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1.0))
-    where = f"{path}:{frames.source['entry']}/sample/rotation_angle"
-    check_angles(frames.angles, degrees=in_degrees, where=where, fix="correct its units attribute or pass --angles")
+    if check:
+        units = frames.source["angle_units"]
+        in_degrees = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1.0))
+        where = f"{path}:{frames.source['entry']}/sample/rotation_angle"
+        check_angles(frames.angles, degrees=in_degrees, where=where, fix="correct its units attribute or pass --angles")
     return RawScan(
         frames.projections,
         frames.angles,
@@ -652,7 +654,7 @@ def _h5_array(f: Any, path: Path, name: str, dtype: Any) -> np.ndarray:
     return read_h5_dataset(f, path, name)[0].astype(dtype, copy=False)
 
 
-def _read_dxchange(path: Path) -> RawScan:
+def _read_dxchange(path: Path, *, check: bool) -> RawScan:
     with _open_h5(path) as f:
         if "exchange/theta" not in f:
             raise NanoctError(f"{path}: no /exchange/theta (angles in degrees); pass --angles FILE")
@@ -661,7 +663,8 @@ def _read_dxchange(path: Path) -> RawScan:
         flats = _h5_array(f, path, "exchange/data_white", np.float32) if "exchange/data_white" in f else None
         darks = _h5_array(f, path, "exchange/data_dark", np.float32) if "exchange/data_dark" in f else None
     angles = np.deg2rad(theta)
-    check_angles(angles, degrees=True, where=f"{path}:exchange/theta", fix="pass --angles FILE --radians")
+    if check:
+        check_angles(angles, degrees=True, where=f"{path}:exchange/theta", fix="pass --angles FILE")
     return RawScan(data, angles, flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
 
 
