@@ -220,3 +220,38 @@ def test_a_virtual_dataset_with_missing_sources_is_refused(tmp_path, truth):
     (tmp_path / "acquisition.h5").rename(tmp_path / "elsewhere.h5")
     with pytest.raises(NanoctError, match="source file.*acquisition.h5 are missing"):
         read_scan(path)
+
+
+def test_views_left_out_by_the_import_keep_their_rows_in_the_exported_shifts(tmp_path, capsys):
+    """A NaN view dropped and the 360-degree view of a [0, 360] scan: the export still has one row per
+    projection of the file (what nabu expects), and reading it back fixes the same motion."""
+    g = get_preset("tiny-parallel")
+    line = RayTransform(g).forward(random_phantom(np.random.default_rng(5), g.n))[:, None, :] / 8.0
+    proj = np.exp(-line).astype(np.float32)
+    proj[4] = np.nan
+    nx = nxtomo.NXtomo()
+    nx.instrument.detector.data = np.concatenate([proj, proj[:1]])  # normalised already: no flats
+    nx.instrument.detector.image_key_control = np.zeros(g.n_angles + 1, int)
+    nx.sample.rotation_angle = np.r_[np.rad2deg(g.angles), 360.0] * UREG.degree
+    nx.sample.x_pixel_size = PIXEL * UREG.meter
+    src = tmp_path / "scan.nx"
+    nx.save(str(src), data_path="entry0000")
+    out = tmp_path / "data"
+    assert run(["import", str(src), "--out", str(out), "--drop-bad-views"]) == 0
+    err = capsys.readouterr().err
+    assert "left out 1 of 141 projections with NaN" in err and "left out 1 view(s) repeating" in err
+    store = DataStore.open(out)
+    assert store.geometry.n_angles == g.n_angles - 1 and store.meta["scan"]["left_out_views"] == [4, 140]
+    horizontal = np.round(np.random.default_rng(10).normal(0, 1, g.n_angles + 1), 3)
+    beamline = tmp_path / "movements.txt"
+    np.savetxt(beamline, np.c_[horizontal, np.zeros(g.n_angles + 1)])  # one row per projection of the file
+    params = ["-w", "0", "-q", "--param", "n_iter=1", "--param", f"shifts_from={beamline}"]
+    assert run(["reconstruct", str(out), "--method", "dremel", *params, "--param", "fix_shifts=true"]) == 0
+    kept = np.delete(horizontal, [4, 140])
+    np.testing.assert_allclose(DataStore.open(out).read_shifts("dremel", [0])[0], -kept, atol=1e-5)
+    exported = tmp_path / "shifts.txt"
+    assert run(["export", str(out), "--name", "dremel", "--out", str(exported)]) == 0
+    table = np.loadtxt(exported)
+    assert table.shape == (g.n_angles + 1, 2)
+    np.testing.assert_allclose(np.delete(table[:, 0], [4, 140]), kept, atol=2e-5)
+    np.testing.assert_allclose(table[4, 0], (horizontal[3] + horizontal[5]) / 2, atol=2e-5)

@@ -440,3 +440,19 @@ def test_angles_that_cannot_be_meant_are_refused(tmp_path, truth, values, radian
     np.savetxt(tmp_path / "a.txt", values)
     with pytest.raises(NanoctError, match=message):
         read_scan(tmp_path / "p.npy", angles_file=tmp_path / "a.txt", degrees=not radians)
+
+
+def test_shifts_file_keeps_a_row_for_every_projection_of_the_scan(tmp_path):
+    """Views an import left out get an interpolated, marked row (nabu counts every projection); reading skips them."""
+    shifts = np.array([1.0, 2.0, 4.0, 5.0])
+    path = write_shifts(tmp_path / "s.txt", shifts, left_out=[2, 5])
+    table = np.loadtxt(path)
+    np.testing.assert_allclose(table[:, 0], [-1.0, -2.0, -3.0, -4.0, -5.0, -5.0])  # interpolated in rows 2 and 5
+    marked = [k for k, line in enumerate(path.read_text().splitlines()[-6:]) if "left out by the import" in line]
+    assert marked == [2, 5]
+    np.testing.assert_allclose(read_shifts(path, 4, left_out=[2, 5]), shifts)
+    np.testing.assert_allclose(read_shifts(path, 6), [1.0, 2.0, 3.0, 4.0, 5.0, 5.0])  # a data set with all views
+    with pytest.raises(NanoctError, match="has 6 views, the data set 3 .2 more projections"):
+        read_shifts(path, 3, left_out=[2, 5])
+    with pytest.raises(NanoctError, match="do not fit 6 projections"):
+        write_shifts(tmp_path / "t.txt", shifts, left_out=[2, 9])

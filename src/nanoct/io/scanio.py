@@ -68,6 +68,7 @@ __all__ = [
 FORMATS = ("nxtomo", "dxchange", "tiff", "npy")
 EXPORT_FORMATS = {".tif": "tiff", ".tiff": "tiff", ".npy": "npy", ".h5": "hdf5", ".hdf5": "hdf5"}
 SHIFTS_HEADER = "horizontal vertical"  # nabu's column order, the header line of a shifts file
+LEFT_OUT = "left out by the import"  # marks the rows of a shifts file for views a data set does not hold
 _MIN_VIEWS_UNIT_CHECK = 8  # fewer views than this may span a few degrees on purpose (a test, an alignment)
 
 
@@ -88,6 +89,9 @@ class RawScan:
         The projections are already ``-log`` normalised (no flat/dark correction applies).
     source : dict
         Where the data came from (file, format, dataset paths), stored with the import.
+    views : ndarray of shape (K,), int, optional
+        Index of each projection among the file's projections (default ``0 .. K-1``); views
+        left out by :func:`drop_bad_views` or :func:`drop_repeated_views` are missing from it.
     """
 
     projections: np.ndarray
@@ -96,6 +100,7 @@ class RawScan:
     darks: np.ndarray | None = None
     is_line_integral: bool = False
     source: dict[str, Any] = field(default_factory=dict)
+    views: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         proj = np.asarray(self.projections)
@@ -114,6 +119,10 @@ class RawScan:
         if not np.isfinite(angles).all():
             raise NanoctError("the angles contain NaN or infinite values")
         object.__setattr__(self, "angles", angles)
+        views = np.arange(proj.shape[0]) if self.views is None else np.asarray(self.views, dtype=int).ravel()
+        if views.size != proj.shape[0]:
+            raise NanoctError(f"{views.size} view indices for {proj.shape[0]} projection(s)")
+        object.__setattr__(self, "views", views)
         for name in ("flats", "darks"):
             value = getattr(self, name)
             if value is None:
@@ -469,6 +478,7 @@ def import_scan(
     # select rows and columns before the checks and the correction: only the kept pixels are judged
     kept, dropped = drop_bad_views(_select(raw, rows, crop), drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
+    left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
@@ -490,6 +500,8 @@ def import_scan(
         "shared_motion": True,
         "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)],
     }
+    if left_out.size:  # shifts files keep one row per projection of the file (nabu's layout)
+        scan.update(file_views=raw.n_views, left_out_views=left_out.tolist())
     if "raw_pixel_size_m" in raw.source:  # one stored detector pixel, after binning
         n_kept_rows = (rows.stop - rows.start) if rows is not None else n_rows
         x, y = raw.source["raw_pixel_size_m"]
@@ -535,7 +547,7 @@ def drop_repeated_views(scan: RawScan) -> tuple[RawScan, list[str]]:
         f"{_listed(repeats)}"
     )
     keep = np.sort(first)
-    return replace(scan, projections=scan.projections[keep], angles=scan.angles[keep]), [note]
+    return replace(scan, projections=scan.projections[keep], angles=scan.angles[keep], views=scan.views[keep]), [note]
 
 
 def _bad_frames(stack: np.ndarray | None) -> np.ndarray:
@@ -592,7 +604,7 @@ def drop_bad_views(scan: RawScan, *, drop: bool) -> tuple[RawScan, list[str]]:
             raise NanoctError(f"{what}: every one of the {stack.shape[0]} {name} holds NaN or infinite values")
         out[name] = np.delete(stack, bad, axis=0)
         if name == "projections":
-            out["angles"] = np.delete(scan.angles, bad)
+            out["angles"], out["views"] = np.delete(scan.angles, bad), np.delete(scan.views, bad)
         notes.append(f"left out {bad.size} of {stack.shape[0]} {name} with NaN or infinite values ({_listed(bad)})")
     return (replace(scan, **out) if out else scan), notes
 
@@ -807,6 +819,7 @@ def write_shifts(
     angles: Any = None,
     pixel_size_m: float | None = None,
     notes: list[str] | None = None,
+    left_out: Any = (),
 ) -> Path:
     """Per-view shifts as nabu's ``translation_movements_file``, atomically.
 
@@ -829,7 +842,12 @@ def write_shifts(
     pixel_size_m : float, optional
         Size of one detector pixel at the sample, in metres.
     notes : list of str, optional
-        More comment lines (e.g. views an import left out).
+        More comment lines (e.g. why an import left views out).
+    left_out : sequence of int
+        Rows of projections the data set does not hold (views an import left out): the file
+        still has one row per projection of the scan, as nabu expects; these rows get the
+        value interpolated from their neighbours in acquisition order, marked by a comment,
+        and :func:`read_shifts` skips them.
 
     Returns
     -------
@@ -847,7 +865,12 @@ def write_shifts(
         raise NanoctError("the shifts contain NaN or infinite values; nothing was written")
     if pixel_size_m is not None and not (np.isfinite(pixel_size_m) and pixel_size_m > 0):
         raise NanoctError(f"pixel size {pixel_size_m!r} m must be a positive number; nothing was written")
-    horizontal = -values + 0.0  # + 0.0: no "-0.000000"
+    skipped = np.unique(np.asarray(left_out, dtype=int))
+    rows = values.size + skipped.size
+    if skipped.size and (skipped[0] < 0 or skipped[-1] >= rows):
+        raise NanoctError(f"left-out rows {skipped.tolist()} do not fit {rows} projections; nothing was written")
+    present = np.setdiff1d(np.arange(rows), skipped)
+    horizontal = np.interp(np.arange(rows), present, -values) + 0.0  # + 0.0: no "-0.000000"
     lines = [
         f"# {SHIFTS_HEADER}: nabu translation_movements_file, one row per projection, detector pixels",
         "# horizontal = displacement of the projection towards higher detector columns (nabu's sign);",
@@ -856,16 +879,24 @@ def write_shifts(
     if pixel_size_m is not None:
         lines.append(f"# pixel size {pixel_size_m * 1e9:.6g} nm; the comment after each row: horizontal in nm")
     lines += [f"# {note}" for note in notes or []]
+    if skipped.size:
+        lines.append(f"# {LEFT_OUT}: rows {', '.join(map(str, skipped))} (interpolated; nanoct skips them)")
     if angles is not None:
-        lines.append("# angles_deg " + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel())))
-    if pixel_size_m is None:
-        lines += [f"{h:.6f} 0.000000" for h in horizontal]
-    else:
-        lines += [f"{h:.6f} 0.000000  # {h * pixel_size_m * 1e9:.3f} nm" for h in horizontal]
+        lines.append(
+            "# angles_deg" + (" (rows not left out)" if skipped.size else "") + " "
+            + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel()))
+        )  # fmt: skip
+    for k, h in enumerate(horizontal):
+        comments = ([f"{h * pixel_size_m * 1e9:.3f} nm"] if pixel_size_m is not None else []) + (
+            [LEFT_OUT] if k in skipped else []
+        )
+        lines.append(f"{h:.6f} 0.000000" + (f"  # {'; '.join(comments)}" if comments else ""))
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def read_shifts(path: str | os.PathLike[str], n_views: int, *, binning: int = 1) -> np.ndarray:
+def read_shifts(
+    path: str | os.PathLike[str], n_views: int | None, *, binning: int = 1, left_out: Any = ()
+) -> np.ndarray:
     """Read per-view shifts as nanoct's object shifts along the detector axis (pixels of a data set).
 
     Three layouts are read:
@@ -884,10 +915,15 @@ def read_shifts(path: str | os.PathLike[str], n_views: int, *, binning: int = 1)
     ----------
     path : path
         The text file.
-    n_views : int
-        Views of the data set; the file must have one row per view.
+    n_views : int or None
+        Views of the data set; the file must have one row per view (None: any number, the
+        file is only checked).
     binning : int
         Detector binning of the data set (nabu files are in raw detector pixels).
+    left_out : sequence of int
+        Projections of the scan the data set does not hold (``scan.left_out_views`` of an
+        import): a nabu-layout file with one row per projection of the scan has these rows
+        skipped; a file with ``n_views`` rows is read as it is.
 
     Returns
     -------
@@ -927,8 +963,12 @@ def read_shifts(path: str | os.PathLike[str], n_views: int, *, binning: int = 1)
                 "slice and cannot apply them: set the second column to 0 to use the horizontal ones"
             )
         shifts = -table[:, 0] / binning
-    if shifts.size != n_views:
-        raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}")
+        skipped = np.unique(np.asarray(left_out, dtype=int))
+        if skipped.size and n_views is not None and shifts.size == n_views + skipped.size:
+            shifts = np.delete(shifts, skipped)
+    if n_views is not None and shifts.size != n_views:
+        more = f" ({len(left_out)} more projections in the scan, left out by the import)" if len(left_out) else ""
+        raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}{more}")
     return shifts + 0.0
 
 
