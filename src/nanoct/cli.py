@@ -384,6 +384,10 @@ def _print_info(data: dict[str, Any]) -> None:
             f"scan       imported from {scan.get('file')} ({scan.get('format')}); one sample per slice, motion shared; "
             "no ground truth (evaluate needs a simulated data set)"
         )
+        if scan.get("pixel_size_m"):
+            typer.echo(f"pixel      {scan['pixel_size_m'][0] * 1e9:.4g} nm (one stored detector pixel, at the sample)")
+        for note in scan.get("notes", []):
+            typer.echo(f"note       {note}")
     else:
         typer.echo(
             f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "

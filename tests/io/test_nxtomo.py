@@ -242,6 +242,9 @@ def test_views_left_out_by_the_import_keep_their_rows_in_the_exported_shifts(tmp
     assert "left out 1 of 141 projections with NaN" in err and "left out 1 view(s) repeating" in err
     store = DataStore.open(out)
     assert store.geometry.n_angles == g.n_angles - 1 and store.meta["scan"]["left_out_views"] == [4, 140]
+    assert run(["info", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "pixel      65 nm" in printed and "note       left out 1 view(s) repeating" in printed
     horizontal = np.round(np.random.default_rng(10).normal(0, 1, g.n_angles + 1), 3)
     beamline = tmp_path / "movements.txt"
     np.savetxt(beamline, np.c_[horizontal, np.zeros(g.n_angles + 1)])  # one row per projection of the file
