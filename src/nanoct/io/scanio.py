@@ -937,14 +937,14 @@ def read_shifts(
     """
     table = _load_table(path, "shifts")
     header = _comment_text(path)
-    legacy = "view shift_px" in header
+    view_column = "view shift_px" in header
     if table.shape[1] == 1:
         shifts = table[:, 0]
     elif table.shape[1] != 2:
         raise NanoctError(
             f"the shifts file {path} has {table.shape[1]} columns; expected 'horizontal vertical' (nabu) per row"
         )
-    elif legacy:
+    elif view_column:
         views = table[:, 0].astype(int)
         if not np.array_equal(np.sort(views), np.arange(views.size)):
             raise NanoctError(f"the shifts file {path} must list the views 0..{views.size - 1} once each")

@@ -17,7 +17,7 @@ the method's own parameters before anything is written (:func:`check_motion_para
     from these slices. Default on an imported stack with shared motion: ``"all"``; on a
     simulated store: each sample its own motion.
 ``shifts_from``
-    A shifts file (nabu's ``translation_movements_file`` layout, or nanoct's older ``view
+    A shifts file (nabu's ``translation_movements_file`` layout, or the two-column ``view
     shift_px`` files, :func:`nanoct.io.scanio.read_shifts`): the starting motion of every
     estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion used as
     given; e.g. a beamline's estimate from nabu.
