@@ -333,7 +333,7 @@ def test_shifts_file_sign_is_nabus(tmp_path):
     assert error(horizontal) < 0.1 * error(-horizontal)
 
 
-def test_older_and_ambiguous_shift_files(tmp_path):
+def test_view_column_and_ambiguous_shift_files(tmp_path):
     shifts = np.array([0.5, -1.0, 2.0, 0.25])
     legacy = tmp_path / "legacy.txt"
     legacy.write_text("# view shift_px (object shift along the detector axis, detector pixels; nanoct)\n"
