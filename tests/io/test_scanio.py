@@ -402,6 +402,15 @@ def test_flats_of_another_shape_name_the_file(tmp_path, truth):
         read_scan(tmp_path / "p.npy", angles_file=tmp_path / "a.txt", flats=tmp_path / "binned_flats.npy")
 
 
+def test_data_exchange_flats_of_another_shape_name_the_file(tmp_path, truth):
+    path = tmp_path / "s.h5"
+    with h5py.File(path, "w") as f:
+        f["exchange/data"], f["exchange/theta"] = truth["proj"], truth["deg"]
+        f["exchange/data_white"] = truth["flats"][:, :, :-1]
+    with pytest.raises(NanoctError, match="s.h5: flats have shape"):
+        read_scan(path)
+
+
 def test_nan_frames_are_named_or_left_out(truth):
     from nanoct.io.scanio import RawScan, drop_bad_views
 

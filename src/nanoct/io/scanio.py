@@ -130,8 +130,9 @@ class RawScan:
             arr = np.asarray(value, dtype=np.float32)
             arr = arr[None] if arr.ndim == 2 else arr
             if arr.ndim != 3 or arr.shape[1:] != proj.shape[1:]:
+                where = f"{self.source['file']}: " if "file" in self.source else ""
                 raise NanoctError(
-                    f"{name} have shape {arr.shape}, but one projection is {proj.shape[1:]} (rows, columns); "
+                    f"{where}{name} have shape {arr.shape}, but one projection is {proj.shape[1:]} (rows, columns); "
                     f"give {name} of the same detector size"
                 )
             object.__setattr__(self, name, arr)
