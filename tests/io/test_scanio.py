@@ -492,3 +492,29 @@ def test_nabus_motion_estimator_writes_the_rows_nanoct_writes(tmp_path):
     ours = np.loadtxt(write_shifts(tmp_path / "s.txt", drift[:, 0] * np.cos(phi) + drift[:, 1] * np.sin(phi)))
     assert np.abs(ours[:, 0]).max() > 3.0
     np.testing.assert_allclose(nabu_rows[:, 0], ours[:, 0], atol=0.25)  # measured: 0.12 px at most
+
+
+@pytest.mark.parametrize("fmt", ["nxtomo", "dxchange", "npy", "tiff"])
+def test_reading_a_detector_window_equals_reading_all_and_cutting(tmp_path, truth, fmt):
+    extra = {}
+    if fmt == "nxtomo":
+        path = _write_nxtomo(tmp_path / "s.nxs", truth)
+    elif fmt == "dxchange":
+        path = _write_dxchange(tmp_path / "s.h5", truth)
+    else:
+        np.savetxt(tmp_path / "a.txt", truth["deg"])
+        np.save(tmp_path / "f.npy", truth["flats"])
+        tifffile.imwrite(tmp_path / "d.tif", truth["darks"], photometric="minisblack")
+        extra = {"angles_file": tmp_path / "a.txt", "flats": tmp_path / "f.npy", "darks": tmp_path / "d.tif"}
+        path = tmp_path / ("s.npy" if fmt == "npy" else "s.tif")
+        if fmt == "npy":
+            np.save(path, truth["proj"])
+        else:
+            tifffile.imwrite(path, truth["proj"], photometric="minisblack")
+    full = read_scan(path, **extra)
+    part = read_scan(path, rows=slice(1, 3), crop=(4, 15), **extra)
+    assert part.source["detector_shape"] == [R, L] == full.source["detector_shape"]
+    for name in ("projections", "flats", "darks"):
+        np.testing.assert_array_equal(getattr(part, name), getattr(full, name)[:, 1:3, 4:15])
+    with pytest.raises(NanoctError, match="--crop 4,40 must satisfy"):
+        read_scan(path, crop=(4, 40), **extra)

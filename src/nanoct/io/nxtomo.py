@@ -20,6 +20,7 @@ The NXtomo application definition lets the ``NXentry`` have any name (``nxtomo``
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -129,8 +130,10 @@ def to_unit(value: Any, units: str | None, target: str, *, default: str, where: 
     return np.asarray(value, dtype=np.float64) * float(factor)
 
 
-def read_h5_dataset(f: Any, path: Path, name: str) -> tuple[np.ndarray, str | None]:
-    """Dataset ``name`` of an open HDF5 file and its ``units`` attribute (None without one).
+def read_h5_dataset(f: Any, path: Path, name: str, region: tuple[slice, ...] = ()) -> tuple[np.ndarray, str | None]:
+    """Dataset ``name`` of an open HDF5 file (only ``region`` of it, if given) and its ``units`` attribute.
+
+    ``units`` is None without one. Only the selected region is read from disk.
 
     A virtual dataset (how ``nxtomo`` links the frames of the acquisition files) whose source
     files are missing would read as its fill value (zeros): it is refused, naming the files.
@@ -149,7 +152,7 @@ def read_h5_dataset(f: Any, path: Path, name: str) -> tuple[np.ndarray, str | No
                     f"{path}:{name} is a virtual dataset whose source file(s) {', '.join(missing)} are missing "
                     f"(looked next to {path.name}); copy them with the file, or convert it with the data included"
                 )
-        return np.asarray(ds[()]), (_text(ds.attrs["units"]) if "units" in ds.attrs else None)
+        return np.asarray(ds[region] if region else ds[()]), (_text(ds.attrs["units"]) if "units" in ds.attrs else None)
     except (OSError, KeyError, RuntimeError) as exc:
         raise NanoctError(
             f"{path}: cannot read {name} ({exc}); the file may be truncated or still being written - copy it again"
@@ -181,7 +184,9 @@ def _pixel_size(f: Any, path: Path, entry: str) -> tuple[list[float] | None, str
     return None, None
 
 
-def read_nxtomo(path: Path, f: Any, entry: str | None = None) -> NXtomoFrames:
+def read_nxtomo(
+    path: Path, f: Any, entry: str | None = None, window: Callable[..., tuple[slice, slice]] | None = None
+) -> NXtomoFrames:
     """Read the frames, keys, angles and pixel size of one NXtomo entry of an open file.
 
     Parameters
@@ -192,6 +197,9 @@ def read_nxtomo(path: Path, f: Any, entry: str | None = None) -> NXtomoFrames:
         The open file.
     entry : str, optional
         Entry name; needed when the file has several NXtomo entries.
+    window : callable, optional
+        ``window((R, L)) -> (row slice, column slice)``: the part of the detector to read
+        (default all); only that part is read from disk.
 
     Raises
     ------
@@ -221,9 +229,11 @@ def read_nxtomo(path: Path, f: Any, entry: str | None = None) -> NXtomoFrames:
     if angles_name is None:
         raise NanoctError(f"{path}: entry {entry} has no rotation angles ({', '.join(_ANGLES)}); pass --angles FILE")
     keys_name = next((f"{entry}/{p}" for p in _KEYS if f"{entry}/{p}" in f), None)
-    data = read_h5_dataset(f, path, data_name)[0].astype(np.float32, copy=False)
-    if data.ndim != 3:
-        raise NanoctError(f"{path}:{data_name} has shape {data.shape}; expected (frames, rows, columns)")
+    shape = f[data_name].shape
+    if len(shape) != 3:
+        raise NanoctError(f"{path}:{data_name} has shape {shape}; expected (frames, rows, columns)")
+    region = (slice(None), *window(shape[1:])) if window is not None else ()
+    data = read_h5_dataset(f, path, data_name, region)[0].astype(np.float32, copy=False)
     raw_angles, angle_units = read_h5_dataset(f, path, angles_name)
     keys = np.zeros(data.shape[0], int)
     if keys_name is not None:
@@ -251,6 +261,7 @@ def read_nxtomo(path: Path, f: Any, entry: str | None = None) -> NXtomoFrames:
         "data": data_name,
         "image_key": keys_name,
         "angle_units": angle_units or "degree (none given)",
+        "detector_shape": list(shape[1:]),
         "notes": [
             f"left out {n} {kind} frame(s) (image key {key})"
             for kind, key in (("invalid", KEY_INVALID), ("alignment", KEY_ALIGNMENT))

@@ -36,6 +36,7 @@ import json
 import logging
 import os
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -238,8 +239,10 @@ def read_scan(
     darks: str | os.PathLike[str] | None = None,
     is_line_integral: bool = False,
     entry: str | None = None,
+    rows: slice | None = None,
+    crop: tuple[int, int] | None = None,
 ) -> RawScan:
-    """Read a measured scan.
+    """Read a measured scan, or the part of its detector that ``rows`` and ``crop`` select.
 
     Parameters
     ----------
@@ -259,10 +262,17 @@ def read_scan(
         The data are already line integrals (no flat/dark correction, no ``-log``).
     entry : str, optional
         The NXtomo entry to read, needed when the file has several.
+    rows : slice, optional
+        Detector rows to read (default all). HDF5 and ``.npy`` files read only these rows and
+        the ``crop`` columns from disk, so a few slices of a large scan fit in memory.
+    crop : (int, int), optional
+        Detector columns ``[first, stop)`` to read.
 
     Returns
     -------
     RawScan
+        Projections, flats and darks of the selected rows and columns;
+        ``source["detector_shape"]`` is the full detector ``[R, L]``.
 
     Raises
     ------
@@ -277,21 +287,29 @@ def read_scan(
     if entry is not None and fmt != "nxtomo":
         raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
     check = angles_file is None  # angles given separately replace the file's, whatever they are
+    window = _window(rows, crop)
     if fmt == "nxtomo":
-        scan = _read_nxtomo(Path(path), entry, check=check)
+        scan = _read_nxtomo(Path(path), entry, window, check=check)
     elif fmt == "dxchange":
-        scan = _read_dxchange(Path(path), check=check)
+        scan = _read_dxchange(Path(path), window, check=check)
     else:
         if angles_file is None:
             raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
-        stack = _read_array(Path(path), fmt)
-        detector = stack.shape[1:] if stack.ndim == 3 else stack.shape[1:2]
+        stack = _read_array(Path(path), fmt, mmap=True)
+        stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
+        if stack.ndim != 3:
+            raise NanoctError(f"{path} holds an array of shape {stack.shape}; expected (views, rows, columns)")
+        r, c = window(stack.shape[1:])
+
+        def field(file: str | os.PathLike[str] | None, what: str) -> np.ndarray | None:
+            return None if file is None else _read_field(Path(file), what, stack.shape[1:])[:, r, c]
+
         scan = RawScan(
-            stack,
+            np.asarray(stack[:, r, c], dtype=np.float32),
             read_angles(angles_file, degrees=degrees),
-            flats=None if flats is None else _read_field(Path(flats), "flats", detector),
-            darks=None if darks is None else _read_field(Path(darks), "darks", detector),
-            source={"file": str(path), "format": fmt},
+            flats=field(flats, "flats"),
+            darks=field(darks, "darks"),
+            source={"file": str(path), "format": fmt, "detector_shape": list(stack.shape[1:])},
         )
     if angles_file is not None and fmt in ("nxtomo", "dxchange"):
         scan = replace(scan, angles=read_angles(angles_file, degrees=degrees))
@@ -471,13 +489,13 @@ def import_scan(
     from ..core.geometry import Geometry
     from .store import DataStore, create_scan
 
+    # only the selected rows and columns are read, checked and corrected
     raw = read_scan(
         src, fmt=fmt, angles_file=angles_file, degrees=degrees, flats=flats, darks=darks,
-        is_line_integral=is_line_integral, entry=entry,
+        is_line_integral=is_line_integral, entry=entry, rows=rows, crop=crop,
     )  # fmt: skip
-    n_rows, n_cols = raw.projections.shape[1:]
-    # select rows and columns before the checks and the correction: only the kept pixels are judged
-    kept, dropped = drop_bad_views(_select(raw, rows, crop), drop=drop_bad)
+    n_rows, n_cols = raw.source["detector_shape"]
+    kept, dropped = drop_bad_views(raw, drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
     left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
     first, stop = crop if crop is not None else (0, n_cols)
@@ -610,20 +628,18 @@ def drop_bad_views(scan: RawScan, *, drop: bool) -> tuple[RawScan, list[str]]:
     return (replace(scan, **out) if out else scan), notes
 
 
-def _select(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None) -> RawScan:
-    """The scan restricted to detector ``rows`` and columns ``crop`` (projections, flats, darks alike)."""
-    _, n_rows, n_cols = raw.projections.shape
-    if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
-        raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
-    if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
-        raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
-    r = rows if rows is not None else slice(None)
-    c = slice(*crop) if crop is not None else slice(None)
+def _window(rows: slice | None, crop: tuple[int, int] | None) -> Callable[[tuple[int, ...]], tuple[slice, slice]]:
+    """The row and column slices of ``rows`` / ``crop`` on a detector of shape ``(R, L)``, checked."""
 
-    def cut(a: np.ndarray | None) -> np.ndarray | None:
-        return None if a is None else a[:, r, c]
+    def window(shape: tuple[int, ...]) -> tuple[slice, slice]:
+        n_rows, n_cols = shape
+        if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
+            raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
+        if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
+            raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
+        return (rows if rows is not None else slice(None)), (slice(*crop) if crop is not None else slice(None))
 
-    return replace(raw, projections=cut(raw.projections), flats=cut(raw.flats), darks=cut(raw.darks))
+    return window
 
 
 # ---------------------------------------------------------------------------------- readers
@@ -646,9 +662,9 @@ def _open_h5(path: Path) -> Any:
         raise NanoctError(f"cannot open {path} as HDF5 ({exc}); is it a complete .h5/.nxs file?") from exc
 
 
-def _read_nxtomo(path: Path, entry: str | None, *, check: bool) -> RawScan:
+def _read_nxtomo(path: Path, entry: str | None, window: Callable[..., tuple[slice, slice]], *, check: bool) -> RawScan:
     with _open_h5(path) as f:
-        frames = read_nxtomo(path, f, entry)
+        frames = read_nxtomo(path, f, entry, window)
     if check:
         units = frames.source["angle_units"]
         in_degrees = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1.0))
@@ -663,43 +679,62 @@ def _read_nxtomo(path: Path, entry: str | None, *, check: bool) -> RawScan:
     )
 
 
-def _h5_array(f: Any, path: Path, name: str, dtype: Any) -> np.ndarray:
-    return read_h5_dataset(f, path, name)[0].astype(dtype, copy=False)
-
-
-def _read_dxchange(path: Path, *, check: bool) -> RawScan:
+def _read_dxchange(path: Path, window: Callable[..., tuple[slice, slice]], *, check: bool) -> RawScan:
     with _open_h5(path) as f:
         if "exchange/theta" not in f:
             raise NanoctError(f"{path}: no /exchange/theta (angles in degrees); pass --angles FILE")
-        data = _h5_array(f, path, "exchange/data", np.float32)
-        theta = _h5_array(f, path, "exchange/theta", np.float64).ravel()
-        flats = _h5_array(f, path, "exchange/data_white", np.float32) if "exchange/data_white" in f else None
-        darks = _h5_array(f, path, "exchange/data_dark", np.float32) if "exchange/data_dark" in f else None
+        shape = f["exchange/data"].shape
+        if len(shape) != 3:
+            raise NanoctError(f"{path}:exchange/data has shape {shape}; expected (views, rows, columns)")
+        region = (slice(None), *window(shape[1:]))
+
+        def frames(name: str) -> np.ndarray | None:
+            if name not in f:
+                return None
+            if f[name].shape[1:] != shape[1:]:
+                what = "flats" if name.endswith("white") else "darks"
+                raise NanoctError(
+                    f"{path}: {what} have shape {f[name].shape} ({name}), but one projection is {shape[1:]} "
+                    f"(rows, columns); give {what} of the same detector size"
+                )
+            return read_h5_dataset(f, path, name, region)[0].astype(np.float32, copy=False)
+
+        data, flats, darks = frames("exchange/data"), frames("exchange/data_white"), frames("exchange/data_dark")
+        theta = read_h5_dataset(f, path, "exchange/theta")[0].astype(np.float64).ravel()
     angles = np.deg2rad(theta)
     if check:
         check_angles(angles, degrees=True, where=f"{path}:exchange/theta", fix="pass --angles FILE")
-    return RawScan(data, angles, flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
+    source = {"file": str(path), "format": "dxchange", "detector_shape": list(shape[1:])}
+    return RawScan(data, angles, flats=flats, darks=darks, source=source)
 
 
 def _read_field(path: Path, what: str, detector: tuple[int, ...]) -> np.ndarray:
-    """Flat or dark fields from a TIFF or ``.npy`` file, checked against the detector size ``(R, L)``."""
+    """Flat or dark fields ``(F, R, L)`` from a TIFF or ``.npy`` file, checked against the detector ``(R, L)``.
+
+    One frame ``(R, L)`` is accepted, and for a one-row detector (a sinogram) frames ``(F, L)`` or ``(L,)``.
+    """
     field = _read_array(path, None)
-    frame = field.shape[-len(detector) :] if field.ndim >= len(detector) else field.shape
-    if field.ndim not in (len(detector), len(detector) + 1) or tuple(frame) != tuple(detector):
-        raise NanoctError(
-            f"--{what} {path}: {what} have shape {field.shape}, but one projection is {tuple(detector)} "
-            f"(rows, columns); give {what} recorded with the same detector size and binning as the projections"
-        )
-    return field
+    n_rows, n_cols = detector
+    if field.ndim == 3 and field.shape[1:] == tuple(detector):
+        return field
+    if field.ndim == 2 and field.shape == tuple(detector):
+        return field[None]
+    if n_rows == 1 and field.ndim in (1, 2) and field.shape[-1] == n_cols:
+        return field.reshape(-1, 1, n_cols)
+    raise NanoctError(
+        f"--{what} {path}: {what} have shape {field.shape}, but one projection is {tuple(detector)} "
+        f"(rows, columns); give {what} recorded with the same detector size and binning as the projections"
+    )
 
 
-def _read_array(path: Path, fmt: str | None) -> np.ndarray:
+def _read_array(path: Path, fmt: str | None, *, mmap: bool = False) -> np.ndarray:
+    """A ``.npy`` file (memory-mapped with ``mmap``: read as it is sliced), a TIFF or a folder of TIFFs."""
     if not path.exists():
         raise NanoctError(f"{path} does not exist")
     fmt = fmt or ("npy" if path.suffix.lower() == ".npy" else "tiff")
     if fmt == "npy":
         try:
-            return np.load(path, allow_pickle=False)
+            return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
         except (OSError, ValueError, EOFError) as exc:
             raise NanoctError(f"cannot read {path} as .npy ({exc}); is the file complete?") from exc
     if not path.is_dir():
