@@ -494,7 +494,7 @@ def test_nabus_motion_estimator_writes_the_rows_nanoct_writes(tmp_path):
     np.testing.assert_allclose(nabu_rows[:, 0], ours[:, 0], atol=0.25)  # measured: 0.12 px at most
 
 
-@pytest.mark.parametrize("fmt", ["nxtomo", "dxchange", "npy", "tiff"])
+@pytest.mark.parametrize("fmt", ["nxtomo", "dxchange", "npy", "tiff", "tiff-folder"])
 def test_reading_a_detector_window_equals_reading_all_and_cutting(tmp_path, truth, fmt):
     extra = {}
     if fmt == "nxtomo":
@@ -506,11 +506,15 @@ def test_reading_a_detector_window_equals_reading_all_and_cutting(tmp_path, trut
         np.save(tmp_path / "f.npy", truth["flats"])
         tifffile.imwrite(tmp_path / "d.tif", truth["darks"], photometric="minisblack")
         extra = {"angles_file": tmp_path / "a.txt", "flats": tmp_path / "f.npy", "darks": tmp_path / "d.tif"}
-        path = tmp_path / ("s.npy" if fmt == "npy" else "s.tif")
+        path = tmp_path / {"npy": "s.npy", "tiff": "s.tif"}.get(fmt, "folder")
         if fmt == "npy":
             np.save(path, truth["proj"])
-        else:
+        elif fmt == "tiff":
             tifffile.imwrite(path, truth["proj"], photometric="minisblack")
+        else:
+            path.mkdir()
+            for k, image in enumerate(truth["proj"]):
+                tifffile.imwrite(path / f"p_{k:03d}.tif", image)
     full = read_scan(path, **extra)
     part = read_scan(path, rows=slice(1, 3), crop=(4, 15), **extra)
     assert part.source["detector_shape"] == [R, L] == full.source["detector_shape"]

@@ -295,21 +295,27 @@ def read_scan(
     else:
         if angles_file is None:
             raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
-        stack = _read_array(Path(path), fmt, mmap=True)
-        stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
+        folder = fmt == "tiff" and Path(path).is_dir()
+        if folder:  # one file per projection: each cut as it is read
+            stack, detector = _read_tiff_folder(Path(path), window)
+        else:
+            stack = _read_array(Path(path), fmt, mmap=True)
+            stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
+            detector = stack.shape[1:]
         if stack.ndim != 3:
             raise NanoctError(f"{path} holds an array of shape {stack.shape}; expected (views, rows, columns)")
-        r, c = window(stack.shape[1:])
+        r, c = window(detector)
+        stack = stack if folder else stack[:, r, c]
 
         def field(file: str | os.PathLike[str] | None, what: str) -> np.ndarray | None:
-            return None if file is None else _read_field(Path(file), what, stack.shape[1:])[:, r, c]
+            return None if file is None else _read_field(Path(file), what, detector)[:, r, c]
 
         scan = RawScan(
-            np.asarray(stack[:, r, c], dtype=np.float32),
+            np.asarray(stack, dtype=np.float32),
             read_angles(angles_file, degrees=degrees),
             flats=field(flats, "flats"),
             darks=field(darks, "darks"),
-            source={"file": str(path), "format": fmt, "detector_shape": list(stack.shape[1:])},
+            source={"file": str(path), "format": fmt, "detector_shape": list(detector)},
         )
     if angles_file is not None and fmt in ("nxtomo", "dxchange"):
         scan = replace(scan, angles=read_angles(angles_file, degrees=degrees))
@@ -737,20 +743,32 @@ def _read_array(path: Path, fmt: str | None, *, mmap: bool = False) -> np.ndarra
             return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
         except (OSError, ValueError, EOFError) as exc:
             raise NanoctError(f"cannot read {path} as .npy ({exc}); is the file complete?") from exc
-    if not path.is_dir():
-        return _read_tiff(path)
+    return _read_tiff_folder(path)[0] if path.is_dir() else _read_tiff(path)
+
+
+def _read_tiff_folder(
+    path: Path, window: Callable[..., tuple[slice, slice]] | None = None
+) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The TIFFs of a folder (sorted by name, one image each) stacked, each cut to ``window`` as it is read.
+
+    Returns the stack and the shape of one full image.
+    """
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
     if not files:
         raise NanoctError(f"{path} holds no .tif/.tiff files")
-    images = [_read_tiff(p) for p in files]
-    odd = next((p for p, image in zip(files, images) if image.shape != images[0].shape), None)
-    if odd is not None:
-        shape = images[files.index(odd)].shape
-        raise NanoctError(
-            f"{odd} has shape {shape}, but {files[0].name} has {images[0].shape}; "
-            f"every TIFF of {path} must be one projection of the same size"
-        )
-    return np.stack(images)
+    images, first = [], None
+    for file in files:
+        image = _read_tiff(file)
+        first = first or (file, image.shape)
+        if image.shape != first[1]:
+            raise NanoctError(
+                f"{file} has shape {image.shape}, but {first[0].name} has {first[1]}; "
+                f"every TIFF of {path} must be one projection of the same size"
+            )
+        if window is not None and image.ndim == 2:
+            image = np.ascontiguousarray(image[window(image.shape)])
+        images.append(image)
+    return np.stack(images), first[1]
 
 
 # what tifffile logs (rather than raises) when the page list of a file is cut or damaged
