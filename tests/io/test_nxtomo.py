@@ -104,6 +104,7 @@ def test_several_entries_need_entry(tmp_path, truth, capsys):
     [
         ("unknown-key", "image key"),
         ("length-units", "not a unit of radian"),
+        ("count-units", "'counts' .count., which is not a unit of radian"),
         ("radians-labelled-degrees", "look like radians"),
         ("frame-count", "one key and one angle per frame"),
         ("no-nxtomo-entry", "neither NXtomo"),
@@ -119,6 +120,8 @@ def test_odd_nxtomo_files_are_refused(tmp_path, truth, case, message):
             keys[0] = 7
         elif case == "length-units":
             angles.attrs["units"] = "mm"
+        elif case == "count-units":  # dimensionless in pint like an angle, but not one
+            angles.attrs["units"] = "counts"
         elif case == "radians-labelled-degrees":
             angles[...] = np.deg2rad(angles[()])
         elif case == "frame-count":

@@ -124,10 +124,14 @@ def to_unit(value: Any, units: str | None, target: str, *, default: str, where: 
     registry = pint.get_application_registry()
     text = (units or "").strip() or default
     try:
-        factor = registry.Quantity(1.0, text).to(target).magnitude
+        # compare root units: angles are dimensionless in pint, as counts are, but their root is the radian
+        factor, root = registry.get_root_units(text)
+        wanted = registry.get_root_units(target)
     except (pint.errors.PintError, AttributeError, TypeError, ValueError, AssertionError) as exc:
-        raise NanoctError(f"{where} has units {text!r}, which is not a unit of {target} ({exc})") from None
-    return np.asarray(value, dtype=np.float64) * float(factor)
+        raise NanoctError(f"{where} has units {text!r}, which pint does not know ({exc})") from None
+    if root != wanted[1]:
+        raise NanoctError(f"{where} has units {text!r} ({root}), which is not a unit of {target}")
+    return np.asarray(value, dtype=np.float64) * float(factor / wanted[0])
 
 
 def read_h5_dataset(f: Any, path: Path, name: str, region: tuple[slice, ...] = ()) -> tuple[np.ndarray, str | None]:
