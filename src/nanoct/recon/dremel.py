@@ -54,6 +54,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numba
@@ -62,6 +63,7 @@ import scipy.fft as sfft
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import ParallelRays
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
 from .params import MethodParams
@@ -73,6 +75,7 @@ from .rowaction import (
     resolve_relaxation,
     row_dot,
     unsigned_indices,
+    view_block,
     view_order,
 )
 
@@ -407,6 +410,90 @@ def _row_col_sums(mat: sp.csr_matrix, n_views: int) -> tuple[np.ndarray, np.ndar
     return matrix_cache(mat, ("dremel_sums", n_views), compute)
 
 
+@numba.njit(cache=True, nogil=True)
+def _add_column_sums(indices, data, cols):  # pragma: no cover - compiled
+    for q in range(indices.shape[0]):
+        cols[indices[q]] += data[q]
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_sums(indptr, data):  # pragma: no cover - compiled
+    m = indptr.shape[0] - 1
+    rows = np.zeros(m, dtype=np.float64)
+    for r in range(m):
+        s = 0.0
+        for q in range(indptr[r], indptr[r + 1]):
+            s += data[q]
+        rows[r] = s
+    return rows
+
+
+@lru_cache(maxsize=2)
+def _inverse_column_sums_of(geometry: Geometry) -> np.ndarray:
+    rays = ParallelRays(geometry)
+    cols = np.zeros(geometry.n * geometry.n, dtype=np.float64)
+    for k in range(geometry.n_angles):
+        _, indices, data = rays.view(k)
+        _add_column_sums(indices, data, cols)
+    cols /= geometry.n_angles
+    inv_col = np.zeros(cols.shape, dtype=np.float32)
+    ok = cols > 1e-6
+    inv_col[ok] = (1.0 / cols[ok]).astype(np.float32)
+    return inv_col
+
+
+def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
+    """Inverse view-averaged column sums of the matrix-free rows (float32, 0 where empty), cached."""
+    return _inverse_column_sums_of(rays.geometry)
+
+
+def _dremel_sweep_views(
+    rays: ParallelRays,
+    inv_col: np.ndarray,
+    y: np.ndarray,
+    x: np.ndarray,
+    views: np.ndarray,
+    shifts: np.ndarray,
+    det_per_obj: float,
+    omega: float,
+    nonneg: bool,
+    correct: bool,
+    lam: float,
+    f_sr: int,
+    mode: int,
+    subpixel: bool,
+    ycorr: np.ndarray,
+    ymean: np.ndarray,
+    work: tuple[np.ndarray, ...],
+) -> float:
+    """:func:`_dremel_sweep` with each view's rows computed on the fly (the same compiled view step)."""
+    n_det = rays.geometry.n_det
+    first = np.zeros(1, dtype=np.int64)  # the view block's only view
+    run = 0.0
+    for k in views:
+        indptr, indices, data, _ = view_block(rays, k)
+        rowsum = _row_sums(indptr, data)
+        yk = y[k * n_det : (k + 1) * n_det]
+        run += _dremel_sweep(
+            indptr, indices, data, rowsum, inv_col, yk, x, first, n_det, shifts[k : k + 1], det_per_obj,
+            omega, nonneg, correct, lam, f_sr, mode, subpixel, ycorr[k : k + 1], ymean[k : k + 1], *work,
+        )  # fmt: skip
+    return run
+
+
+def _shifted_residual_views(
+    rays: ParallelRays, y: np.ndarray, x: np.ndarray, dshift: np.ndarray, p: np.ndarray
+) -> float:
+    """``||A(s) x - y||_2`` with the matrix-free rows."""
+    n_det = rays.geometry.n_det
+    tot = 0.0
+    for k in range(rays.geometry.n_angles):
+        indptr, indices, data, _ = view_block(rays, k)
+        yk = y[k * n_det : (k + 1) * n_det]
+        tot += _shifted_residual(indptr, indices, data, yk, x, n_det, dshift[k : k + 1], p) ** 2
+    return math.sqrt(tot)
+
+
 def _measured_correlation(y: np.ndarray, n_views: int, n_det: int, f_sr: int) -> tuple[np.ndarray, np.ndarray]:
     """Up-sampled, mean-subtracted measured projections (K, f_sr L) and their means (K,)."""
     y2 = y.reshape(n_views, n_det)
@@ -459,6 +546,10 @@ class DremelParams(MethodParams):
     fix_shifts : bool, default False
         Keep the shifts at ``shifts0`` (no shift correction): SART with a known motion, e.g.
         one estimated jointly from several slices or read from another tool's file.
+    projector : {"auto", "matrix", "matrixfree"}, default "auto"
+        Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
+        computes them per view when the matrix would exceed 1 GB
+        (:func:`~nanoct.recon.rowaction.resolve_projector`).
     """
 
     n_iter: int = 32
@@ -473,6 +564,7 @@ class DremelParams(MethodParams):
     weighting: str = "additive"
     subpixel: bool = False
     fix_shifts: bool = False
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
         check_row_action(self)
@@ -538,30 +630,43 @@ def dremel(
     so estimated shifts may differ from the true ones by such a term.
     """
     p = DremelParams.check(op, **params)
-    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
+    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:
         shifts = np.zeros(n_views, dtype=np.float64)
     else:
         shifts = check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
-    rowsum, inv_col = _row_col_sums(mat, n_views)
     det_per_obj = geometry.magnification / geometry.det_spacing  # detector px per object px
     f_sr = p["f_sr"]
     ycorr, ymean = _measured_correlation(y, n_views, n_det, f_sr)
-    indices = unsigned_indices(mat)
     rng = np.random.default_rng(p["seed"])
     work = (np.zeros(n_det), np.zeros(n_det), np.zeros(n_det), np.zeros(f_sr * n_det), np.zeros(f_sr * n_det))
-    shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"], ycorr, ymean)
+    shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"])
     residuals: list[float] = []
     stop = "max_iter"
     start = p["n_iter"] if p["fix_shifts"] else p["correction_start"]  # first iteration with shift correction
+    free = isinstance(mat, ParallelRays)
+    if free:
+        inv_col = _inverse_column_sums(mat)
+    else:
+        rowsum, inv_col = _row_col_sums(mat, n_views)
+        indices = unsigned_indices(mat)
     for it in range(p["n_iter"]):
         views = view_order(n_views, p["order"], rng)
-        step_args = (views, n_det, shifts, det_per_obj, p["relaxation"], p["nonneg"], it >= start)
-        run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, *work)
+        step = (det_per_obj, p["relaxation"], p["nonneg"], it >= start)
+        if free:
+            run = _dremel_sweep_views(mat, inv_col, y, x, views, shifts, *step, *shift_args, ycorr, ymean, work)
+        else:
+            step_args = (views, n_det, shifts, *step)
+            run = _dremel_sweep(
+                mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, ycorr, ymean, *work
+            )
         if p["residual"] == "exact":
             dshift = shifts * det_per_obj
-            residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
+            if free:
+                residuals.append(_shifted_residual_views(mat, y, x, dshift, work[0]))
+            else:
+                residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), shifts.astype(np.float32)):

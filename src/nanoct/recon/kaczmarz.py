@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import ParallelRays
 from ..core.operators import RayTransform
 from .params import MethodParams
 from .result import ReconResult
@@ -24,10 +25,12 @@ from .rowaction import (
     clip_nonneg,
     prepare_problem,
     residual_norm,
+    residual_norm_views,
     resolve_relaxation,
     row_dot,
     row_norms_squared,
     unsigned_indices,
+    view_block,
     view_order,
 )
 
@@ -110,6 +113,10 @@ class KaczmarzParams(MethodParams):
         ``"exact"`` records ``||A x - y||`` after each sweep (one extra pass over the matrix);
         ``"running"`` records the root of the sum of squared residuals seen *before* each row
         update during the sweep (free, an upper-bound-like proxy).
+    projector : {"auto", "matrix", "matrixfree"}, default "auto"
+        Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
+        computes them per view when the matrix would exceed 1 GB
+        (:func:`~nanoct.recon.rowaction.resolve_projector`).
     """
 
     n_iter: int = 10
@@ -118,6 +125,7 @@ class KaczmarzParams(MethodParams):
     nonneg: bool = True
     seed: int = 0
     residual: str = "exact"
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
         check_row_action(self)
@@ -165,7 +173,9 @@ def kaczmarz(
         ``"callback"``, ``motion`` None.
     """
     p = KaczmarzParams.check(op, **params)
-    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
+    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
+    if isinstance(mat, ParallelRays):
+        return _kaczmarz_views(geometry, y, mat, x, p, callback)
     norms = row_norms_squared(mat)
     indices = unsigned_indices(mat)
     rng = np.random.default_rng(p["seed"])
@@ -180,6 +190,35 @@ def kaczmarz(
             residuals.append(float(residual_norm(mat.indptr, indices, mat.data, y, x)))
         else:
             residuals.append(math.sqrt(run))
+        if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
+            stop = "callback"
+            break
+    return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, {"method": "kaczmarz", **p})
+
+
+def _kaczmarz_views(
+    geometry: Geometry,
+    y: np.ndarray,
+    rays: ParallelRays,
+    x: np.ndarray,
+    p: dict[str, Any],
+    callback: Callable[[int, np.ndarray, None], Any] | None,
+) -> ReconResult:
+    """:func:`kaczmarz` with the rows of each view computed on the fly (same sweep kernel)."""
+    n_det = geometry.n_det
+    first = np.zeros(1, dtype=np.int64)  # the view block's only view
+    rng = np.random.default_rng(p["seed"])
+    residuals: list[float] = []
+    stop = "max_iter"
+    for it in range(p["n_iter"]):
+        run = 0.0
+        for k in view_order(geometry.n_angles, p["order"], rng):
+            indptr, indices, data, norms = view_block(rays, k)
+            yk = y[k * n_det : (k + 1) * n_det]
+            run += _kaczmarz_sweep(indptr, indices, data, norms, yk, x, first, n_det, p["relaxation"])
+        if p["nonneg"]:
+            clip_nonneg(x)
+        residuals.append(residual_norm_views(rays, y, x) if p["residual"] == "exact" else math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
             stop = "callback"
             break
