@@ -29,8 +29,14 @@ from .geometry import Geometry
 from .operators import astra_vectors
 
 __all__ = [
+    "NNZ_PER_VIEW_PIXEL",
     "ParallelRays",
+    "column_sums",
     "matrix_bytes",
+    "ray_add",
+    "ray_dot",
+    "ray_setup",
+    "residual_norm_free",
     "view_rows",
 ]
 
@@ -80,7 +86,7 @@ class ParallelRays:
         return view_rows(self.params[k], self.geometry.n, self.geometry.n_det)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # 1/|S-T| is inf for axis-parallel rays, never used
 def _trace(par, n, det, idx, val, start, write):  # pragma: no cover - compiled
     """Trace detector pixel ``det`` of one view; write its entries from ``start`` if ``write``.
 
@@ -233,3 +239,134 @@ def view_rows(par: np.ndarray, n: int, n_det: int) -> tuple[np.ndarray, np.ndarr
         Intersection weights (ray length per crossed row or column, shared linearly).
     """
     return _view_rows(np.ascontiguousarray(par, np.float32), int(n), int(n_det))
+
+
+# ------------------------------------------------------------------ fused kernels (no rows stored)
+@numba.njit(cache=True, nogil=True)
+def ray_setup(par, n):  # pragma: no cover - compiled
+    """Per-view constants of the fused kernels.
+
+    Returns ``(major, minor, delta, s, invw, length, c_first, c_step)``: the ray crosses the
+    centre line ``i`` of the major axis (rows for mainly vertical rays, columns otherwise;
+    pixel stride ``major``) at the fractional minor coordinate (stride ``minor``)
+    ``c = c_first + det * c_step + i * delta``.
+    """
+    rx, ry = np.float64(par[0]), np.float64(par[1])
+    sx, sy, ux, uy = np.float64(par[2]), np.float64(par[3]), np.float64(par[4]), np.float64(par[5])
+    ex = -n / 2.0 + 0.5
+    ey = n / 2.0 - 0.5
+    norm = math.sqrt(rx * rx + ry * ry)
+    if abs(rx) < abs(ry):
+        ratio = rx / ry
+        c_first = sx + 0.5 * ux + (ey - sy - 0.5 * uy) * ratio - ex
+        c_step = ux - uy * ratio
+        major, minor, length = n, 1, norm / abs(ry)
+    else:
+        ratio = ry / rx
+        c_first = -(sy + 0.5 * uy + (ex - sx - 0.5 * ux) * ratio - ey)
+        c_step = -(uy - ux * ratio)
+        major, minor, length = 1, n, norm / abs(rx)
+    s = 0.5 - 0.5 * abs(ratio)
+    width = abs(ratio)  # T - S
+    invw = 1.0 / width if width > 1e-12 else 1e30  # axis-parallel rays: no sharing
+    return major, minor, -ratio, s, invw, length, c_first, c_step
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _minor(c):  # pragma: no cover - compiled
+    return int(math.floor(c + 0.5))
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "nsz", "contract"})
+def ray_dot(x, n, setup, c0):  # pragma: no cover - compiled
+    """``(<a, x>, sum(a), sum(a²))`` for the ray whose first crossing is ``c0`` (flat image ``x``)."""
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    dot = 0.0
+    tot = 0.0
+    sq = 0.0
+    for i in range(n):
+        c = c0 + i * delta
+        m = _minor(c)
+        off = c - m
+        wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+        wr = length * min(max((off - s) * invw, 0.0), 1.0)
+        wc = length - wl - wr
+        base = i * major + m * minor
+        if 1 <= m <= n - 2:  # all three neighbours inside: no bounds tests
+            dot += wl * x[base - minor] + wc * x[base] + wr * x[base + minor]
+            tot += length
+            sq += wl * wl + wc * wc + wr * wr
+            continue
+        if m < -1 or m > n:
+            continue
+        if m >= 1:
+            dot += wl * x[base - minor]
+            tot += wl
+            sq += wl * wl
+        if 0 <= m < n:
+            dot += wc * x[base]
+            tot += wc
+            sq += wc * wc
+        if m + 1 < n:
+            dot += wr * x[base + minor]
+            tot += wr
+            sq += wr * wr
+    return dot, tot, sq
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _put(x, j, v, scale, scaled, nonneg):  # pragma: no cover - compiled
+    if scaled:
+        v *= scale[j]
+    v += x[j]
+    x[j] = v if (v > 0.0 or not nonneg) else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_add(x, n, setup, c0, coef, scale, scaled, nonneg):  # pragma: no cover - compiled
+    """``x[j] += coef * a_j (* scale[j] if scaled)`` along one ray, clipped at 0 if ``nonneg``."""
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    for i in range(n):
+        c = c0 + i * delta
+        m = _minor(c)
+        off = c - m
+        wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+        wr = length * min(max((off - s) * invw, 0.0), 1.0)
+        wc = length - wl - wr
+        base = i * major + m * minor
+        if 1 <= m <= n - 2:
+            _put(x, base - minor, coef * wl, scale, scaled, nonneg)
+            _put(x, base, coef * wc, scale, scaled, nonneg)
+            _put(x, base + minor, coef * wr, scale, scaled, nonneg)
+            continue
+        if m < -1 or m > n:
+            continue
+        if m >= 1:
+            _put(x, base - minor, coef * wl, scale, scaled, nonneg)
+        if 0 <= m < n:
+            _put(x, base, coef * wc, scale, scaled, nonneg)
+        if m + 1 < n:
+            _put(x, base + minor, coef * wr, scale, scaled, nonneg)
+
+
+@numba.njit(cache=True, nogil=True)
+def column_sums(params, n, n_det):  # pragma: no cover - compiled
+    """``A^T 1``: the column sums of all views' rows, (N*N,) float64 (``params``: (K, 6))."""
+    cols = np.zeros(n * n)
+    for k in range(params.shape[0]):
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            ray_add(cols, n, setup, setup[6] + l * setup[7], 1.0, cols, False, False)
+    return cols
+
+
+@numba.njit(cache=True, nogil=True)
+def residual_norm_free(params, n, n_det, y, x):  # pragma: no cover - compiled
+    """``||A x - y||_2`` with the rays traced on the fly (``y`` flat, view-major)."""
+    tot = 0.0
+    for k in range(params.shape[0]):
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            e = ray_dot(x, n, setup, setup[6] + l * setup[7])[0] - y[k * n_det + l]
+            tot += e * e
+    return math.sqrt(tot)

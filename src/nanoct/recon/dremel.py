@@ -63,7 +63,7 @@ import scipy.fft as sfft
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays
+from ..core.matrixfree import ParallelRays, column_sums, ray_add, ray_dot, ray_setup
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
 from .params import MethodParams
@@ -75,7 +75,6 @@ from .rowaction import (
     resolve_relaxation,
     row_dot,
     unsigned_indices,
-    view_block,
     view_order,
 )
 
@@ -410,32 +409,9 @@ def _row_col_sums(mat: sp.csr_matrix, n_views: int) -> tuple[np.ndarray, np.ndar
     return matrix_cache(mat, ("dremel_sums", n_views), compute)
 
 
-@numba.njit(cache=True, nogil=True)
-def _add_column_sums(indices, data, cols):  # pragma: no cover - compiled
-    for q in range(indices.shape[0]):
-        cols[indices[q]] += data[q]
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_sums(indptr, data):  # pragma: no cover - compiled
-    m = indptr.shape[0] - 1
-    rows = np.zeros(m, dtype=np.float64)
-    for r in range(m):
-        s = 0.0
-        for q in range(indptr[r], indptr[r + 1]):
-            s += data[q]
-        rows[r] = s
-    return rows
-
-
 @lru_cache(maxsize=2)
 def _inverse_column_sums_of(geometry: Geometry) -> np.ndarray:
-    rays = ParallelRays(geometry)
-    cols = np.zeros(geometry.n * geometry.n, dtype=np.float64)
-    for k in range(geometry.n_angles):
-        _, indices, data = rays.view(k)
-        _add_column_sums(indices, data, cols)
-    cols /= geometry.n_angles
+    cols = column_sums(ParallelRays(geometry).params, geometry.n, geometry.n_det) / geometry.n_angles
     inv_col = np.zeros(cols.shape, dtype=np.float32)
     ok = cols > 1e-6
     inv_col[ok] = (1.0 / cols[ok]).astype(np.float32)
@@ -447,50 +423,99 @@ def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
     return _inverse_column_sums_of(rays.geometry)
 
 
-def _dremel_sweep_views(
-    rays: ParallelRays,
-    inv_col: np.ndarray,
-    y: np.ndarray,
-    x: np.ndarray,
-    views: np.ndarray,
-    shifts: np.ndarray,
-    det_per_obj: float,
-    omega: float,
-    nonneg: bool,
-    correct: bool,
-    lam: float,
-    f_sr: int,
-    mode: int,
-    subpixel: bool,
-    ycorr: np.ndarray,
-    ymean: np.ndarray,
-    work: tuple[np.ndarray, ...],
-) -> float:
-    """:func:`_dremel_sweep` with each view's rows computed on the fly (the same compiled view step)."""
-    n_det = rays.geometry.n_det
-    first = np.zeros(1, dtype=np.int64)  # the view block's only view
+@numba.njit(cache=True, nogil=True)
+def _view_step_free(par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum):  # pragma: no cover
+    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters)."""
+    setup = ray_setup(par, n)
+    c_first, c_step = setup[6], setup[7]
+    for l in range(n_det):
+        p[l], rowsum[l], _ = ray_dot(x, n, setup, c_first + l * c_step)
+    res2 = 0.0
+    for l in range(n_det):
+        g[l] = 0.0
+    for l in range(n_det):
+        i0, w0, w1 = _interp_weights(l + d)
+        zz = 0.0
+        rs = 0.0
+        if 0 <= i0 < n_det:
+            zz += w0 * p[i0]
+            rs += w0 * rowsum[i0]
+        if 0 <= i0 + 1 < n_det:
+            zz += w1 * p[i0 + 1]
+            rs += w1 * rowsum[i0 + 1]
+        z[l] = zz
+        e = zz - y[l]
+        res2 += e * e
+        if rs > 1e-6:
+            e = e / rs
+            if 0 <= i0 < n_det:
+                g[i0] += w0 * e
+            if 0 <= i0 + 1 < n_det:
+                g[i0 + 1] += w1 * e
+    for l in range(n_det):
+        if g[l] != 0.0:
+            ray_add(x, n, setup, c_first + l * c_step, -omega * g[l], inv_col, True, nonneg)
+    return res2
+
+
+@numba.njit(cache=True, nogil=True)
+def _dremel_sweep_free(
+    params,
+    n,
+    inv_col,
+    y,
+    x,
+    views,
+    n_det,
+    shifts,
+    det_per_obj,
+    omega,
+    nonneg,
+    correct,
+    lam,
+    f_sr,
+    mode,
+    subpixel,
+    ycorr,
+    ymean,
+    p,
+    z,
+    g,
+    zc,
+    c,
+    rowsum,
+):  # pragma: no cover - compiled
+    """:func:`_dremel_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
-    for k in views:
-        indptr, indices, data, _ = view_block(rays, k)
-        rowsum = _row_sums(indptr, data)
+    for i in range(views.shape[0]):
+        k = views[i]
+        d = shifts[k] * det_per_obj
         yk = y[k * n_det : (k + 1) * n_det]
-        run += _dremel_sweep(
-            indptr, indices, data, rowsum, inv_col, yk, x, first, n_det, shifts[k : k + 1], det_per_obj,
-            omega, nonneg, correct, lam, f_sr, mode, subpixel, ycorr[k : k + 1], ymean[k : k + 1], *work,
-        )  # fmt: skip
-    return run
+        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, omega, nonneg, p, z, g, rowsum)
+        if correct:
+            zmean = _upsample_centre(z, f_sr, zc)
+            sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
+            shifts[k] += lam * sigma / det_per_obj
+    return run  # fmt: skip
 
 
-def _shifted_residual_views(
-    rays: ParallelRays, y: np.ndarray, x: np.ndarray, dshift: np.ndarray, p: np.ndarray
-) -> float:
-    """``||A(s) x - y||_2`` with the matrix-free rows."""
-    n_det = rays.geometry.n_det
+@numba.njit(cache=True, nogil=True)
+def _shifted_residual_free(params, n, y, x, n_det, dshift, p):  # pragma: no cover - compiled
+    """:func:`_shifted_residual` with the rays traced on the fly."""
     tot = 0.0
-    for k in range(rays.geometry.n_angles):
-        indptr, indices, data, _ = view_block(rays, k)
-        yk = y[k * n_det : (k + 1) * n_det]
-        tot += _shifted_residual(indptr, indices, data, yk, x, n_det, dshift[k : k + 1], p) ** 2
+    for k in range(dshift.shape[0]):
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            p[l] = ray_dot(x, n, setup, setup[6] + l * setup[7])[0]
+        for l in range(n_det):
+            i0, w0, w1 = _interp_weights(l + dshift[k])
+            zz = 0.0
+            if 0 <= i0 < n_det:
+                zz += w0 * p[i0]
+            if 0 <= i0 + 1 < n_det:
+                zz += w1 * p[i0 + 1]
+            e = zz - y[k * n_det + l]
+            tot += e * e
     return math.sqrt(tot)
 
 
@@ -648,6 +673,7 @@ def dremel(
     free = isinstance(mat, ParallelRays)
     if free:
         inv_col = _inverse_column_sums(mat)
+        rowsum = np.zeros(n_det)
     else:
         rowsum, inv_col = _row_col_sums(mat, n_views)
         indices = unsigned_indices(mat)
@@ -655,7 +681,10 @@ def dremel(
         views = view_order(n_views, p["order"], rng)
         step = (det_per_obj, p["relaxation"], p["nonneg"], it >= start)
         if free:
-            run = _dremel_sweep_views(mat, inv_col, y, x, views, shifts, *step, *shift_args, ycorr, ymean, work)
+            run = _dremel_sweep_free(
+                mat.params, geometry.n, inv_col, y, x, views, n_det, shifts, *step, *shift_args, ycorr, ymean,
+                *work, rowsum,
+            )  # fmt: skip
         else:
             step_args = (views, n_det, shifts, *step)
             run = _dremel_sweep(
@@ -664,7 +693,7 @@ def dremel(
         if p["residual"] == "exact":
             dshift = shifts * det_per_obj
             if free:
-                residuals.append(_shifted_residual_views(mat, y, x, dshift, work[0]))
+                residuals.append(float(_shifted_residual_free(mat.params, geometry.n, y, x, n_det, dshift, work[0])))
             else:
                 residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
         else:

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays
+from ..core.matrixfree import ParallelRays, ray_add, ray_dot, ray_setup, residual_norm_free
 from ..core.operators import RayTransform
 from .params import MethodParams
 from .result import ReconResult
@@ -25,12 +25,10 @@ from .rowaction import (
     clip_nonneg,
     prepare_problem,
     residual_norm,
-    residual_norm_views,
     resolve_relaxation,
     row_dot,
     row_norms_squared,
     unsigned_indices,
-    view_block,
     view_order,
 )
 
@@ -196,6 +194,24 @@ def kaczmarz(
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, {"method": "kaczmarz", **p})
 
 
+@numba.njit(cache=True, nogil=True)
+def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no cover - compiled
+    """:func:`_kaczmarz_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
+    run = 0.0
+    for i in range(views.shape[0]):
+        k = views[i]
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            c0 = setup[6] + l * setup[7]
+            dot, _, nr = ray_dot(x, n, setup, c0)
+            if nr <= 0.0:
+                continue
+            res = y[k * n_det + l] - dot
+            run += res * res
+            ray_add(x, n, setup, c0, omega * res / nr, x, False, False)
+    return run
+
+
 def _kaczmarz_views(
     geometry: Geometry,
     y: np.ndarray,
@@ -204,21 +220,19 @@ def _kaczmarz_views(
     p: dict[str, Any],
     callback: Callable[[int, np.ndarray, None], Any] | None,
 ) -> ReconResult:
-    """:func:`kaczmarz` with the rows of each view computed on the fly (same sweep kernel)."""
-    n_det = geometry.n_det
-    first = np.zeros(1, dtype=np.int64)  # the view block's only view
+    """:func:`kaczmarz` with the rays traced on the fly."""
     rng = np.random.default_rng(p["seed"])
     residuals: list[float] = []
     stop = "max_iter"
     for it in range(p["n_iter"]):
-        run = 0.0
-        for k in view_order(geometry.n_angles, p["order"], rng):
-            indptr, indices, data, norms = view_block(rays, k)
-            yk = y[k * n_det : (k + 1) * n_det]
-            run += _kaczmarz_sweep(indptr, indices, data, norms, yk, x, first, n_det, p["relaxation"])
+        views = view_order(geometry.n_angles, p["order"], rng)
+        run = _kaczmarz_sweep_free(rays.params, geometry.n, y, x, views, geometry.n_det, p["relaxation"])
         if p["nonneg"]:
             clip_nonneg(x)
-        residuals.append(residual_norm_views(rays, y, x) if p["residual"] == "exact" else math.sqrt(run))
+        if p["residual"] == "exact":
+            residuals.append(float(residual_norm_free(rays.params, geometry.n, geometry.n_det, y, x)))
+        else:
+            residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
             stop = "callback"
             break
