@@ -30,13 +30,20 @@ from .operators import astra_vectors
 
 __all__ = [
     "NNZ_PER_VIEW_PIXEL",
+    "PARALLEL_MIN_WORK",
     "ParallelRays",
+    "backproject_view",
+    "backproject_view_serial",
     "column_sums",
     "matrix_bytes",
+    "project_view",
+    "project_view_serial",
     "ray_add",
+    "ray_block",
     "ray_dot",
     "ray_setup",
     "residual_norm_free",
+    "use_threads",
     "view_rows",
 ]
 
@@ -370,3 +377,79 @@ def residual_norm_free(params, n, n_det, y, x):  # pragma: no cover - compiled
             e = ray_dot(x, n, setup, setup[6] + l * setup[7])[0] - y[k * n_det + l]
             tot += e * e
     return math.sqrt(tot)
+
+
+def ray_block(geometry: Geometry) -> int:
+    """Rays per block of the parallel kernels: blocks two apart touch disjoint pixels.
+
+    A ray touches pixels within 1.5 pixels of its crossings, and neighbouring rays cross a
+    row (or column) at least ``det_spacing`` apart, so a gap of ``4 / det_spacing`` rays
+    (at least 8) separates the pixels of two blocks of one phase.
+    """
+    return max(8, math.ceil(4.0 / geometry.det_spacing))
+
+
+@numba.njit(cache=True, nogil=True)
+def _project_rays(par, n, x, p, rowsum, lo, hi):  # pragma: no cover - compiled
+    setup = ray_setup(par, n)
+    for l in range(lo, hi):
+        dot, tot, _ = ray_dot(x, n, setup, setup[6] + l * setup[7])
+        p[l] = dot
+        rowsum[l] = tot
+
+
+@numba.njit(cache=True, nogil=True)
+def _backproject_rays(par, n, coef, x, scale, scaled, nonneg, lo, hi):  # pragma: no cover - compiled
+    setup = ray_setup(par, n)
+    for l in range(lo, hi):
+        if coef[l] != 0.0:
+            ray_add(x, n, setup, setup[6] + l * setup[7], coef[l], scale, scaled, nonneg)
+
+
+@numba.njit(cache=True, parallel=True)
+def project_view(par, n, n_det, x, p, rowsum, block):  # pragma: no cover - compiled
+    """``p[l] = <a_l, x>`` and ``rowsum[l] = sum(a_l)`` for the rays of one view, blocks in parallel."""
+    for b in numba.prange((n_det + block - 1) // block):
+        _project_rays(par, n, x, p, rowsum, b * block, min((b + 1) * block, n_det))
+
+
+@numba.njit(cache=True, nogil=True)
+def project_view_serial(par, n, n_det, x, p, rowsum, block):  # pragma: no cover - compiled
+    """:func:`project_view` on one thread."""
+    _project_rays(par, n, x, p, rowsum, 0, n_det)
+
+
+@numba.njit(cache=True, parallel=True)
+def backproject_view(par, n, n_det, coef, x, scale, scaled, nonneg, block):  # pragma: no cover - compiled
+    """``x += sum_l coef[l] a_l`` (times ``scale`` if ``scaled``, clipped at 0 if ``nonneg``) for one view.
+
+    Rays go in blocks of ``block`` (:func:`ray_block`): first the even blocks in parallel,
+    then the odd ones; blocks of one phase touch disjoint pixels, so the result does not
+    depend on the number of threads. Within a block the rays go in detector order.
+    """
+    n_blocks = (n_det + block - 1) // block
+    for phase in range(2):
+        for b in numba.prange((n_blocks + 1 - phase) // 2):
+            start = (2 * b + phase) * block
+            _backproject_rays(par, n, coef, x, scale, scaled, nonneg, start, min(start + block, n_det))
+
+
+@numba.njit(cache=True, nogil=True)
+def backproject_view_serial(par, n, n_det, coef, x, scale, scaled, nonneg, block):  # pragma: no cover - compiled
+    """:func:`backproject_view` on one thread, blocks in the same order (the same result)."""
+    n_blocks = (n_det + block - 1) // block
+    for phase in range(2):
+        for b in range((n_blocks + 1 - phase) // 2):
+            start = (2 * b + phase) * block
+            _backproject_rays(par, n, coef, x, scale, scaled, nonneg, start, min(start + block, n_det))
+
+
+#: Views with at least this many ray-crossings (``N * L``) are projected and back-projected
+#: with all threads (:func:`project_view`, :func:`backproject_view`); smaller ones on one
+#: thread, where starting the threads for every view costs more than it saves.
+PARALLEL_MIN_WORK = 1 << 18
+
+
+def use_threads(geometry: Geometry) -> bool:
+    """Whether one view's rays are split over threads: ``N * L >= PARALLEL_MIN_WORK``."""
+    return geometry.n * geometry.n_det >= PARALLEL_MIN_WORK

@@ -63,7 +63,18 @@ import scipy.fft as sfft
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays, column_sums, ray_add, ray_dot, ray_setup
+from ..core.matrixfree import (
+    ParallelRays,
+    backproject_view,
+    backproject_view_serial,
+    column_sums,
+    project_view,
+    project_view_serial,
+    ray_block,
+    ray_dot,
+    ray_setup,
+    use_threads,
+)
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
 from .params import MethodParams
@@ -424,12 +435,15 @@ def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _view_step_free(par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum):  # pragma: no cover
-    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters)."""
-    setup = ray_setup(par, n)
-    c_first, c_step = setup[6], setup[7]
-    for l in range(n_det):
-        p[l], rowsum[l], _ = ray_dot(x, n, setup, c_first + l * c_step)
+def _view_step_free(
+    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads
+):  # pragma: no cover - compiled
+    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters);
+    projection and back projection use all threads (:func:`~nanoct.core.matrixfree.backproject_view`)."""
+    if threads:
+        project_view(par, n, n_det, x, p, rowsum, block)
+    else:
+        project_view_serial(par, n, n_det, x, p, rowsum, block)
     res2 = 0.0
     for l in range(n_det):
         g[l] = 0.0
@@ -453,8 +467,11 @@ def _view_step_free(par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, row
             if 0 <= i0 + 1 < n_det:
                 g[i0 + 1] += w1 * e
     for l in range(n_det):
-        if g[l] != 0.0:
-            ray_add(x, n, setup, c_first + l * c_step, -omega * g[l], inv_col, True, nonneg)
+        g[l] *= -omega
+    if threads:
+        backproject_view(par, n, n_det, g, x, inv_col, True, nonneg, block)
+    else:
+        backproject_view_serial(par, n, n_det, g, x, inv_col, True, nonneg, block)
     return res2
 
 
@@ -484,6 +501,8 @@ def _dremel_sweep_free(
     zc,
     c,
     rowsum,
+    block,
+    threads,
 ):  # pragma: no cover - compiled
     """:func:`_dremel_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
@@ -491,7 +510,7 @@ def _dremel_sweep_free(
         k = views[i]
         d = shifts[k] * det_per_obj
         yk = y[k * n_det : (k + 1) * n_det]
-        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, omega, nonneg, p, z, g, rowsum)
+        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, omega, nonneg, p, z, g, rowsum, block, threads)
         if correct:
             zmean = _upsample_centre(z, f_sr, zc)
             sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
@@ -683,7 +702,7 @@ def dremel(
         if free:
             run = _dremel_sweep_free(
                 mat.params, geometry.n, inv_col, y, x, views, n_det, shifts, *step, *shift_args, ycorr, ymean,
-                *work, rowsum,
+                *work, rowsum, ray_block(geometry), use_threads(geometry),
             )  # fmt: skip
         else:
             step_args = (views, n_det, shifts, *step)
