@@ -41,6 +41,7 @@ __all__ = [
     "ray_add",
     "ray_block",
     "ray_dot",
+    "ray_set",
     "ray_setup",
     "residual_norm_free",
     "use_threads",
@@ -354,6 +355,27 @@ def ray_add(x, n, setup, c0, coef, scale, scaled, nonneg):  # pragma: no cover -
             _put(x, base, coef * wc, scale, scaled, nonneg)
         if m + 1 < n:
             _put(x, base + minor, coef * wr, scale, scaled, nonneg)
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_set(x, n, setup, c0, coef):  # pragma: no cover - compiled
+    """``x[j] = coef * a_j`` for the pixels of one ray (``coef = 0`` clears them)."""
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    for i in range(n):
+        c = c0 + i * delta
+        m = _minor(c)
+        if m < -1 or m > n:
+            continue
+        off = c - m
+        wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+        wr = length * min(max((off - s) * invw, 0.0), 1.0)
+        base = i * major + m * minor
+        if m >= 1:
+            x[base - minor] = coef * wl
+        if 0 <= m < n:
+            x[base] = coef * (length - wl - wr)
+        if m + 1 < n:
+            x[base + minor] = coef * wr
 
 
 @numba.njit(cache=True, nogil=True)
