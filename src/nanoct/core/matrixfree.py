@@ -1,21 +1,25 @@
-"""Rays computed on the fly: the parallel-beam ``line`` model one view at a time.
+"""Rays traced on the fly: the parallel-beam ``line`` model without a stored matrix.
 
 The cached system matrix (:func:`nanoct.core.operators.system_matrix`) holds every ray of every
-view and grows as N³ (about 8 bytes per non-zero, 1.3 K N² non-zeros for K views). The
-row-action methods only ever need the rows of one view at a time, so above a size they build
-those rows per view instead (:func:`view_rows`) and keep nothing else.
+view and grows as N³ (8 bytes per non-zero, about 1.3 K N² non-zeros for K views: 0.5 GB at
+the paper-parallel preset, 3 GB at N = 511, 190 GB at N = 2048). The row-action methods use
+one ray (Kaczmarz, RESESOP) or one view (Dremel) at a time, so above a size they trace each
+ray when they need it (:func:`ray_dot`, :func:`ray_add`) and store nothing but the image.
 
-The line model is ASTRA's parallel-beam ``line`` kernel (``ParallelBeamLineKernelProjector2D``),
-evaluated in float32 as ASTRA does: a ray that is mainly vertical (``|ray_x| < |ray_y|``)
-crosses the centre line of every image row at a fractional column ``c``; with ``col`` the
-nearest column and ``o = c - col``, the ray's length per row ``h = |d_u| sqrt(rx² + ry²) / |ry|``
-goes to ``col`` alone when ``|o| <= S`` and is shared linearly between ``col`` and its
-neighbour otherwise, with ``S, T = (1 -+ |rx / ry|) / 2``. Mainly horizontal rays are handled
-the same way with rows and columns exchanged. The rows agree with the cached CSR rows to
-float32 rounding (tested row by row).
+The line model is ASTRA's parallel-beam ``line`` kernel: a ray that is mainly vertical
+(``|ray_x| < |ray_y|``) crosses the centre line of every image row at a fractional column
+``c``; with ``m`` the nearest column and ``o = c - m``, the ray's length per row
+``h = sqrt(rx² + ry²) / |ry|`` goes to column ``m`` alone when ``|o| <= S`` and is shared
+linearly with the neighbour towards ``o`` otherwise (``S = (1 - |rx / ry|) / 2``,
+``T = (1 + |rx / ry|) / 2``: the neighbour gets ``h (|o| - S) / (T - S)``). Mainly horizontal
+rays are handled the same way with rows and columns exchanged. Here the arithmetic is float64
+and the crossings are computed directly (ASTRA accumulates them in float32), so a ray's weights
+agree with the cached CSR row to about 1e-3 of a pixel length (tested row by row).
 
-Each ray's rows are independent, so one view's rays are traced in parallel (numba ``prange``)
-in two passes: count, then fill a compact CSR block of the view's ``L`` rows.
+A view's rays can be split over threads (:func:`project_view`, :func:`backproject_view`):
+projections are independent; back projections go in blocks of rays, the even blocks in
+parallel and then the odd ones, so that concurrent blocks touch disjoint pixels and the
+result does not depend on the number of threads.
 """
 
 from __future__ import annotations
@@ -45,7 +49,6 @@ __all__ = [
     "ray_setup",
     "residual_norm_free",
     "use_threads",
-    "view_rows",
 ]
 
 #: Non-zeros of the parallel ``line`` matrix per view and image pixel (measured: 47.0 M for the
@@ -87,166 +90,6 @@ class ParallelRays:
         vec = astra_vectors(geometry)
         start = vec[:, 2:4] - 0.5 * geometry.n_det * vec[:, 4:6]
         self.params = np.ascontiguousarray(np.concatenate([vec[:, 0:2], start, vec[:, 4:6]], axis=1), np.float32)
-        self.max_row = 2 * geometry.n + 2  # at most two pixels per crossed image row (or column)
-
-    def view(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The CSR block of view ``k``: ``(indptr (L+1,), indices, data)`` as :func:`view_rows`."""
-        return view_rows(self.params[k], self.geometry.n, self.geometry.n_det)
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # 1/|S-T| is inf for axis-parallel rays, never used
-def _trace(par, n, det, idx, val, start, write):  # pragma: no cover - compiled
-    """Trace detector pixel ``det`` of one view; write its entries from ``start`` if ``write``.
-
-    Returns the number of entries. Float32 arithmetic in ASTRA's order (incremental steps).
-    """
-    f32 = np.float32
-    rx, ry = par[0], par[1]
-    sx, sy, ux, uy = par[2], par[3], par[4], par[5]
-    ex = f32(-n / 2.0 + 0.5)  # centre of the upper-left pixel
-    ey = f32(n / 2.0 - 0.5)
-    dx = sx + (f32(det) + f32(0.5)) * ux
-    dy = sy + (f32(det) + f32(0.5)) * uy
-    norm = f32(math.sqrt(ry * ry + rx * rx))
-    cnt = 0
-    isin = False
-    if abs(rx) < abs(ry):
-        ratio = rx / ry
-        length = norm / abs(ry)
-        delta = -ratio
-        s = f32(0.5) - f32(0.5) * abs(ratio)
-        t = f32(0.5) + f32(0.5) * abs(ratio)
-        inv = length / (t - s)
-        c = dx + (ey - dy) * ratio - ex
-        for row in range(n):
-            col = int(math.floor(c + f32(0.5)))
-            if col < -1 or col > n:
-                if isin:
-                    break
-                c += delta
-                continue
-            off = c - f32(col)
-            base = row * n
-            if off < -s:
-                w = (off + t) * inv
-                if col > 0:
-                    if write:
-                        idx[start + cnt] = base + col - 1
-                        val[start + cnt] = length - w
-                    cnt += 1
-                if 0 <= col < n:
-                    if write:
-                        idx[start + cnt] = base + col
-                        val[start + cnt] = w
-                    cnt += 1
-            elif s < off:
-                w = (off - s) * inv
-                if 0 <= col < n:
-                    if write:
-                        idx[start + cnt] = base + col
-                        val[start + cnt] = length - w
-                    cnt += 1
-                if col + 1 < n:
-                    if write:
-                        idx[start + cnt] = base + col + 1
-                        val[start + cnt] = w
-                    cnt += 1
-            elif 0 <= col < n:
-                if write:
-                    idx[start + cnt] = base + col
-                    val[start + cnt] = length
-                cnt += 1
-            isin = True
-            c += delta
-    else:
-        ratio = ry / rx
-        length = norm / abs(rx)
-        delta = -ratio
-        s = f32(0.5) - f32(0.5) * abs(ratio)
-        t = f32(0.5) + f32(0.5) * abs(ratio)
-        inv = length / (t - s)
-        r = -(dy + (ex - dx) * ratio - ey)
-        for col in range(n):
-            row = int(math.floor(r + f32(0.5)))
-            if row < -1 or row > n:
-                if isin:
-                    break
-                r += delta
-                continue
-            off = r - f32(row)
-            if off < -s:
-                w = (off + t) * inv
-                if row > 0:
-                    if write:
-                        idx[start + cnt] = (row - 1) * n + col
-                        val[start + cnt] = length - w
-                    cnt += 1
-                if 0 <= row < n:
-                    if write:
-                        idx[start + cnt] = row * n + col
-                        val[start + cnt] = w
-                    cnt += 1
-            elif s < off:
-                w = (off - s) * inv
-                if 0 <= row < n:
-                    if write:
-                        idx[start + cnt] = row * n + col
-                        val[start + cnt] = length - w
-                    cnt += 1
-                if row + 1 < n:
-                    if write:
-                        idx[start + cnt] = (row + 1) * n + col
-                        val[start + cnt] = w
-                    cnt += 1
-            elif 0 <= row < n:
-                if write:
-                    idx[start + cnt] = row * n + col
-                    val[start + cnt] = length
-                cnt += 1
-            isin = True
-            r += delta
-    return cnt
-
-
-@numba.njit(cache=True, parallel=True)
-def _view_rows(par, n, n_det):  # pragma: no cover - compiled
-    counts = np.empty(n_det, dtype=np.int64)
-    dummy_i = np.empty(0, dtype=np.int32)
-    dummy_v = np.empty(0, dtype=np.float32)
-    for det in numba.prange(n_det):
-        counts[det] = _trace(par, n, det, dummy_i, dummy_v, 0, False)
-    indptr = np.zeros(n_det + 1, dtype=np.int64)
-    for det in range(n_det):
-        indptr[det + 1] = indptr[det] + counts[det]
-    idx = np.empty(indptr[n_det], dtype=np.int32)
-    val = np.empty(indptr[n_det], dtype=np.float32)
-    for det in numba.prange(n_det):
-        _trace(par, n, det, idx, val, indptr[det], True)
-    return indptr, idx, val
-
-
-def view_rows(par: np.ndarray, n: int, n_det: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rows of one view of the parallel ``line`` model, as a compact CSR block.
-
-    Parameters
-    ----------
-    par : ndarray of shape (6,), float32
-        One row of :attr:`ParallelRays.params`.
-    n : int
-        Image size N (pixels of unit size, centred on the rotation axis).
-    n_det : int
-        Detector pixels L.
-
-    Returns
-    -------
-    indptr : ndarray of shape (L+1,), int64
-    indices : ndarray, int32
-        Column ``row * N + col`` of image pixel ``x[row, col]``; within a row in tracing order
-        (not sorted for mainly horizontal rays).
-    data : ndarray, float32
-        Intersection weights (ray length per crossed row or column, shared linearly).
-    """
-    return _view_rows(np.ascontiguousarray(par, np.float32), int(n), int(n_det))
 
 
 # ------------------------------------------------------------------ fused kernels (no rows stored)

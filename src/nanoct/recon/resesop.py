@@ -62,6 +62,7 @@ from ..core.validation import check_array, check_choice, check_float
 from .params import MethodParams
 from .result import ReconResult
 from .rowaction import (
+    check_projector,
     check_row_action,
     clip_nonneg,
     prepare_problem,
@@ -361,6 +362,10 @@ class ResesopParams(MethodParams):
         # the discrepancy principle needs tau > 1
         self._set("tau", check_float(self.tau, "tau", low=1.0, low_open=True))
         self._set("stop_rule", check_choice(self.stop_rule, "stop_rule", STOP_RULES))
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry`` (the projector checked against it)."""
+        return check_projector(super().resolve(geometry), geometry)
 
 
 def resesop(

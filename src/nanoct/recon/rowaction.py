@@ -58,19 +58,18 @@ __all__ = [
     "PROJECTORS",
     "RESIDUALS",
     "auto_relaxation",
+    "check_projector",
     "check_row_action",
     "clip_nonneg",
     "matrix_cache",
     "prepare_problem",
     "residual_norm",
-    "residual_norm_views",
     "resolve_projector",
     "resolve_relaxation",
     "row_dot",
     "row_dot_f64",
     "row_norms_squared",
     "unsigned_indices",
-    "view_block",
     "view_order",
 ]
 
@@ -149,6 +148,12 @@ def check_row_action(p: MethodParams) -> None:
     p._set("projector", check_choice(p.projector, "projector", PROJECTORS))
 
 
+def check_projector(values: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
+    """``values`` unchanged; raises ``ValueError`` if its ``projector`` cannot serve ``geometry``."""
+    resolve_projector(values["projector"], geometry)
+    return values
+
+
 def resolve_projector(projector: str, geometry: Geometry, matrix: Any = None) -> str:
     """``"matrix"`` or ``"matrixfree"`` for a method's ``projector`` parameter.
 
@@ -177,7 +182,9 @@ def _check_relaxation(value: Any) -> float:
 
 
 def resolve_relaxation(values: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
-    """``values`` with ``relaxation=None`` replaced by :func:`auto_relaxation` of the geometry's views."""
+    """``values`` with ``relaxation=None`` replaced by :func:`auto_relaxation` of the geometry's views
+    (and ``projector`` checked against the geometry, :func:`check_projector`)."""
+    check_projector(values, geometry)
     if values["relaxation"] is None:
         values["relaxation"] = _check_relaxation(auto_relaxation(geometry.n_angles))
     return values
@@ -255,22 +262,6 @@ def _row_norms2(indptr, data):  # pragma: no cover - compiled
             s += d * d
         out[r] = s
     return out
-
-
-def view_block(rays: ParallelRays, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The rows of view ``k``: ``(indptr, unsigned indices, data, squared row norms)``."""
-    indptr, indices, data = rays.view(int(k))
-    return indptr, indices.view(np.uint32), data, _row_norms2(indptr, data)
-
-
-def residual_norm_views(rays: ParallelRays, y: np.ndarray, x: np.ndarray) -> float:
-    """``||A x - y||_2`` with the matrix-free rows (row products as :func:`residual_norm`)."""
-    n_det = rays.geometry.n_det
-    tot = 0.0
-    for k in range(rays.geometry.n_angles):
-        indptr, indices, data, _ = view_block(rays, k)
-        tot += residual_norm(indptr, indices, data, y[k * n_det : (k + 1) * n_det], x) ** 2
-    return math.sqrt(tot)
 
 
 def row_norms_squared(matrix: sp.csr_matrix) -> np.ndarray:
