@@ -9,10 +9,11 @@ Every case runs in its own subprocess, so its peak memory (``ru_maxrss`` of that
 Python, numba, the data, the matrix if any) is its own. Geometries follow the paper-parallel
 ratios: ``K = round(567 N / 255)`` views, ``L = round(363 N / 255)`` detector pixels.
 
-* Dremel and RESESOP: seconds per sweep (after one warm-up sweep that also compiles and, for
-  the matrix, loads or builds it; the build time is reported separately) with the cached
-  matrix (``--matrix-sizes``) and with the traced rays, and their ratio at the sizes where
-  both ran; also the cost per ray-pixel crossing.
+* Dremel and RESESOP: seconds per sweep (compiled beforehand on a small geometry; the
+  matrix's load or build time is reported separately) with the cached matrix
+  (``--matrix-sizes``) and with the traced rays, and their ratio at the sizes where both ran;
+  also the cost per ray crossing (K L N crossings per sweep). ``dremel:matrixfree+threads``
+  splits every view over the threads (``--thread-sizes``), whatever its size.
 * FBP: ``nanoct.fbp`` vs ``algotom.rec.reconstruction.fbp_reconstruction`` (CPU, its
   default Hann-windowed ramp, no log, 2 cores) on the same sinogram of ``round(1800 N / 2048)``
   views and N columns (the measured-scan shape: 1800 x 2048 at N = 2048), and their ratio.
@@ -93,6 +94,11 @@ def worker(case: str, n: int, sweeps: int) -> dict:
         out["seconds"] = time.perf_counter() - t
     else:
         method, projector = case.split(":")
+        if projector == "matrixfree+threads":  # split every view over the threads
+            import nanoct.core.matrixfree
+
+            nanoct.core.matrixfree.PARALLEL_MIN_WORK = 0
+            projector = "matrixfree"
         kw = {"matrix": None, "projector": projector}
         if projector == "matrix":
             t = time.perf_counter()
@@ -104,7 +110,11 @@ def worker(case: str, n: int, sweeps: int) -> dict:
         else:
             eta = np.full(g.n_angles, 0.02 * float(np.abs(y).max()))
             run = lambda n_iter: resesop(g, y, eta, n_iter=n_iter, tau=1.01, **kw)  # noqa: E731
-        run(1)  # compile, warm caches
+        small = geometry(32)
+        if method == "dremel":
+            dremel(small, np.zeros(small.sino_shape), n_iter=1, projector=projector)  # compile
+        else:
+            resesop(small, np.ones(small.sino_shape), np.zeros(small.n_angles), n_iter=1, projector=projector)
         t = time.perf_counter()
         run(sweeps)
         out["seconds"] = (time.perf_counter() - t) / sweeps
@@ -125,6 +135,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="*", default=[255, 511, 1024])
     ap.add_argument("--matrix-sizes", type=int, nargs="*", default=[255])
+    ap.add_argument("--thread-sizes", type=int, nargs="*", default=[255, 511], help="Dremel with threads per view")
     ap.add_argument("--fbp-sizes", type=int, nargs="*", default=[255, 511, 1024, 2048])
     ap.add_argument("--sweeps", type=int, default=1)
     ap.add_argument("--worker", nargs=2, metavar=("CASE", "N"), help=argparse.SUPPRESS)
@@ -136,6 +147,8 @@ def main() -> None:
     for method in ("dremel", "resesop"):
         for n in args.sizes:
             cases = [f"{method}:matrixfree"] + ([f"{method}:matrix"] if n in args.matrix_sizes else [])
+            if method == "dremel" and n in args.thread_sizes:
+                cases.append("dremel:matrixfree+threads")
             res = {c: run_case(c, n, args.sweeps) for c in cases}
             for c, r in res.items():
                 rows.append(r)

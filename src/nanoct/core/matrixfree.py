@@ -311,8 +311,10 @@ def backproject_view_serial(par, n, n_det, coef, x, scale, scaled, nonneg, block
 
 #: Views with at least this many ray-crossings (``N * L``) are projected and back-projected
 #: with all threads (:func:`project_view`, :func:`backproject_view`); smaller ones on one
-#: thread, where starting the threads for every view costs more than it saves.
-PARALLEL_MIN_WORK = 1 << 18
+#: thread. Threads meet twice per view; on the shared 2-core machine of the benchmarks that
+#: made a Dremel sweep at N = 511 several times slower than one thread
+#: (``benchmarks/README.md``), so only views of 2048-column scans (N L >= 2^22) use them.
+PARALLEL_MIN_WORK = 1 << 22
 
 
 def use_threads(geometry: Geometry) -> bool:
