@@ -149,6 +149,48 @@ def test_bad_arguments(work, capsys, case):
     assert _listing(work) == before, sorted(_listing(work) ^ before)
 
 
+# usage errors that click (vendored by typer as typer._click since 0.29) raises before a command runs
+USAGE = {
+    "unknown option": (["reconstruct", "{w}", "--bogus"], "no such option: --bogus"),
+    "misspelt option": (["reconstruct", "{w}", "--metod", "fbp"], "--method"),
+    "unknown command": (["frobnicate"], "no such command 'frobnicate'"),
+    "misspelt command": (["genrate"], "did you mean 'generate'"),
+    "missing argument": (["reconstruct"], "missing argument 'directory'"),
+    "missing option": (["reconstruct", "{w}"], "missing option '--method'"),
+    "missing option value": (["train", "{w}", "-i", "fbp", "--precision"], "requires an argument"),
+    "bad integer": (["generate", "--n", "abc", "-p", "tiny-parallel", "-o", "{w}/new"], "'--n'"),
+    "bad float": (["train", "{w}", "-i", "fbp", "--lr", "fast"], "'--lr'"),
+    "flag with a value": (["info", "{w}", "--json=3"], "does not take a value"),
+    "extra argument": (["info", "{w}", "{w}"], "unexpected extra argument"),
+    "unknown top-level option": (["--bogus"], "no such option: --bogus"),
+}
+
+
+@pytest.mark.parametrize("case", list(USAGE))
+def test_usage_errors(tmp_path, capsys, case):
+    args, expect = USAGE[case]
+    code, out, err = _cli(capsys, [a.replace("{w}", str(tmp_path)) for a in args])
+    _check_error(code, out, err, expect)
+    assert out == "" and list(tmp_path.iterdir()) == []
+
+
+def test_version(capsys):
+    from nanoct import __version__
+
+    assert _cli(capsys, ["--version"]) == (0, f"nanoct {__version__}\n", "")
+
+
+def test_no_arguments_print_the_help(capsys):
+    code, out, err = _cli(capsys, [])
+    assert code == 2 and "Usage: nanoct" in out + err and "Traceback" not in out + err
+
+
+def test_help_shows_no_type_after_flags(capsys):
+    code, out, _ = _cli(capsys, ["reconstruct", "--help"])
+    assert code == 0 and "-q, --quiet" in out and "--overwrite " in out
+    assert "<bool>" not in out
+
+
 def _delete(path: Path) -> None:
     path.unlink()
 
