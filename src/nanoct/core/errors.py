@@ -1,6 +1,6 @@
 """Exceptions for problems a user can fix (the CLI prints them without a traceback)."""
 
-__all__ = ["NanoctError", "StoreError"]
+__all__ = ["BusyError", "NanoctError", "StoreError"]
 
 
 class NanoctError(Exception):
@@ -9,3 +9,7 @@ class NanoctError(Exception):
 
 class StoreError(NanoctError):
     """A data-set store is missing, damaged or does not match the request."""
+
+
+class BusyError(NanoctError):
+    """Another process is writing the same reconstruction or training run (it holds the lock file)."""

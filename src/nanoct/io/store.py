@@ -49,6 +49,7 @@ from .. import __version__
 from ..core.errors import StoreError
 from ..core.geometry import Geometry
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
+from .lock import pid_alive
 from .store_recon import ReconstructionArrays
 
 __all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "open_cached", "split_assignment"]
@@ -167,19 +168,9 @@ def _remove_stale_creations(path: Path) -> None:
     """Remove ``.NAME.creating-<pid>-<hex>`` directories of killed creations (their process is gone)."""
     for tmp in path.parent.glob(f".{path.name}.creating-*"):
         pid = tmp.name.rsplit(".creating-", 1)[1].split("-")[0]
-        alive = pid.isdigit() and int(pid) != os.getpid() and _pid_alive(int(pid))
+        alive = pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid))
         if tmp.is_dir() and not alive:
             shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, owned by someone else
-        return True
-    return True
 
 
 class DataStore:
