@@ -122,6 +122,7 @@ def _listing(root: Path) -> dict[str, int]:
     return {str(p.relative_to(root)): p.stat().st_size for p in root.rglob("*")}
 
 
+@pytest.mark.timeout(max(600, EXAMPLES))  # about 0.1-0.5 s an example
 @settings(
     max_examples=EXAMPLES,
     deadline=None,

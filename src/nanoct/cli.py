@@ -14,6 +14,7 @@ import typer
 
 from . import __version__
 from .core.errors import NanoctError
+from .io.fileio import free_space
 from .names import is_prediction
 from .recon.registry import method_help, method_spec, methods_with_eta
 
@@ -647,7 +648,16 @@ def _expected_error(exc: BaseException) -> str | None:
         where = " ".join(str(f) for f in (exc.filename, exc.filename2) if f)
         reason = exc.strerror or errno.errorcode.get(exc.errno or 0) or str(exc)
         denied = "check its permissions, or write somewhere else"
-        hints = {errno.EACCES: denied, errno.EPERM: denied, errno.EROFS: denied, errno.ENOSPC: "free some disk space"}
+        again = "run the same command again (it resumes where it stopped)"
+        free = free_space(exc.filename) if exc.filename else None
+        free_text = "" if free is None else f" ({free / 2**20:.1f} MiB free)"
+        hints = {
+            errno.EACCES: denied,
+            errno.EPERM: denied,
+            errno.EROFS: denied,
+            errno.ENOSPC: f"free some disk space{free_text} and {again}",
+            errno.EIO: f"the device reported a read or write error: check the disk, then {again}",
+        }
         hint = hints.get(exc.errno or 0, "check the path")
         return f"{reason}: {where or '?'}; {hint}"
     return None

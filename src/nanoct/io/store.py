@@ -274,6 +274,12 @@ class DataStore:
         return self._array("split")[:]
 
     @property
+    def sample_nbytes(self) -> int:
+        """Uncompressed bytes of one sample's data arrays (an upper bound of what writing one takes)."""
+        arrays = [self._array(name) for name in _data_arrays(self.meta)]
+        return sum(a.dtype.itemsize * int(np.prod(a.shape[1:])) for a in arrays)
+
+    @property
     def done(self) -> np.ndarray:
         """Boolean mask of completely written samples."""
         return read_flags(self._group, "done", np.arange(self.n))

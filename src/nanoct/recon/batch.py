@@ -20,6 +20,7 @@ import numpy as np
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..core.geometry import Geometry
+from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import DataStore, Sample, open_cached
 from ..names import reconstruction_name
@@ -194,7 +195,9 @@ def reconstruct_dataset(
     if inputs.eta is not None and inputs.eta.first == name:
         raise NanoctError(f"--name {name} is the first reconstruction its eta is estimated from; choose another name")
     shifts0, slices = _plan_motion(store, checked) if spec.estimates_motion else (None, None)
-    with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"):
+    image, shifts = int(np.prod(store.geometry.image_shape)), store.geometry.n_angles * spec.estimates_motion
+    needed = 4 * (image + shifts) * len(wanted)  # float32, uncompressed: an upper bound
+    with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"), disk_space_needed(store.path, needed):
         if overwrite:
             store.delete_reconstruction(name)
         store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
