@@ -64,14 +64,15 @@ def test_stale_locks_are_broken(tmp_path):
         with exclusive(tmp_path, "fbp", "fbp"):
             assert json.loads(lock.read_text())["started"] > 0
         assert not lock.exists()
-    lock.write_text("")  # a writer killed between creating and filling its lock
-    with pytest.raises(BusyError, match="writing the lock file now"):
+    for garbled in ("", "{}", "[1]"):  # a writer killed between creating and filling its lock
+        lock.write_text(garbled)
+        with pytest.raises(BusyError, match="writing the lock file now"):
+            with exclusive(tmp_path, "fbp", "fbp"):
+                pass
+        os.utime(lock, (time.time() - 60, time.time() - 60))
         with exclusive(tmp_path, "fbp", "fbp"):
             pass
-    os.utime(lock, (time.time() - 60, time.time() - 60))
-    with exclusive(tmp_path, "fbp", "fbp"):
-        pass
-    assert not lock.exists()
+        assert not lock.exists()
 
 
 def test_lock_of_another_host_is_kept(tmp_path):

@@ -31,8 +31,8 @@ from ..core.errors import BusyError
 
 __all__ = ["exclusive", "lock_path", "pid_alive"]
 
-# a lock file still empty after this many seconds was left by a writer killed between creating
-# and filling it
+# a lock file still empty (or garbled) after this many seconds was left by a writer killed between
+# creating and filling it
 _EMPTY_GRACE_S = 30.0
 
 
@@ -64,16 +64,16 @@ def _owner_record() -> dict[str, Any]:
 
 
 def _read(lock: Path) -> dict[str, Any] | None:
-    """The owner record of ``lock``, or None when it is gone, empty or unreadable."""
+    """The owner record of ``lock``, or None when it is gone, empty or garbled."""
     try:
         record = json.loads(lock.read_text())
     except (OSError, ValueError):
         return None
-    return record if isinstance(record, dict) else None
+    return record if isinstance(record, dict) and {"pid", "started", "host"} <= record.keys() else None
 
 
 def _stale(lock: Path, owner: dict[str, Any] | None) -> bool:
-    if owner is None:  # being written right now, or its writer died before filling it
+    if owner is None:  # being written right now, or its writer died before filling it (or it was garbled)
         try:
             return time.time() - lock.stat().st_mtime > _EMPTY_GRACE_S
         except FileNotFoundError:
