@@ -45,3 +45,7 @@ def test_ci_installs_with_the_constraints():
     ci = (ROOT / ".ci" / "run").read_text()
     assert f"pip install -q torch=={_pins()['torch']} &&" in ci
     assert 'pip install -q -c constraints.txt -e ".[test]"' in ci
+    assert ci.rstrip().endswith(".ci/newest")  # then the newest allowed versions
+    assert "constraints" not in "".join(
+        line for line in (ROOT / ".ci" / "newest").read_text().splitlines() if "pip install" in line
+    )
