@@ -193,10 +193,7 @@ def predict(
         if todo.size:
             model = model_from_checkpoint(ckpt, ckpt_path)
             infer = Inference(model, kwargs, sampling, std_map, device)
-            with disk_space_needed(
-                store.path, 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * todo.size
-            ):
-                _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
+            _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
     return out
 
 
