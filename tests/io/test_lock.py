@@ -39,7 +39,7 @@ def _record(**change) -> str:
     return json.dumps(record | change)
 
 
-def test_lock_is_released_and_leaves_nothing(tmp_path):
+def test_lock_is_released_and_leaves_nothing(tmp_path, monkeypatch):
     target = tmp_path / "run" / "deeper"
     with exclusive(target, "train", "the run") as lock:
         assert lock == lock_path(target, "train") and lock.is_file()
@@ -50,6 +50,14 @@ def test_lock_is_released_and_leaves_nothing(tmp_path):
         with exclusive(target, "other", "another name"):  # other names are independent
             pass
     assert list(tmp_path.iterdir()) == []  # the lock and the directories it made are gone
+    with monkeypatch.context() as m:  # a block of this process whose clean-up failed (a simulated kill)
+        m.setattr(Path, "unlink", lambda self, missing_ok=False: None)
+        with exclusive(tmp_path, "fbp", "fbp"):
+            pass
+    assert lock_path(tmp_path, "fbp").exists()
+    with exclusive(tmp_path, "fbp", "fbp"):  # its lock is stale
+        pass
+    assert not lock_path(tmp_path, "fbp").exists()
     with exclusive(tmp_path, "train", "the run"):
         (tmp_path / "result").write_text("x")
     assert [p.name for p in tmp_path.iterdir()] == ["result"]

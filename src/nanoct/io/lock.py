@@ -7,9 +7,10 @@ files when it resumes). :func:`exclusive` lets the first one in and refuses the 
 
 The lock is a file ``DIR/.<name>.lock`` created with ``O_EXCL`` and holding its owner's pid,
 the start time of that process, the host name and the command line. A lock whose owner is gone
-(same host; no process with that pid, or one started at another time: the pid was reused) is
-stale and is broken by the next writer; a lock held on another host (a shared file system) is
-never broken automatically, the message says which file to delete once that process is gone.
+(same host; no process with that pid, or one started at another time: the pid was reused; or
+this very process, which no longer holds it) is stale and is broken by the next writer; a lock
+held on another host (a shared file system) is never broken automatically, the message says
+which file to delete once that process is gone.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ import psutil
 from ..core.errors import BusyError
 
 __all__ = ["exclusive", "lock_path", "pid_alive"]
+
+# tokens of the locks this process holds now: a lock naming this process but not listed here was
+# left by a block that an exception (or a simulated kill) ended without its clean-up
+_HELD: set[str] = set()
 
 # a lock file still empty (or garbled) after this many seconds was left by a writer killed between
 # creating and filling it
@@ -80,6 +85,8 @@ def _stale(lock: Path, owner: dict[str, Any] | None) -> bool:
             return False
     if owner.get("host") != socket.gethostname():
         return False  # cannot look at processes on another host
+    if owner.get("pid") == os.getpid() and owner.get("token") not in _HELD:
+        return True
     try:
         return not pid_alive(int(owner["pid"]), float(owner["started"]))
     except (KeyError, TypeError, ValueError):
@@ -165,9 +172,11 @@ def exclusive(directory: str | os.PathLike[str], name: str, what: str) -> Iterat
             break
         else:
             raise _busy(lock, what, _read(lock))
+        _HELD.add(record["token"])
         try:
             yield lock
         finally:
+            _HELD.discard(record["token"])
             if (_read(lock) or {}).get("token") == record["token"]:
                 lock.unlink(missing_ok=True)
     finally:
