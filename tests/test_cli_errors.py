@@ -7,8 +7,12 @@ built once per module and copied for every case.
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import re
 import shutil
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -147,6 +151,48 @@ def test_bad_arguments(work, capsys, case):
     code, out, err = _cli(capsys, [str(a).replace("{w}", str(work)) for a in args])
     _check_error(code, out, err, expect)
     assert _listing(work) == before, sorted(_listing(work) ^ before)
+
+
+# usage errors that click (vendored by typer as typer._click since 0.29) raises before a command runs
+USAGE = {
+    "unknown option": (["reconstruct", "{w}", "--bogus"], "no such option: --bogus"),
+    "misspelt option": (["reconstruct", "{w}", "--metod", "fbp"], "--method"),
+    "unknown command": (["frobnicate"], "no such command 'frobnicate'"),
+    "misspelt command": (["genrate"], "did you mean 'generate'"),
+    "missing argument": (["reconstruct"], "missing argument 'directory'"),
+    "missing option": (["reconstruct", "{w}"], "missing option '--method'"),
+    "missing option value": (["train", "{w}", "-i", "fbp", "--precision"], "requires an argument"),
+    "bad integer": (["generate", "--n", "abc", "-p", "tiny-parallel", "-o", "{w}/new"], "'--n'"),
+    "bad float": (["train", "{w}", "-i", "fbp", "--lr", "fast"], "'--lr'"),
+    "flag with a value": (["info", "{w}", "--json=3"], "does not take a value"),
+    "extra argument": (["info", "{w}", "{w}"], "unexpected extra argument"),
+    "unknown top-level option": (["--bogus"], "no such option: --bogus"),
+}
+
+
+@pytest.mark.parametrize("case", list(USAGE))
+def test_usage_errors(tmp_path, capsys, case):
+    args, expect = USAGE[case]
+    code, out, err = _cli(capsys, [a.replace("{w}", str(tmp_path)) for a in args])
+    _check_error(code, out, err, expect)
+    assert out == "" and list(tmp_path.iterdir()) == []
+
+
+def test_version(capsys):
+    from nanoct import __version__
+
+    assert _cli(capsys, ["--version"]) == (0, f"nanoct {__version__}\n", "")
+
+
+def test_no_arguments_print_the_help(capsys):
+    code, out, err = _cli(capsys, [])
+    assert code == 2 and "Usage: nanoct" in out + err and "Traceback" not in out + err
+
+
+def test_help_shows_no_type_after_flags(capsys):
+    code, out, _ = _cli(capsys, ["reconstruct", "--help"])
+    assert code == 0 and "-q, --quiet" in out and "--overwrite " in out
+    assert "<bool>" not in out
 
 
 def _delete(path: Path) -> None:
@@ -296,3 +342,66 @@ def test_bug_shows_traceback(monkeypatch, capsys):
     monkeypatch.setattr(nanoct.io.store.DataStore, "open", broken)
     code, _, err = _cli(capsys, ["info", "anything"])
     assert code == 1 and "Traceback" in err and "report" in err
+
+
+def _fail_chunk_writes(monkeypatch, code: int, after: int, under: str) -> None:
+    """Zarr chunk writes below ``under`` fail half-way after ``after`` chunks were written, leaving the partial file."""
+    import zarr.storage._local as local
+
+    real, calls = local._put, []
+
+    def put(path, value, exclusive=False):
+        if under in Path(path).parts and "c" in Path(path).parts and len(calls) >= after:
+            data = bytes(value.as_buffer_like())
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            Path(path).with_suffix(f".{uuid.uuid4().hex}.partial").write_bytes(data[: len(data) // 2])  # zarr's name
+            raise OSError(code, os.strerror(code), str(path))
+        if "c" in Path(path).parts:
+            calls.append(path)
+        return real(path, value, exclusive=exclusive)
+
+    monkeypatch.setattr(local, "_put", put)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EIO])
+def test_write_failing_half_way_then_rerun(work, capsys, monkeypatch, code):
+    store = work / "par"
+    args = ["reconstruct", store, "-m", "fbp", "--name", "again", "-w", 0, "-q"]
+    with monkeypatch.context() as m:
+        _fail_chunk_writes(m, code, after=3, under="again")
+        code_, out, err = _cli(capsys, args)
+    expect = {errno.ENOSPC: "no space left on the device of", errno.EIO: "check the disk"}[code]
+    _check_error(code_, out, err, expect)
+    assert str(store) in err
+    if code == errno.ENOSPC:
+        assert re.search(r"\(\d+\.\d [KMG]iB free, about \d+\.\d [KMG]iB more needed\)", err), err
+    assert _cli(capsys, ["info", store, "--check"])[0] == 0  # readable, nothing damaged
+    s = DataStore.open(store)
+    assert 0 < s.reconstruction_done("again").sum() < s.n
+    assert _cli(capsys, args)[0] == 0  # the rerun completes ...
+    np.testing.assert_array_equal(DataStore.open(store).read_reconstruction("again"), s.read_reconstruction("fbp"))
+    assert not list(store.rglob("*.partial"))  # ... and clears the partial file
+
+
+@pytest.mark.slow
+def test_checkpoint_write_failing_then_rerun(work, capsys, monkeypatch):
+    import nanoct.io.fileio as fileio
+
+    real = fileio.os.replace
+
+    def full_disk(src, dst):  # the last step of writing last.pt fails
+        if Path(dst).name == "last.pt":
+            raise OSError(errno.ENOSPC, "No space left on device", str(src))
+        return real(src, dst)
+
+    args = ["train", work / "par", "-i", "fbp", "--out", work / "r2", "--epochs", 2, "--batch-size", 2, "-q"]
+    args += ["--param", "channels=[4,4,8,8,16]", "--device", "cpu"]
+    with monkeypatch.context() as m:
+        m.setattr(fileio.os, "replace", full_disk)
+        code, out, err = _cli(capsys, args)
+    _check_error(code, out, err, f"no space left on the device of {work / 'r2' / 'last.pt'}")
+    assert "more needed" in err and not (work / "r2" / "last.pt").exists()
+    assert not [p for p in (work / "r2").iterdir() if ".tmp-" in p.name]
+    assert _cli(capsys, args)[0] == 0
+    assert len((work / "r2" / "log.csv").read_text().splitlines()) == 3  # header and two epochs

@@ -10,10 +10,11 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-import click
 import typer
 
+from . import __version__
 from .core.errors import NanoctError
+from .io.fileio import free_space
 from .names import is_prediction
 from .recon.registry import method_help, method_spec, methods_with_eta
 
@@ -22,7 +23,29 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # plain help: flags read "-q, --quiet" (rich help shows "<bool>" after every flag in typer 0.29)
+    rich_markup_mode=None,
 )
+
+# the exceptions module of the click that the installed typer uses: click itself up to typer 0.28,
+# typer._click (vendored) from 0.29 on
+_CLICK = sys.modules[typer.BadParameter.__module__]
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        typer.echo(f"nanoct {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: bool = typer.Option(
+        False, "--version", help="Print the version and exit.", callback=_show_version, is_eager=True
+    ),
+) -> None:
+    """nanoct: CT reconstruction with inexact (motion-perturbed) forward operators."""
+
 
 WORKERS = typer.Option(2, "--workers", "-w", help="Local Dask worker processes (0: run in this process).")
 SCHEDULER = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler (instead of a local cluster).")
@@ -639,30 +662,50 @@ def _expected_error(exc: BaseException) -> str | None:
         where = " ".join(str(f) for f in (exc.filename, exc.filename2) if f)
         reason = exc.strerror or errno.errorcode.get(exc.errno or 0) or str(exc)
         denied = "check its permissions, or write somewhere else"
-        hints = {errno.EACCES: denied, errno.EPERM: denied, errno.EROFS: denied, errno.ENOSPC: "free some disk space"}
+        again = "run the same command again (it resumes where it stopped)"
+        free = free_space(exc.filename) if exc.filename else None
+        free_text = "" if free is None else f" ({free / 2**20:.1f} MiB free)"
+        hints = {
+            errno.EACCES: denied,
+            errno.EPERM: denied,
+            errno.EROFS: denied,
+            errno.ENOSPC: f"free some disk space{free_text} and {again}",
+            errno.EIO: f"the device reported a read or write error: check the disk, then {again}",
+        }
         hint = hints.get(exc.errno or 0, "check the path")
         return f"{reason}: {where or '?'}; {hint}"
     return None
 
 
+def _usage_message(exc: Exception) -> str:
+    """One line for a click usage error: its message (with typer's hint) and where the help is."""
+    message = " ".join(exc.format_message().split())  # type: ignore[attr-defined]
+    ctx = getattr(exc, "ctx", None)
+    return f"{message.rstrip('.')} (see '{ctx.command_path} --help')" if ctx is not None else message
+
+
 def run(argv: list[str] | None = None) -> int:
     """Run the CLI on ``argv`` (default ``sys.argv[1:]``) and return the exit status.
 
-    Every expected failure (a :class:`NanoctError`, bad numbers, a file-system error, not
-    enough memory) becomes one ``error:`` line and status 2; Ctrl-C prints how to resume and
+    Every expected failure (a usage error such as an unknown option or a value of the wrong
+    type, a :class:`NanoctError`, bad numbers, a file-system error, not enough memory)
+    becomes one ``error:`` line and status 2; Ctrl-C prints how to resume and
     gives 130; anything else is a bug: its traceback is printed with a request to report it
     (status 1).
     """
     try:
         # typer turns Ctrl-C into exit status 130, returned (not raised) without standalone mode
-        code = app(args=argv, standalone_mode=False)
-    except (KeyboardInterrupt, click.exceptions.Abort):
+        code = app(args=argv, prog_name="nanoct", standalone_mode=False)
+    except (KeyboardInterrupt, typer.Abort):
         code = 130
-    except click.exceptions.Exit as exc:
+    except typer.Exit as exc:
         code = exc.exit_code
-    except click.ClickException as exc:
-        exc.show()
-        return int(exc.exit_code)
+    except _CLICK.ClickException as exc:  # usage errors: unknown option or command, missing or bad value
+        if type(exc).__name__ == "NoArgsIsHelpError":  # 'nanoct' alone: the help text
+            exc.show()
+            return 2
+        typer.secho(f"error: {_usage_message(exc)}", fg=typer.colors.RED, err=True)
+        return 2
     except Exception as exc:  # the one error boundary of the CLI
         message = _expected_error(exc)
         if message is None:

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import errno
 import os
 
 import pytest
 
 import nanoct.io.fileio as fileio
-from nanoct.io.fileio import atomic_link, atomic_write_bytes, atomic_write_text, remove_stale_temporaries
+from nanoct.core.errors import DiskFullError
+from nanoct.io.fileio import (
+    atomic_link,
+    atomic_write_bytes,
+    atomic_write_text,
+    disk_space_needed,
+    free_space,
+    remove_stale_temporaries,
+)
 
 
 def test_atomic_write_replaces_whole_file(tmp_path):
@@ -53,3 +62,49 @@ def test_atomic_link_shares_content_until_the_source_is_rewritten(tmp_path):
     atomic_write_bytes(src, b"epoch 5")  # an atomic rewrite of the source leaves the link's content alone
     assert dst.read_bytes() == b"epoch 3" and src.read_bytes() == b"epoch 5"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["best.pt", "last.pt"]
+
+
+class _HalfWriter:
+    """A file whose first write stores half the bytes, then fails as a full or broken disk does."""
+
+    def __init__(self, path, mode, code):
+        self._f, self._code = open(path, mode), code
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._f.close()
+
+    def write(self, data):
+        self._f.write(data[: len(data) // 2])
+        raise OSError(self._code, os.strerror(self._code), self._f.name)
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EIO])
+def test_write_failing_half_way_keeps_the_old_file(tmp_path, monkeypatch, code):
+    target = tmp_path / "last.pt"
+    atomic_write_bytes(target, b"old checkpoint")
+    monkeypatch.setattr(fileio, "open", lambda p, m: _HalfWriter(p, m, code), raising=False)
+    if code == errno.ENOSPC:
+        with pytest.raises(DiskFullError) as info:
+            atomic_write_bytes(target, b"x" * 3000)
+        message = str(info.value)
+        assert str(target) in message and "free" in message and "2.9 KiB more needed" in message
+        assert info.value.errno == errno.ENOSPC and info.value.filename == str(target)
+    else:
+        with pytest.raises(OSError) as info:
+            atomic_write_bytes(target, b"x" * 3000)
+        assert info.value.errno == errno.EIO and not isinstance(info.value, DiskFullError)
+    assert target.read_bytes() == b"old checkpoint"
+    assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]
+
+
+def test_disk_space_needed_passes_other_errors(tmp_path):
+    with pytest.raises(PermissionError):
+        with disk_space_needed(tmp_path, 10):
+            raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path))
+    with pytest.raises(DiskFullError, match=r"unknown free space|free\)"):
+        with disk_space_needed(tmp_path / "new" / "deeper", None):
+            raise OSError(errno.EDQUOT, "Disk quota exceeded")
+    assert free_space(tmp_path / "missing" / "x") == free_space(tmp_path) > 0

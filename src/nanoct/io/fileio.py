@@ -5,10 +5,15 @@ evaluation tables, reports, figures) goes through :func:`atomic_write_bytes`: th
 written to a temporary sibling ``.<name>.tmp-<hex>``, flushed to disk and renamed over the
 target with ``os.replace``. A kill between the write and the rename leaves only the temporary
 behind; :func:`remove_stale_temporaries` clears those when a job resumes in the directory.
+
+A write that fails for want of space (``ENOSPC``, ``EDQUOT``) leaves the old file and no
+temporary, and becomes one :class:`~nanoct.core.errors.DiskFullError` naming the file, the free
+space and the space the write needed (:func:`disk_space_needed` does the same for a whole job).
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import uuid
@@ -16,7 +21,19 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_link", "atomic_target", "atomic_write_bytes", "atomic_write_text", "remove_stale_temporaries"]
+from ..core.errors import DiskFullError
+
+__all__ = [
+    "atomic_link",
+    "atomic_target",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "disk_space_needed",
+    "free_space",
+    "remove_stale_temporaries",
+]
+
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 
 _TMP_TAG = ".tmp-"
 
@@ -36,26 +53,28 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     Path
         ``path``.
     """
-    with atomic_target(path) as tmp, open(tmp, "wb") as f:
+    with atomic_target(path, len(data)) as tmp, open(tmp, "wb") as f:
         f.write(data)
     return Path(path)
 
 
 @contextmanager
-def atomic_target(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_target(path: str | os.PathLike[str], needed: int | None = None) -> Iterator[Path]:
     """A temporary sibling of ``path`` to write to; on success it is flushed to disk and renamed to ``path``.
 
     For writers that need a file name (numpy, tifffile, h5py). The temporary keeps the suffix of
     ``path`` (``.<name>.tmp-<hex><suffix>``), so writers that add one do not rename it; on an
-    error it is removed and ``path`` is untouched.
+    error it is removed and ``path`` is untouched. A full disk raises :class:`DiskFullError`
+    naming ``path`` and ``needed`` (bytes, when the caller knows them).
     """
     path = Path(path)
     tmp = path.parent / f".{path.name}{_TMP_TAG}{uuid.uuid4().hex[:8]}{path.suffix}"
     try:
-        yield tmp
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        with disk_space_needed(path, needed):
+            yield tmp
+            with open(tmp, "rb+") as f:
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -67,12 +86,58 @@ def atomic_link(src: str | os.PathLike[str], path: str | os.PathLike[str]) -> Pa
     keeps the content it was linked to. Saves writing the same bytes twice (a training run's
     ``best.pt`` and ``last.pt`` after an improving epoch).
     """
-    with atomic_target(path) as tmp:
+    with atomic_target(path, os.path.getsize(src)) as tmp:
         try:
             os.link(src, tmp)
         except OSError:  # a file system without hard links
             shutil.copyfile(src, tmp)
     return Path(path)
+
+
+def _size(n: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    raise AssertionError  # unreachable: the loop returns at GiB
+
+
+def free_space(path: str | os.PathLike[str]) -> int | None:
+    """Bytes free on the file system of ``path`` (its nearest existing ancestor), or None if unknown."""
+    for p in (Path(path), *Path(path).parents):
+        if p.exists():
+            try:
+                return shutil.disk_usage(p).free
+            except OSError:
+                return None
+    return None
+
+
+@contextmanager
+def disk_space_needed(path: str | os.PathLike[str], needed: int | None) -> Iterator[None]:
+    """Turn a full-disk error in the block into a :class:`DiskFullError` naming ``path`` and the space needed.
+
+    Parameters
+    ----------
+    path : path-like
+        The file or directory being written (named in the message).
+    needed : int or None
+        Bytes the block still had to write (an upper bound; None when unknown).
+    """
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in _NO_SPACE or isinstance(exc, DiskFullError):
+            raise
+        free = free_space(path)
+        have = "unknown free space" if free is None else f"{_size(free)} free"
+        want = "" if needed is None else f", about {_size(needed)} more needed"
+        raise DiskFullError(
+            errno.ENOSPC,
+            f"no space left on the device of {path} ({have}{want}); free some space and run the same command "
+            "again (it resumes where it stopped)",
+            str(path),
+        ) from exc
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:

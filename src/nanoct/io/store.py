@@ -49,6 +49,7 @@ from .. import __version__
 from ..core.errors import StoreError
 from ..core.geometry import Geometry
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
+from .lock import pid_alive
 from .store_recon import ReconstructionArrays
 
 __all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "open_cached", "split_assignment"]
@@ -167,19 +168,9 @@ def _remove_stale_creations(path: Path) -> None:
     """Remove ``.NAME.creating-<pid>-<hex>`` directories of killed creations (their process is gone)."""
     for tmp in path.parent.glob(f".{path.name}.creating-*"):
         pid = tmp.name.rsplit(".creating-", 1)[1].split("-")[0]
-        alive = pid.isdigit() and int(pid) != os.getpid() and _pid_alive(int(pid))
+        alive = pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid))
         if tmp.is_dir() and not alive:
             shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, owned by someone else
-        return True
-    return True
 
 
 class DataStore:
@@ -281,6 +272,12 @@ class DataStore:
     def split(self) -> np.ndarray:
         """Split label per sample (0 train, 1 val, 2 test)."""
         return self._array("split")[:]
+
+    @property
+    def sample_nbytes(self) -> int:
+        """Uncompressed bytes of one sample's data arrays (an upper bound of what writing one takes)."""
+        arrays = [self._array(name) for name in _data_arrays(self.meta)]
+        return sum(a.dtype.itemsize * int(np.prod(a.shape[1:])) for a in arrays)
 
     @property
     def done(self) -> np.ndarray:

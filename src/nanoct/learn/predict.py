@@ -24,6 +24,8 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError, StoreError
+from ..io.fileio import disk_space_needed
+from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..names import prediction_name
 from .calibration import Inference
@@ -177,21 +179,21 @@ def predict(
     if sampling and calibrate:
         cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
         params["calibration"], std_map = cal, cal["std_map"]
-    params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
-    try:
-        store.prepare_reconstruction(out, params, uncertainty=sampling)
-    except StoreError as exc:
-        raise NanoctError(
-            f"reconstructions/{out} in {store.path} was made with another network, checkpoint or std calibration "
-            f"({store.reconstruction_params(out)}); use --overwrite to replace it"
-        ) from exc
-    todo = indices[~store.reconstruction_done(out, indices)]
-    if todo.size == 0:
-        return out
-
-    model = model_from_checkpoint(ckpt, ckpt_path)
-    infer = Inference(model, kwargs, sampling, std_map, device)
-    _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
+    needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
+    with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
+        params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
+        try:
+            store.prepare_reconstruction(out, params, uncertainty=sampling)
+        except StoreError as exc:
+            raise NanoctError(
+                f"reconstructions/{out} in {store.path} was made with another network, checkpoint or std "
+                f"calibration ({store.reconstruction_params(out)}); use --overwrite to replace it"
+            ) from exc
+        todo = indices[~store.reconstruction_done(out, indices)]
+        if todo.size:
+            model = model_from_checkpoint(ckpt, ckpt_path)
+            infer = Inference(model, kwargs, sampling, std_map, device)
+            _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
     return out
 
 

@@ -42,6 +42,7 @@ from torch.utils.data import DataLoader, DistributedSampler, Subset
 from .. import __version__
 from ..core.errors import NanoctError
 from ..io.fileio import atomic_link, atomic_write_bytes, remove_stale_temporaries
+from ..io.lock import exclusive
 from ..io.provenance import environment_info
 from ..io.store import DataStore
 from .base import PostProcessor
@@ -308,7 +309,10 @@ def train(
     try:
         if batch_size % world:
             raise NanoctError(f"batch size {batch_size} is not divisible by the {world} processes")
-        return _run(settings)
+        if not main_rank:  # rank 0 holds the lock; torchrun stops the other ranks when it is refused
+            return _run(settings)
+        with exclusive(settings.out, "train", f"the training run {settings.out}"):
+            return _run(settings)
     finally:
         if own_group and dist.is_initialized():
             dist.destroy_process_group()

@@ -20,6 +20,8 @@ import numpy as np
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..core.geometry import Geometry
+from ..io.fileio import disk_space_needed
+from ..io.lock import exclusive
 from ..io.store import DataStore, Sample, open_cached
 from ..names import reconstruction_name
 from .eta_source import EtaPlan, plan_eta
@@ -193,17 +195,20 @@ def reconstruct_dataset(
     if inputs.eta is not None and inputs.eta.first == name:
         raise NanoctError(f"--name {name} is the first reconstruction its eta is estimated from; choose another name")
     shifts0, slices = _plan_motion(store, checked) if spec.estimates_motion else (None, None)
-    if overwrite:
-        store.delete_reconstruction(name)
-    store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
-    if slices is not None:
-        shifts0 = _shared_shifts(store, name, solver_params, slices, shifts0)
-    if shifts0 is not None:
-        fixed = slices is not None or checked["fix_shifts"]
-        if checked["fix_shifts"]:  # a joint estimate was stored by _shared_shifts already
-            store.recons.set_shared_shifts(name, shifts0)
-        inputs = _Inputs(shifts0=shifts0, fixed=fixed)
-    pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
-    task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
-    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
+    image, shifts = int(np.prod(store.geometry.image_shape)), store.geometry.n_angles * spec.estimates_motion
+    needed = 4 * (image + shifts) * len(wanted)  # float32, uncompressed: an upper bound
+    with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"), disk_space_needed(store.path, needed):
+        if overwrite:
+            store.delete_reconstruction(name)
+        store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
+        if slices is not None:
+            shifts0 = _shared_shifts(store, name, solver_params, slices, shifts0)
+        if shifts0 is not None:
+            fixed = slices is not None or checked["fix_shifts"]
+            if checked["fix_shifts"]:  # a joint estimate was stored by _shared_shifts already
+                store.recons.set_shared_shifts(name, shifts0)
+            inputs = _Inputs(shifts0=shifts0, fixed=fixed)
+        pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
+        task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
+        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
     return name

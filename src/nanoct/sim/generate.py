@@ -9,6 +9,7 @@ from pathlib import Path
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..core.geometry import Geometry
+from ..io.fileio import disk_space_needed
 from ..io.store import DataStore, open_cached
 from .simulate import SimulationConfig, simulate_sample
 
@@ -69,12 +70,13 @@ def generate_dataset(
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
     pending = [int(i) for i in (~store.done).nonzero()[0]]
-    run_tasks(
-        partial(_simulate_into, str(store.path)),
-        pending,
-        workers=workers,
-        scheduler=scheduler,
-        desc="generate",
-        progress=progress,
-    )
+    with disk_space_needed(store.path, store.sample_nbytes * len(pending)):
+        run_tasks(
+            partial(_simulate_into, str(store.path)),
+            pending,
+            workers=workers,
+            scheduler=scheduler,
+            desc="generate",
+            progress=progress,
+        )
     return DataStore.open(store.path, mode="r+")
