@@ -1,0 +1,280 @@
+"""Motion of a measured stack, coarse to fine, and slices reconstructed with that motion fixed.
+
+The slices of a 3-D scan share one horizontal shift per view ``d_k`` (detector pixels, the sign
+of :func:`~nanoct.recon.dremel.dremel`'s motion: the measured view is ``p_k(x) = P_k(x + d_k)``).
+:func:`estimate_stack_motion` finds it and the rotation axis in four steps:
+
+1. **axis**: :func:`~nanoct.recon.center.fit_center` on opposite views of the raw data;
+2. **coarse**: the sinograms of a few slices binned ``binning`` times along the detector
+   (:func:`bin_sinograms`), Dremel's joint estimate on them
+   (:func:`~nanoct.recon.shared.joint_shifts`: per slice, translation removed, median), scaled
+   back to full-size pixels; the cached system matrix stays small (its size grows as N^3);
+3. **refine** at full resolution: ``refine_iter`` rounds of projection matching: a
+   motion-corrected FBP of each chosen slice (:func:`corrected_fbp`), its reprojection
+   (:func:`reproject`) and the sub-pixel lag of each measured view against it, the
+   cross-correlations of all chosen slices summed (:func:`~nanoct.recon.center.xcorr_shifts`);
+4. **axis again** with the views moved back by their shifts (now opposite views can be
+   interpolated in angle), and the constant part of the shifts moved into the axis
+   (:func:`~nanoct.recon.center.separate_center`).
+
+:func:`corrected_fbp` (ramp filter, then a pixel-driven back projection with linear
+interpolation that reads each view at ``u - d_k``) and :func:`reproject` (its exact transpose
+without the filter) are compiled with numba and spread over the rows / views on every core;
+neither builds a matrix, so a 2048^2 slice needs a few image-sized arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numba
+import numpy as np
+
+from ..core.errors import NanoctError
+from ..core.geometry import Geometry
+from ..core.validation import check_array, check_int
+from .center import fit_center, separate_center, xcorr_shifts
+from .dremel import DremelParams
+from .fbp import ramp_filter
+from .shared import joint_shifts, remove_translation
+
+__all__ = ["StackMotion", "bin_geometry", "bin_sinograms", "corrected_fbp", "estimate_stack_motion", "reproject"]
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _backproject_shifted(filtered, cos, sin, shifts, n, centre, inv_spacing):  # pragma: no cover - jit
+    n_views, n_det = filtered.shape
+    half = (n - 1) / 2.0
+    image = np.zeros((n, n), dtype=np.float32)
+    for row in numba.prange(n):
+        r2 = half - row
+        acc = np.zeros(n, dtype=np.float32)
+        for k in range(n_views):
+            step = cos[k] * inv_spacing
+            base = (r2 * sin[k] - half * cos[k]) * inv_spacing + centre - shifts[k]
+            for col in range(n):
+                pos = base + col * step
+                lo = int(np.floor(pos))
+                if 0 <= lo < n_det - 1:
+                    frac = pos - lo
+                    acc[col] += filtered[k, lo] + frac * (filtered[k, lo + 1] - filtered[k, lo])
+        image[row] = acc
+    return image
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _project_shifted(image, cos, sin, shifts, n_det, centre, inv_spacing):  # pragma: no cover - jit
+    n = image.shape[0]
+    n_views = cos.shape[0]
+    half = (n - 1) / 2.0
+    sino = np.zeros((n_views, n_det), dtype=np.float32)
+    for k in numba.prange(n_views):
+        step = cos[k] * inv_spacing
+        for row in range(n):
+            base = ((half - row) * sin[k] - half * cos[k]) * inv_spacing + centre - shifts[k]
+            for col in range(n):
+                pos = base + col * step
+                lo = int(np.floor(pos))
+                if 0 <= lo < n_det - 1:
+                    frac = pos - lo
+                    value = image[row, col]
+                    sino[k, lo] += (1.0 - frac) * value
+                    sino[k, lo + 1] += frac * value
+    return sino
+
+
+def _kernel_args(geometry: Geometry, shifts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    if geometry.kind != "parallel":
+        raise NanoctError("the stack path handles parallel-beam scans only; this geometry is fan beam")
+    phi = geometry.angles
+    d = np.zeros(phi.size) if shifts is None else check_array(shifts, "shifts", shape=(phi.size,), dtype=np.float64)
+    centre = (geometry.n_det - 1) / 2.0 + geometry.center_offset
+    return np.cos(phi), np.sin(phi), d.astype(np.float64), float(centre), 1.0 / geometry.det_spacing
+
+
+def corrected_fbp(geometry: Geometry, sinogram: Any, shifts: Any = None, filter: str = "ram-lak") -> np.ndarray:
+    """Filtered back projection of one slice with a per-view detector shift.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Parallel-beam geometry (angles with their quadrature weights, axis offset).
+    sinogram : array_like of shape (K, L)
+        Line integrals.
+    shifts : array_like of shape (K,), optional
+        Per-view shifts ``d_k`` in detector pixels; view ``k`` is read at ``u - d_k``.
+    filter : {"ram-lak", "hann"}
+        Reconstruction filter (:func:`~nanoct.recon.fbp.ramp_filter`).
+
+    Returns
+    -------
+    ndarray of shape (N, N), float32
+        With ``shifts`` zero, :func:`nanoct.recon.fbp.fbp` up to interpolation rounding.
+    """
+    sino = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
+    filtered = ramp_filter(sino, geometry.det_spacing, filter) * geometry.angle_weights[:, None]
+    cos, sin, d, centre, inv = _kernel_args(geometry, shifts)
+    return _backproject_shifted(filtered.astype(np.float32), cos, sin, d, geometry.n, centre, inv)
+
+
+def reproject(geometry: Geometry, image: Any, shifts: Any = None) -> np.ndarray:
+    """Forward projection of an image with a per-view detector shift: the transpose of the back projection.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Parallel-beam geometry.
+    image : array_like of shape (N, N)
+        The slice.
+    shifts : array_like of shape (K,), optional
+        Per-view shifts ``d_k`` in detector pixels (the view of the moved object).
+
+    Returns
+    -------
+    ndarray of shape (K, L), float32
+        Pixel-driven line integrals (each pixel's value spread linearly over the two nearest
+        detector pixels, divided by the detector pixel size); ``<reproject(x), y> =
+        <x, back projection of y>`` exactly.
+    """
+    x = check_array(image, "image", shape=geometry.image_shape).astype(np.float32)
+    cos, sin, d, centre, inv = _kernel_args(geometry, shifts)
+    return _project_shifted(x, cos, sin, d, geometry.n_det, centre, inv) * np.float32(inv)
+
+
+def bin_geometry(geometry: Geometry, binning: int) -> Geometry:
+    """The geometry of the detector binned ``binning`` times (image size and axis offset scaled alike)."""
+    binning = check_int(binning, "binning", 1)
+    n_det = geometry.n_det // binning
+    axis = (geometry.n_det - 1) / 2 + geometry.center_offset
+    offset = (axis + 0.5) / binning - 0.5 - (n_det - 1) / 2
+    n = max(geometry.n // binning, 1)
+    return Geometry.from_angles(geometry.angles, n, n_det, center_offset=offset, det_spacing=geometry.det_spacing)
+
+
+def bin_sinograms(sinograms: Any, binning: int) -> np.ndarray:
+    """Average ``binning`` neighbouring detector pixels of ``(..., K, L)`` sinograms (remainder dropped)."""
+    sino = np.asarray(sinograms, dtype=np.float32)
+    cols = sino.shape[-1] // binning * binning
+    return sino[..., :cols].reshape(*sino.shape[:-1], cols // binning, binning).mean(axis=-1)
+
+
+@dataclass
+class StackMotion:
+    """The motion of a stack and how it was found.
+
+    Attributes
+    ----------
+    shifts : ndarray of shape (K,)
+        Per-view shifts ``d_k`` (detector pixels), with no constant term.
+    center_offset : float
+        Rotation axis minus the detector centre (detector pixels).
+    center_raw : float
+        The axis from the raw opposite views, before the motion was known.
+    coarse : ndarray of shape (K,)
+        The coarse (binned Dremel) estimate in full-size pixels.
+    steps : list of float
+        RMS change of the shifts in each refinement round (pixels).
+    """
+
+    shifts: np.ndarray
+    center_offset: float
+    center_raw: float
+    coarse: np.ndarray
+    steps: list[float] = field(default_factory=list)
+
+
+def _refine(
+    geometry: Geometry,
+    sinograms: np.ndarray,
+    shifts: np.ndarray,
+    n_iter: int,
+    max_shift: float,
+    tick: Callable,
+    recentre: bool,
+) -> tuple[Geometry, np.ndarray, list[float]]:
+    """Projection matching at full resolution (step 3 of the module docstring)."""
+    steps = []
+    for _ in range(n_iter):
+        if recentre:  # the seam between the first and last views pins the axis that goes with these shifts
+            centre = fit_center(sinograms, geometry.angles, shifts, max_offset=geometry.n_det / 4)
+            geometry = _with_center(geometry, centre)
+        static = np.stack([reproject(geometry, corrected_fbp(geometry, s, shifts)) for s in sinograms])
+        # measured p_k(x) = P_k(x + d_k): the measured view is the reprojection moved left by d_k
+        new = -xcorr_shifts(sinograms, static, max_shift=max_shift)
+        new = remove_translation(new, geometry.angles) + (shifts - remove_translation(shifts, geometry.angles))
+        steps.append(float(np.sqrt(np.mean((new - shifts) ** 2))))
+        shifts = new
+        tick()
+    return geometry, shifts, steps
+
+
+def estimate_stack_motion(
+    geometry: Geometry,
+    sinograms: Any,
+    *,
+    binning: int = 8,
+    coarse_iter: int = 8,
+    refine_iter: int = 3,
+    max_shift: float = 32.0,
+    center: float | None = None,
+    progress: Callable[[str], Any] | None = None,
+) -> StackMotion:
+    """Per-view shifts and rotation axis of a stack, coarse to fine (see the module docstring).
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Parallel-beam geometry of the full-size sinograms (its axis offset is the first guess
+        when ``center`` is given, else ignored).
+    sinograms : array_like of shape (S, K, L)
+        The slices to estimate from (a few are enough: the motion is shared).
+    binning : int
+        Detector binning of the coarse Dremel estimate (1: no coarse step beyond Dremel at full size).
+    coarse_iter : int
+        Dremel iterations on the binned data (0: start the refinement from zero shifts).
+    refine_iter : int
+        Projection-matching rounds at full size.
+    max_shift : float
+        Largest shift searched in a refinement round, in detector pixels.
+    center : float, optional
+        Axis offset to use as given (skips both axis fits).
+    progress : callable, optional
+        Called with the name of each finished stage.
+
+    Returns
+    -------
+    StackMotion
+    """
+    sino = np.asarray(sinograms, dtype=np.float32)
+    if sino.ndim != 3 or sino.shape[1:] != geometry.sino_shape:
+        expected = f"(slices, {geometry.n_angles}, {geometry.n_det})"
+        raise NanoctError(f"sinograms have shape {sino.shape}; expected {expected}")
+    tick = progress or (lambda stage: None)
+    raw = fit_center(sino, geometry.angles, max_offset=geometry.n_det / 4) if center is None else float(center)
+    tick("axis")
+    geometry = _with_center(geometry, raw)
+    coarse = np.zeros(geometry.n_angles)
+    if coarse_iter > 0:
+        small = bin_geometry(geometry, binning)
+        # "additive" weighting of the correlation runs away when the object spans most of the detector
+        params = {"n_iter": coarse_iter, "subpixel": True, "weighting": "overlap", "fix_shifts": False}
+        shared, _ = joint_shifts(small, bin_sinograms(sino, binning), DremelParams.check(small, **params))
+        coarse = shared.astype(np.float64) * binning / small.det_spacing  # object px of the binned grid -> detector px
+    tick("coarse")
+    geometry, shifts, steps = _refine(
+        geometry, sino, coarse, refine_iter, max_shift, lambda: tick("refine"), center is None
+    )
+    final = geometry.center_offset
+    if center is None:
+        final = fit_center(sino, geometry.angles, shifts, max_offset=geometry.n_det / 4)
+        tick("axis")
+    final, shifts = separate_center(final, shifts, geometry.angles)
+    return StackMotion(shifts, final, raw, coarse, steps)
+
+
+def _with_center(geometry: Geometry, center: float) -> Geometry:
+    data = geometry.to_dict()
+    data["center_offset"] = float(center)
+    return Geometry.from_dict(data)
