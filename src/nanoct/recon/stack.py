@@ -9,7 +9,7 @@ of :func:`~nanoct.recon.dremel.dremel`'s motion: the measured view is ``p_k(x) =
    (:func:`bin_sinograms`), Dremel's joint estimate on them
    (:func:`~nanoct.recon.shared.joint_shifts`: per slice, translation removed, median), scaled
    back to full-size pixels; the cached system matrix stays small (its size grows as N^3);
-3. **refine** at full resolution: ``refine_iter`` rounds of projection matching: a
+3. **refine**: rounds of projection matching, binned 2x and then at full size: a
    motion-corrected FBP of each chosen slice (:func:`corrected_fbp`), its reprojection
    (:func:`reproject`) and the sub-pixel lag of each measured view against it, the
    cross-correlations of all chosen slices summed (:func:`~nanoct.recon.center.xcorr_shifts`);
@@ -18,8 +18,8 @@ of :func:`~nanoct.recon.dremel.dremel`'s motion: the measured view is ``p_k(x) =
    (:func:`~nanoct.recon.center.separate_center`).
 
 :func:`corrected_fbp` (ramp filter, then a pixel-driven back projection with linear
-interpolation that reads each view at ``u - d_k``) and :func:`reproject` (its exact transpose
-without the filter) are compiled with numba and spread over the rows / views on every core;
+interpolation that reads each view at ``u - d_k``) and :func:`reproject` (Joseph's ray-driven
+projection) are compiled with numba and spread over the rows / views on every core;
 neither builds a matrix, so a 2048^2 slice needs a few image-sized arrays.
 """
 
@@ -65,23 +65,32 @@ def _backproject_shifted(filtered, cos, sin, shifts, n, centre, inv_spacing):  #
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _project_shifted(image, cos, sin, shifts, n_det, centre, inv_spacing):  # pragma: no cover - jit
+def _project_shifted(image, image_t, cos, sin, shifts, n_det, centre, spacing):  # pragma: no cover - jit
     n = image.shape[0]
     n_views = cos.shape[0]
     half = (n - 1) / 2.0
     sino = np.zeros((n_views, n_det), dtype=np.float32)
     for k in numba.prange(n_views):
-        step = cos[k] * inv_spacing
-        for row in range(n):
-            base = ((half - row) * sin[k] - half * cos[k]) * inv_spacing + centre - shifts[k]
-            for col in range(n):
-                pos = base + col * step
+        c, s = cos[k], sin[k]
+        u0 = (shifts[k] - centre) * spacing  # detector position of pixel 0 on the static object
+        steep = abs(c) >= abs(s)  # the ray (s, -c) crosses every row once: walk the rows, else the columns
+        lead, other = (c, s) if steep else (s, c)
+        grid = image if steep else image_t
+        out = sino[k]
+        for line in range(n):
+            t = (half - line) if steep else (line - half)  # r2 of the row / r1 of the column
+            # along the row (column) the ray is at r = (u - t * other) / lead: index r + half (half - r)
+            r0 = (u0 - t * other) / lead
+            first, step = (r0 + half, spacing / lead) if steep else (half - r0, -spacing / lead)
+            for l in range(n_det):
+                pos = first + l * step
                 lo = int(np.floor(pos))
-                if 0 <= lo < n_det - 1:
+                if 0 <= lo < n - 1:
                     frac = pos - lo
-                    value = image[row, col]
-                    sino[k, lo] += (1.0 - frac) * value
-                    sino[k, lo + 1] += frac * value
+                    out[l] += grid[line, lo] + frac * (grid[line, lo + 1] - grid[line, lo])
+        inv = 1.0 / abs(lead)
+        for l in range(n_det):
+            out[l] *= inv
     return sino
 
 
@@ -120,7 +129,7 @@ def corrected_fbp(geometry: Geometry, sinogram: Any, shifts: Any = None, filter:
 
 
 def reproject(geometry: Geometry, image: Any, shifts: Any = None) -> np.ndarray:
-    """Forward projection of an image with a per-view detector shift: the transpose of the back projection.
+    """Forward projection of an image with a per-view detector shift (Joseph's method, no matrix).
 
     Parameters
     ----------
@@ -129,18 +138,18 @@ def reproject(geometry: Geometry, image: Any, shifts: Any = None) -> np.ndarray:
     image : array_like of shape (N, N)
         The slice.
     shifts : array_like of shape (K,), optional
-        Per-view shifts ``d_k`` in detector pixels (the view of the moved object).
+        Per-view shifts ``d_k`` in detector pixels: the views of the object moved as the
+        measured ones are (``p_k(x) = P_k(x + d_k)``).
 
     Returns
     -------
     ndarray of shape (K, L), float32
-        Pixel-driven line integrals (each pixel's value spread linearly over the two nearest
-        detector pixels, divided by the detector pixel size); ``<reproject(x), y> =
-        <x, back projection of y>`` exactly.
+        Line integrals: along each ray, the image interpolated linearly within every row (or
+        column, for rays closer to the rows) it crosses, times the path length per row.
     """
     x = check_array(image, "image", shape=geometry.image_shape).astype(np.float32)
     cos, sin, d, centre, inv = _kernel_args(geometry, shifts)
-    return _project_shifted(x, cos, sin, d, geometry.n_det, centre, inv) * np.float32(inv)
+    return _project_shifted(x, np.ascontiguousarray(x.T), cos, sin, d, geometry.n_det, centre, 1.0 / inv)
 
 
 def bin_geometry(geometry: Geometry, binning: int) -> Geometry:
@@ -189,23 +198,28 @@ def _refine(
     geometry: Geometry,
     sinograms: np.ndarray,
     shifts: np.ndarray,
-    n_iter: int,
+    schedule: tuple[int, ...],
     max_shift: float,
     tick: Callable,
     recentre: bool,
+    relaxation: float,
 ) -> tuple[Geometry, np.ndarray, list[float]]:
-    """Projection matching at full resolution (step 3 of the module docstring)."""
+    """Projection matching, one round per detector binning of ``schedule`` (step 3 of the module docstring)."""
     steps = []
-    for _ in range(n_iter):
+    binned: dict[int, np.ndarray] = {}
+    for factor in schedule:
         if recentre:  # the seam between the first and last views pins the axis that goes with these shifts
             centre = fit_center(sinograms, geometry.angles, shifts, max_offset=geometry.n_det / 4)
             geometry = _with_center(geometry, centre)
-        static = np.stack([reproject(geometry, corrected_fbp(geometry, s, shifts)) for s in sinograms])
+        if factor not in binned:
+            binned[factor] = bin_sinograms(sinograms, factor) if factor > 1 else sinograms
+        small, sino = bin_geometry(geometry, factor), binned[factor]
+        static = np.stack([reproject(small, corrected_fbp(small, s, shifts / factor)) for s in sino])
         # measured p_k(x) = P_k(x + d_k): the measured view is the reprojection moved left by d_k
-        new = -xcorr_shifts(sinograms, static, max_shift=max_shift)
+        new = -xcorr_shifts(sino, static, max_shift=max_shift / factor) * factor
         new = remove_translation(new, geometry.angles) + (shifts - remove_translation(shifts, geometry.angles))
         steps.append(float(np.sqrt(np.mean((new - shifts) ** 2))))
-        shifts = new
+        shifts = shifts + relaxation * (new - shifts)
         tick()
     return geometry, shifts, steps
 
@@ -216,7 +230,8 @@ def estimate_stack_motion(
     *,
     binning: int = 8,
     coarse_iter: int = 8,
-    refine_iter: int = 3,
+    refine: tuple[int, ...] = (2, 2, 2, 1),
+    relaxation: float = 1.5,
     max_shift: float = 32.0,
     center: float | None = None,
     progress: Callable[[str], Any] | None = None,
@@ -234,8 +249,12 @@ def estimate_stack_motion(
         Detector binning of the coarse Dremel estimate (1: no coarse step beyond Dremel at full size).
     coarse_iter : int
         Dremel iterations on the binned data (0: start the refinement from zero shifts).
-    refine_iter : int
-        Projection-matching rounds at full size.
+    refine : tuple of int
+        Detector binning of each projection-matching round; the last should be 1 (full size).
+    relaxation : float
+        Each round moves the shifts by this multiple of the measured correction: the error
+        common to the first and last views, which sets the axis, shrinks only slowly with 1
+        (measured: axis error -0.40 px after 3 rounds, -0.27 after 6; with 1.7: -0.30, -0.14).
     max_shift : float
         Largest shift searched in a refinement round, in detector pixels.
     center : float, optional
@@ -264,7 +283,7 @@ def estimate_stack_motion(
         coarse = shared.astype(np.float64) * binning / small.det_spacing  # object px of the binned grid -> detector px
     tick("coarse")
     geometry, shifts, steps = _refine(
-        geometry, sino, coarse, refine_iter, max_shift, lambda: tick("refine"), center is None
+        geometry, sino, coarse, tuple(refine), max_shift, lambda: tick("refine"), center is None, relaxation
     )
     final = geometry.center_offset
     if center is None:
