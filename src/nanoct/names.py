@@ -5,6 +5,8 @@ built from their input's. The grammar::
 
     reconstruction   <method>[_est-<source>[-<first>]][_eta<scale>]
                      fbp, dremel, resesop_eta0.8, resesop_est-residual, resesop_est-reference_eta1.2
+    stack            <method>_stack  (``nanoct stack``: one motion and axis for all slices)
+                     fbp_stack, dremel_stack
     prediction       <input>+<model>[@<train input>][%seed<S>]
                      dremel+unet, fbp+cinn-res@resesop (trained on resesop, applied to fbp),
                      resesop+unet%seed1 (training seed 1; seed 0 has no suffix)
@@ -37,6 +39,7 @@ __all__ = [
     "reconstruction_name",
     "seed_name",
     "setting_key",
+    "stack_name",
     "strip_seed",
 ]
 
@@ -152,6 +155,11 @@ def reconstruction_name(method: str, params: dict[str, Any] | None = None) -> st
     base = f"{method}_{label}" if label else method
     scale = params.get("eta_scale", 1.0)
     return base if np.isclose(scale, 1.0) else f"{base}_eta{scale:g}"
+
+
+def stack_name(method: str) -> str:
+    """Default store name of a stack reconstruction by ``method`` (``fbp_stack``)."""
+    return f"{method}_stack"
 
 
 def _eta_command(path: str | os.PathLike[str], method: str, name: str) -> str | None:

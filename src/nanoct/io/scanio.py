@@ -336,7 +336,7 @@ def import_scan(
     rows: slice | None = None,
     crop: tuple[int, int] | None = None,
     binning: int = 1,
-    center_offset: float = 0.0,
+    center_offset: float | str = 0.0,
     size: int | None = None,
     tolerance: float = 1e-3,
 ) -> Any:
@@ -360,10 +360,11 @@ def import_scan(
         Detector columns ``[first, stop)`` to keep.
     binning : int
         Detector binning (columns, and rows where there are enough).
-    center_offset : float
+    center_offset : float or "auto"
         Rotation axis relative to the centre of the raw detector row, in raw detector pixels
         (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
-        detector.
+        detector. ``"auto"``: estimated from opposite views of up to 8 of the selected rows
+        (:func:`nanoct.recon.center.fit_center`, no motion assumed).
     size : int, optional
         Reconstructed image size N (default: the number of detector columns after cropping
         and binning; one image pixel = one binned detector pixel).
@@ -388,6 +389,8 @@ def import_scan(
         is_line_integral=is_line_integral,
     )  # fmt: skip
     n_cols = raw.projections.shape[2]
+    if center_offset == "auto":
+        center_offset = _auto_center(raw, rows, crop, tolerance)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
@@ -415,6 +418,20 @@ def import_scan(
     # select rows and columns before the correction: only the kept pixels are corrected and judged
     stack = sinograms(line_integrals(_select(raw, rows, crop), tolerance=tolerance), binning=binning)
     return create_scan(out, geometry, stack, scan)
+
+
+def _auto_center(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None, tolerance: float) -> float:
+    """The axis offset (raw detector pixels) from opposite views of up to 8 of the selected rows."""
+    from ..recon.center import fit_center
+
+    n_rows, n_cols = raw.projections.shape[1:]
+    first_row, stop_row = (rows.start or 0, rows.stop or n_rows) if rows is not None else (0, n_rows)
+    picked = np.unique(np.linspace(first_row, max(stop_row - 1, first_row), 8).round().astype(int))
+    sinos = np.concatenate([sinograms(line_integrals(_select(raw, slice(r, r + 1), crop), tolerance=tolerance))
+                            for r in picked])  # fmt: skip
+    first = crop[0] if crop is not None else 0
+    offset = fit_center(sinos, raw.angles, max_offset=sinos.shape[2] / 4)  # from the centre of the kept columns
+    return float(first + (sinos.shape[2] - 1) / 2 + offset - (n_cols - 1) / 2)
 
 
 def _select(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None) -> RawScan:

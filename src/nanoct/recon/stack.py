@@ -40,7 +40,15 @@ from .dremel import DremelParams
 from .fbp import ramp_filter
 from .shared import joint_shifts, remove_translation
 
-__all__ = ["StackMotion", "bin_geometry", "bin_sinograms", "corrected_fbp", "estimate_stack_motion", "reproject"]
+__all__ = [
+    "StackMotion",
+    "bin_geometry",
+    "bin_sinograms",
+    "corrected_fbp",
+    "estimate_stack_motion",
+    "reproject",
+    "with_center",
+]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -210,7 +218,7 @@ def _refine(
     for factor in schedule:
         if recentre:  # the seam between the first and last views pins the axis that goes with these shifts
             centre = fit_center(sinograms, geometry.angles, shifts, max_offset=geometry.n_det / 4)
-            geometry = _with_center(geometry, centre)
+            geometry = with_center(geometry, centre)
         if factor not in binned:
             binned[factor] = bin_sinograms(sinograms, factor) if factor > 1 else sinograms
         small, sino = bin_geometry(geometry, factor), binned[factor]
@@ -273,7 +281,7 @@ def estimate_stack_motion(
     tick = progress or (lambda stage: None)
     raw = fit_center(sino, geometry.angles, max_offset=geometry.n_det / 4) if center is None else float(center)
     tick("axis")
-    geometry = _with_center(geometry, raw)
+    geometry = with_center(geometry, raw)
     coarse = np.zeros(geometry.n_angles)
     if coarse_iter > 0:
         small = bin_geometry(geometry, binning)
@@ -293,7 +301,7 @@ def estimate_stack_motion(
     return StackMotion(shifts, final, raw, coarse, steps)
 
 
-def _with_center(geometry: Geometry, center: float) -> Geometry:
+def with_center(geometry: Geometry, center: float) -> Geometry:
     data = geometry.to_dict()
     data["center_offset"] = float(center)
     return Geometry.from_dict(data)
