@@ -127,10 +127,10 @@ def fit_center(sinogram: Any, angles: Any, shifts: Any = None, *, max_offset: fl
     angles : array_like of shape (K,)
         View angles in radians.
     shifts : array_like of shape (K,), optional
-        Per-view shifts ``d_k`` (detector pixels) known so far; the views are first moved back by
-        them, and the opposite view is then interpolated in angle to exactly ``phi_k + pi``
-        (without shifts the nearest view is used: interpolating views that move differently
-        would mix their motion).
+        Per-view shifts ``d_k`` (detector pixels) known so far (default none); the views are
+        first moved back by them. The opposite view is interpolated linearly in angle to
+        exactly ``phi_k + pi`` from its two nearest views (for a 180-degree scan: extrapolated
+        from the last two).
     max_offset : float, optional
         Largest ``|c|`` searched (default: any).
 
@@ -153,13 +153,10 @@ def fit_center(sinogram: Any, angles: Any, shifts: Any = None, *, max_offset: fl
             "no two views are 180 degrees apart (the scan covers less than 180 degrees): give the axis with "
             "--center-offset PIXELS"
         )
-    if shifts is None:
-        first, second = sino[:, k], sino[:, j]
-    else:
-        d = check_array(shifts, "shifts", shape=(phi.size,), dtype=np.float64)
-        first = fourier_shift(sino[:, k].reshape(-1, sino.shape[2]), np.tile(d[k], sino.shape[0]))
-        first = first.reshape(sino.shape[0], k.size, -1)
-        second = _opposite_in_angle(sino, phi, d, j, mismatch)
+    d = np.zeros(phi.size) if shifts is None else check_array(shifts, "shifts", shape=(phi.size,), dtype=np.float64)
+    first = fourier_shift(sino[:, k].reshape(-1, sino.shape[2]), np.tile(d[k], sino.shape[0]))
+    first = first.reshape(sino.shape[0], k.size, -1)
+    second = _opposite_in_angle(sino, phi, d, j, mismatch)
     lag = xcorr_shifts(first, second[..., ::-1], None if max_offset is None else 2 * max_offset)
     return float(np.mean(lag) / 2)
 
