@@ -592,7 +592,9 @@ def stack(
     motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),
     binning: int = typer.Option(8, "--binning", help="Detector binning of the coarse (Dremel) motion estimate."),
     coarse_iter: int = typer.Option(8, "--coarse-iter", help="Dremel iterations on the binned data (0: none)."),
-    refine: str = typer.Option("2,2,2,1", "--refine", help="Binning of each projection-matching round."),
+    refine: str = typer.Option(
+        "auto", "--refine", help="Binning of each projection-matching round, e.g. 2,2,1 (auto: see docs)."
+    ),
     model: str | None = typer.Option(None, "--model", help="DEGREE,HARMONICS: use a smooth model of the motion."),
     name: str | None = typer.Option(None, "--name", help="Output name (default METHOD_stack).", callback=_check_name),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result of that name."),
@@ -615,7 +617,8 @@ def stack(
         raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
-        binning=binning, coarse_iter=coarse_iter, refine=_parse_ints(refine, "--refine"), model=smooth,
+        binning=binning, coarse_iter=coarse_iter, model=smooth,
+        refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
     info = DataStore.open(source).recons.motion_info(written) or {}

@@ -52,20 +52,22 @@ def _motion_slices(store: DataStore, value: str | None) -> list[int]:
 def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
     """Estimate the stack's motion and axis and record them with ``name``."""
     slices = params["motion_slices"]
-    stages = len(params["refine"]) + 2 + (params["center"] == "auto")
+    stages = None if params["refine"] is None else 3 + len(params["refine"])
     with tqdm(total=stages, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
         motion = estimate_stack_motion(
             store.geometry,
             store.read_array("sinograms", slices),
             binning=params["binning"],
             coarse_iter=params["coarse_iter"],
-            refine=tuple(params["refine"]),
+            refine=None if params["refine"] is None else tuple(params["refine"]),
             center=None if params["center"] == "auto" else params["center"],
             progress=lambda stage: bar.update(),
         )
     info: dict[str, Any] = {
         "center_offset": motion.center_offset,
         "center_raw": motion.center_raw,
+        "center_method": motion.center_method,
+        "mass_spread": motion.mass_spread,
         "refine_steps": motion.steps,
         "shift_rms": float(np.sqrt(np.mean(motion.shifts**2))),
     }
@@ -102,7 +104,7 @@ def reconstruct_stack(
     motion_slices: str | None = None,
     binning: int = 8,
     coarse_iter: int = 8,
-    refine: tuple[int, ...] = (2, 2, 2, 1),
+    refine: tuple[int, ...] | None = None,
     model: tuple[int, int] | None = None,
     name: str | None = None,
     overwrite: bool = False,
@@ -156,7 +158,7 @@ def reconstruct_stack(
         "motion_slices": _motion_slices(store, motion_slices),
         "binning": int(binning),
         "coarse_iter": int(coarse_iter),
-        "refine": [int(b) for b in refine],
+        "refine": None if refine is None else [int(b) for b in refine],
         "model": None if model is None else [int(v) for v in model],
     }
     name = name or stack_name(method)
