@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
-from nanoct.recon.center import fit_center, fourier_shift, opposite_pairs, separate_center, xcorr_shifts
+from nanoct.recon.center import (
+    centroid_motion,
+    fit_center,
+    fourier_shift,
+    opposite_pairs,
+    separate_center,
+    xcorr_shifts,
+)
 from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 
 L, K = 256, 360
@@ -58,3 +65,15 @@ def test_separate_center_keeps_the_views_and_removes_the_constant():
     assert np.allclose(-c + d2, -2.0 + d)
     basis = np.stack([np.ones(K), np.cos(phi), np.sin(phi)], 1)
     assert np.linalg.lstsq(basis, d2, rcond=None)[0][0] == pytest.approx(0, abs=1e-12)
+
+
+def test_centroids_give_axis_and_shifts_and_flag_a_truncated_object():
+    d = np.random.default_rng(2).uniform(-3, 3, K)
+    sino, angles = _scan(4.1, shifts=d)
+    center, shifts, spread = centroid_motion(sino, angles)
+    basis = np.stack([np.ones(K), np.cos(angles), np.sin(angles)], axis=1)
+    coef = np.linalg.lstsq(basis, d, rcond=None)[0]
+    assert spread < 1e-3 and center == pytest.approx(4.1 - coef[0], abs=0.01)
+    assert np.abs(shifts - (d - basis @ coef)).max() < 0.02
+    # an object wider than the detector in some views: its mass changes from view to view
+    assert centroid_motion(sino[..., 60:200], angles)[2] > 0.01

@@ -81,18 +81,37 @@ def test_fan_beam_is_refused():
         corrected_fbp(Geometry("fan", 16, 8, 31, source_radius=100.0, angle_range=2 * np.pi), np.zeros((8, 31)))
 
 
-def test_stack_motion_and_axis_are_found():
-    n_det, k = 256, 360
+def _moving_scan(n_det=256, k=360, offset=2.7):
     phi = np.arange(k) * np.pi / k
     t = np.arange(k) / k
     d = 3 * t**2 - 2 * t + 1.2 * np.cos(2 * phi) + np.random.default_rng(0).uniform(-2, 2, k)
-    offset = 2.7
     sino = np.stack([ellipse_sinogram(e, phi, n_det, shifts=d, center_offset=offset, subsamples=2)
                      for e in stack_phantom(n_det, 2, seed=1)])  # fmt: skip
-    result = estimate_stack_motion(Geometry.from_angles(phi, n_det, n_det), sino, binning=4, refine=(1,) * 6)
     basis = np.stack([np.ones(k), np.cos(phi), np.sin(phi)], axis=1)
-    constant = np.linalg.lstsq(basis, d, rcond=None)[0][0]
-    assert result.center_offset == pytest.approx(offset - constant, abs=0.25)
-    assert _gauge_free_rms(result.shifts, d, phi) < 0.3
-    assert _gauge_free_rms(result.coarse, d, phi) < 1.0
-    assert _gauge_free_rms(np.zeros(k), d, phi) > 1.0  # the motion is there to be found
+    return Geometry.from_angles(phi, n_det, n_det), sino, d, offset - np.linalg.lstsq(basis, d, rcond=None)[0][0]
+
+
+def test_stack_motion_and_axis_from_the_centroids():
+    geometry, sino, d, axis = _moving_scan()
+    result = estimate_stack_motion(geometry, sino)
+    assert result.center_method == "centroid" and result.mass_spread < 1e-3 and result.steps == []
+    assert result.center_offset == pytest.approx(axis, abs=0.02)
+    assert _gauge_free_rms(result.shifts, d, geometry.angles) < 0.02
+    assert _gauge_free_rms(np.zeros(geometry.n_angles), d, geometry.angles) > 1.0  # the motion is there to be found
+
+
+def test_stack_motion_without_centroids():
+    """Opposite views, binned Dremel and projection matching: what is used for objects that leave the detector."""
+    geometry, sino, d, axis = _moving_scan()
+    result = estimate_stack_motion(geometry, sino, binning=4, refine=(1,) * 6, centroid_tolerance=0.0)
+    assert result.center_method == "opposite views" and len(result.steps) == 6
+    assert result.center_offset == pytest.approx(axis, abs=0.5)
+    assert _gauge_free_rms(result.shifts, d, geometry.angles) < 0.3
+    assert _gauge_free_rms(result.coarse, d, geometry.angles) < 1.0
+
+
+def test_stack_motion_with_a_given_axis_keeps_it():
+    geometry, sino, d, axis = _moving_scan()
+    result = estimate_stack_motion(geometry, sino, center=2.7, refine=())
+    assert result.center_offset == 2.7 and result.center_method == "given"
+    assert _gauge_free_rms(result.shifts, d, geometry.angles) < 0.02
