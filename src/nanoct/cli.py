@@ -542,7 +542,7 @@ def import_(
         "0",
         "--center-offset",
         help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2), or auto "
-        "(from opposite views; 'nanoct stack' refines it with the motion).",
+        "(from the views' centroids, or opposite views; see docs/measured_data.md).",
     ),
     size: int | None = typer.Option(
         None, "--size", help="Image size N (default: detector columns after crop/binning)."

@@ -363,7 +363,9 @@ def import_scan(
     center_offset : float or "auto"
         Rotation axis relative to the centre of the raw detector row, in raw detector pixels
         (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
-        detector. ``"auto"``: estimated from opposite views of up to 8 of the selected rows
+        detector. ``"auto"``: estimated from up to 8 of the selected rows, from the views'
+        centroids (:func:`nanoct.recon.center.centroid_motion`, which the motion does not bias)
+        when the object stays on the detector, else from opposite views
         (:func:`nanoct.recon.center.fit_center`, no motion assumed).
     size : int, optional
         Reconstructed image size N (default: the number of detector columns after cropping
@@ -421,8 +423,8 @@ def import_scan(
 
 
 def _auto_center(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None, tolerance: float) -> float:
-    """The axis offset (raw detector pixels) from opposite views of up to 8 of the selected rows."""
-    from ..recon.center import fit_center
+    """The axis offset (raw detector pixels) from up to 8 of the selected rows: centroids, else opposite views."""
+    from ..recon.center import centroid_motion, fit_center
 
     n_rows, n_cols = raw.projections.shape[1:]
     first_row, stop_row = (rows.start or 0, rows.stop or n_rows) if rows is not None else (0, n_rows)
@@ -430,7 +432,9 @@ def _auto_center(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None,
     sinos = np.concatenate([sinograms(line_integrals(_select(raw, slice(r, r + 1), crop), tolerance=tolerance))
                             for r in picked])  # fmt: skip
     first = crop[0] if crop is not None else 0
-    offset = fit_center(sinos, raw.angles, max_offset=sinos.shape[2] / 4)  # from the centre of the kept columns
+    offset, _, spread = centroid_motion(sinos, raw.angles)  # from the centre of the kept columns
+    if spread > 0.01:  # the object leaves the detector: the centroids do not hold, use opposite views
+        offset = fit_center(sinos, raw.angles, max_offset=sinos.shape[2] / 4)
     return float(first + (sinos.shape[2] - 1) / 2 + offset - (n_cols - 1) / 2)
 
 
