@@ -180,13 +180,16 @@ def _eta_command(path: str | os.PathLike[str], method: str, name: str) -> str | 
 def reconstruct_command(path: str | os.PathLike[str], name: str) -> str:
     """The ``nanoct reconstruct`` command that makes the reconstruction ``name`` (a hint for messages).
 
-    Default output names (``fbp``, ``resesop_eta0.8``, ``resesop_est-residual``) give the exact
+    Default output names (``fbp``, ``resesop_eta0.8``, ``resesop_est-residual``, ``fbp_stack``:
+    ``nanoct stack``) give the exact
     command (``STORE`` standing for the reference store of ``resesop_est-reference``); any other
     name gives a template with ``--name``.
     """
     for method, spec in METHODS.items():
         if name == method:
             return f"nanoct reconstruct {path} --method {method}"
+        if name == stack_name(method):
+            return f"nanoct stack {path} --method {method}"
         command = _eta_command(path, method, name) if spec.needs_eta else None
         if command is not None:
             return command
