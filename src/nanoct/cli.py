@@ -590,7 +590,7 @@ def stack(
     method: str = typer.Option("fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed)."),
     center_offset: str = typer.Option("auto", "--center-offset", help="Axis offset in detector pixels, or auto."),
     motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),
-    binning: int = typer.Option(8, "--binning", help="Detector binning of the coarse (Dremel) motion estimate."),
+    binning: int = typer.Option(8, "--binning", help="Binning of the coarse Dremel estimate (used without centroids)."),
     coarse_iter: int = typer.Option(8, "--coarse-iter", help="Dremel iterations on the binned data (0: none)."),
     refine: str = typer.Option(
         "auto", "--refine", help="Binning of each projection-matching round, e.g. 2,2,1 (auto: see docs)."
