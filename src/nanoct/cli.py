@@ -384,6 +384,10 @@ def _print_info(data: dict[str, Any]) -> None:
             f"scan       imported from {scan.get('file')} ({scan.get('format')}); one sample per slice, motion shared; "
             "no ground truth (evaluate needs a simulated data set)"
         )
+        if scan.get("pixel_size_m"):
+            typer.echo(f"pixel      {scan['pixel_size_m'][0] * 1e9:.4g} nm (one stored detector pixel, at the sample)")
+        for note in scan.get("notes", []):
+            typer.echo(f"note       {note}")
     else:
         typer.echo(
             f"simulation perturbed={sim.get('perturbed')}, max_shift={sim.get('motion', {}).get('max_shift')} px, "
@@ -550,11 +554,16 @@ def import_(
     tolerance: float = typer.Option(
         1e-3, "--tolerance", help="Fraction of non-positive flat/dark-corrected values raised to a floor."
     ),
+    entry: str | None = typer.Option(None, "--entry", help="NXtomo entry to read (when the file has several)."),
+    drop_bad_views: bool = typer.Option(
+        False, "--drop-bad-views", help="Leave out projections (and flats/darks) holding NaN or infinite values."
+    ),
 ) -> None:
     """Import a measured parallel-beam scan: one sample per detector row, all sharing one motion.
 
     Flat/dark correction and -log, slice selection, cropping and binning; the view angles come
-    from the file (NXtomo rotation_angle, Data Exchange theta: degrees) or --angles. The data
+    from the file (NXtomo rotation_angle in its units, Data Exchange theta: degrees) or --angles,
+    the pixel size from NXtomo. The data
     set has no ground truth: reconstruct it (Dremel estimates one shift per view for the whole
     stack), post-process it with a trained network of the same image size, and export the images.
     """
@@ -564,14 +573,18 @@ def import_(
     store = import_scan(
         src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
         is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
-        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset), size=size,
-        tolerance=tolerance,
+        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset),
+        size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views,
     )  # fmt: skip
     g = store.geometry
+    scan = store.meta.get("scan") or {}
+    pixel = f", pixel {scan['pixel_size_m'][0] * 1e9:.4g} nm" if scan.get("pixel_size_m") else ""
     typer.echo(
         f"{store.path}: {store.n} slice(s), {g.n_angles} views x {g.n_det} detector pixels, image {g.n}x{g.n}, "
-        f"axis offset {g.center_offset:+.2f} px"
+        f"axis offset {g.center_offset:+.2f} px{pixel}"
     )
+    for note in scan.get("notes", []):
+        typer.echo(f"note: {note}", err=True)
 
 
 def _parse_center(text: str) -> float | str:
@@ -652,7 +665,8 @@ def export(
     """Export a reconstruction: float32 images (one TIFF page / .npy or HDF5 slice per sample) or shifts as text.
 
     A .txt output writes the per-view shifts of a motion-estimating reconstruction (Dremel) as
-    two columns "view shift_px" in detector pixels (nabu-style; read back with
+    nabu's translation_movements_file: one row "horizontal vertical" per view, raw detector
+    pixels, nabu's sign, nm in comments when the scan gave a pixel size (read back with
     --param shifts_from=FILE): the stack's shared shifts for an imported scan, else those of
     sample --index.
     """

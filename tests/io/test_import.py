@@ -228,3 +228,54 @@ def test_predict_on_an_imported_scan_of_the_training_geometry(tmp_path, imported
     assert out.shape == (1, g.n, g.n) and np.isfinite(out).all()
     # the scan with uneven angles and an axis offset is another geometry: refused with one clear line
     assert run(["predict", str(imported[OFFSET]), "--run", str(run_dir), "-q"]) == 2
+
+
+def _fbp_of_imported(tmp_path, name, sino, deg, *extra):
+    np.save(tmp_path / f"{name}.npy", sino)
+    np.savetxt(tmp_path / f"{name}.txt", deg)
+    out = tmp_path / name
+    assert run(["import", str(tmp_path / f"{name}.npy"), "--angles", str(tmp_path / f"{name}.txt"), "--line-integrals",
+                "--out", str(out), *extra]) == 0  # fmt: skip
+    reconstruct_dataset(out, "fbp", workers=0, progress=False)
+    return DataStore.open(out).read_reconstruction("fbp")[0]
+
+
+def test_views_in_any_order_and_repeated_views_give_the_same_image(tmp_path, capsys):
+    """Views whose angles are not monotone stay in acquisition order, a view repeating an angle is left out
+    (the first is kept); the image does not change."""
+    g = get_preset("tiny-parallel")
+    sino = RayTransform(g).forward(random_phantom(np.random.default_rng(3), g.n))
+    deg = np.rad2deg(g.angles)
+    reference = _fbp_of_imported(tmp_path, "sorted", sino, deg)
+    order = np.random.default_rng(4).permutation(g.n_angles)
+    shuffled = _fbp_of_imported(tmp_path, "shuffled", sino[order], deg[order])
+    assert "not monotone" in capsys.readouterr().err
+    np.testing.assert_allclose(shuffled, reference, atol=1e-4 * np.abs(reference).max())
+    # views 10 and 50 measured again at the end (with other data): the repeats are left out
+    repeated = _fbp_of_imported(tmp_path, "repeated", np.r_[sino, sino[[10, 50]] + 5.0], np.r_[deg, deg[[10, 50]]])
+    assert "left out 2 view(s) repeating the angle of an earlier view (modulo 360 degrees): 140, 141" in (
+        capsys.readouterr().err
+    )
+    np.testing.assert_array_equal(repeated, reference)
+    full_turn = _fbp_of_imported(tmp_path, "turn", np.r_[sino, sino[:1]], np.r_[deg, 360.0])  # 0 and 360 degrees
+    assert "left out 1 view(s)" in capsys.readouterr().err
+    np.testing.assert_array_equal(full_turn, reference)
+    np.testing.assert_allclose(DataStore.open(tmp_path / "shuffled").geometry.angles, g.angles[order], rtol=1e-12)
+
+
+def test_drop_bad_views_leaves_out_nan_projections_and_says_so(tmp_path, scan, capsys):
+    src, extra = _write(tmp_path, scan, "npy")
+    bad = scan["proj"].copy()
+    bad[5, 0, :] = np.nan
+    np.save(src, bad)
+    assert run(["import", str(src), "--out", str(tmp_path / "refused"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert "projections 5 (angles" in err and "--drop-bad-views" in err
+    out = tmp_path / "data"
+    assert run(["import", str(src), "--out", str(out), "--drop-bad-views", *extra]) == 0
+    assert "note: left out 1 of" in capsys.readouterr().err
+    store = DataStore.open(out)
+    np.testing.assert_allclose(store.geometry.angles, np.deg2rad(np.delete(scan["deg"], 5)), rtol=1e-10)
+    np.testing.assert_allclose(store.read_sample(1).sinogram, np.delete(scan["sino"][1], 5, axis=0), atol=2e-4)
+    # the row selection decides: NaN outside the imported rows is no reason to refuse or drop
+    assert run(["import", str(src), "--out", str(tmp_path / "rows"), "--rows", "1:3", *extra]) == 0

@@ -41,6 +41,7 @@ BAD: dict[str, list] = {
     "weighting": ["multiplicative"],
     "subpixel": ["no"],
     "fix_shifts": ["maybe", 2],
+    "projector": ["gpu", 1],
     "motion_slices": ["some", "-1", "1,x", ""],
     "shifts_from": ["/nonexistent/shifts.txt"],
     "eta": ["estimate", "estimate:reference", "guess", "estimate:residual=a/b"],

@@ -48,8 +48,8 @@ def read_std(
     :func:`nanoct.evaluation.metrics.apply_std_map`) and records ``{"std_map", "scale", "edge_scale",
     "edge_sigma", ...}`` under ``calibration`` in the parameters of the result; the raw std is
     recovered by inverting the map (:func:`nanoct.evaluation.metrics.invert_std_map`, with the stored
-    reconstruction as the values). A result of an earlier version, calibrated by the one factor
-    only (no ``std_map``), stores ``scale * raw``: raw = stored / scale. Without a calibration
+    reconstruction as the values). A result calibrated by the one factor
+    only (no ``std_map`` recorded) stores ``scale * raw``: raw = stored / scale. Without a calibration
     the stored std is the raw one and the returned dict is empty. ``recos``: the reconstructions
     ``name`` at ``indices`` if the caller has read them already (else they are read).
     """

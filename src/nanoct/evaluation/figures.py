@@ -140,7 +140,7 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
 
     One row per (name, sample). The input is ``reconstructions/<input>`` of the name
     (:func:`nanoct.names.parse_name`; an empty panel if absent); the std is the stored one
-    (calibrated where predict calibrated it, by the map or, for results of an earlier version, by
+    (calibrated where predict calibrated it, by the map or, for a result without a ``std_map``, by
     a factor, said in the title). Error and std share a
     colour scale per row so they can be compared directly.
     """

@@ -431,7 +431,7 @@ def calibrated_std(raw: np.ndarray, calibration: dict[str, Any], values: np.ndar
     """The calibrated std of a raw std under a stored calibration (:mod:`nanoct.learn.calibration`).
 
     Its ``std_map`` if it has one (:func:`apply_std_map`; ``values``, the reconstruction, for a
-    value-binned map), else its one factor ``scale`` (results of earlier versions); None for a
+    value-binned map), else its one factor ``scale`` (a result calibrated by one factor); None for a
     calibration with neither (an empty dict: not calibrated).
     """
     if calibration.get("std_map"):

@@ -8,14 +8,35 @@ and binned along the detector. Files are read with h5py and tifffile; nothing he
 file format by hand.
 
 Conventions at this border (inside nanoct angles are radians and sinograms ``(K, L)``):
-NXtomo ``rotation_angle`` and Data Exchange ``theta`` are degrees (as NeXus, TomoPy's files
-and CIL use them); angle files are text with one angle per view, degrees unless stated.
+NXtomo ``rotation_angle`` is read in the unit of its ``units`` attribute (degrees without
+one, :mod:`nanoct.io.nxtomo`), Data Exchange ``theta`` in degrees (as TomoPy's files and CIL
+use it); angle files are text with one angle per view, degrees unless stated.
+
+What is refused or corrected (``docs/measured_data.md``): files that cannot be read whole
+(a truncated HDF5 or TIFF), angles that are all equal or whose span says they are in the
+other unit, flats or darks of another detector size, and frames with NaN or infinite values
+(named; :func:`drop_bad_views` leaves such projections out, with their angles, and says so).
+Views are kept in acquisition order however the angles run: every reconstruction uses the
+angle of each view, and the shifts files list the views in that order, as nabu does. A view
+whose angle repeats an earlier one (modulo 360 degrees, e.g. the last view of a scan over
+``[0, 360]``) is left out with a note (:func:`drop_repeated_views`): a geometry has one view
+per direction.
+
+Shifts files (:func:`write_shifts`, :func:`read_shifts`) use nabu's
+``translation_movements_file`` layout: one row ``horizontal vertical`` per projection, in
+detector pixels, ``horizontal`` the displacement of the projection along increasing
+detector columns (nabu adds it to the axis position in its back projection). nanoct's own
+shifts (Dremel's ``t . e_u``, :mod:`nanoct.recon.dremel`) move the projection the other way,
+so ``horizontal = -shift``.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
+import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -24,12 +45,17 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from .fileio import atomic_target
+from .nxtomo import nxtomo_entries, read_h5_dataset, read_nxtomo, to_unit
 
 __all__ = [
     "EXPORT_FORMATS",
     "FORMATS",
+    "SHIFTS_HEADER",
     "RawScan",
+    "check_angles",
     "detect_format",
+    "drop_bad_views",
+    "drop_repeated_views",
     "import_scan",
     "line_integrals",
     "read_angles",
@@ -42,11 +68,9 @@ __all__ = [
 
 FORMATS = ("nxtomo", "dxchange", "tiff", "npy")
 EXPORT_FORMATS = {".tif": "tiff", ".tiff": "tiff", ".npy": "npy", ".h5": "hdf5", ".hdf5": "hdf5"}
-
-# NXtomo: where the detector data, image keys and angles usually live (first found is used)
-_NX_DATA = ("entry/instrument/detector/data", "entry/data/data", "entry1/instrument/detector/data")
-_NX_KEYS = ("entry/instrument/detector/image_key", "entry/data/image_key", "entry1/instrument/detector/image_key")
-_NX_ANGLES = ("entry/sample/rotation_angle", "entry/data/rotation_angle", "entry1/sample/rotation_angle")
+SHIFTS_HEADER = "horizontal vertical"  # nabu's column order, the header line of a shifts file
+LEFT_OUT = "left out by the import"  # marks the rows of a shifts file for views a data set does not hold
+_MIN_VIEWS_UNIT_CHECK = 8  # fewer views than this may span a few degrees on purpose (a test, an alignment)
 
 
 @dataclass(frozen=True)
@@ -66,6 +90,9 @@ class RawScan:
         The projections are already ``-log`` normalised (no flat/dark correction applies).
     source : dict
         Where the data came from (file, format, dataset paths), stored with the import.
+    views : ndarray of shape (K,), int, optional
+        Index of each projection among the file's projections (default ``0 .. K-1``); views
+        left out by :func:`drop_bad_views` or :func:`drop_repeated_views` are missing from it.
     """
 
     projections: np.ndarray
@@ -74,6 +101,7 @@ class RawScan:
     darks: np.ndarray | None = None
     is_line_integral: bool = False
     source: dict[str, Any] = field(default_factory=dict)
+    views: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         proj = np.asarray(self.projections)
@@ -92,6 +120,10 @@ class RawScan:
         if not np.isfinite(angles).all():
             raise NanoctError("the angles contain NaN or infinite values")
         object.__setattr__(self, "angles", angles)
+        views = np.arange(proj.shape[0]) if self.views is None else np.asarray(self.views, dtype=int).ravel()
+        if views.size != proj.shape[0]:
+            raise NanoctError(f"{views.size} view indices for {proj.shape[0]} projection(s)")
+        object.__setattr__(self, "views", views)
         for name in ("flats", "darks"):
             value = getattr(self, name)
             if value is None:
@@ -99,8 +131,9 @@ class RawScan:
             arr = np.asarray(value, dtype=np.float32)
             arr = arr[None] if arr.ndim == 2 else arr
             if arr.ndim != 3 or arr.shape[1:] != proj.shape[1:]:
+                where = f"{self.source['file']}: " if "file" in self.source else ""
                 raise NanoctError(
-                    f"{name} have shape {arr.shape}, but one projection is {proj.shape[1:]} (rows, columns); "
+                    f"{where}{name} have shape {arr.shape}, but one projection is {proj.shape[1:]} (rows, columns); "
                     f"give {name} of the same detector size"
                 )
             object.__setattr__(self, name, arr)
@@ -131,11 +164,11 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         with _open_h5(path) as f:
             if "exchange/data" in f:
                 return "dxchange"
-            if _first(f, _NX_DATA) is not None:
+            if nxtomo_entries(f):
                 return "nxtomo"
         raise NanoctError(
-            f"{path} is HDF5 but neither NXtomo ({_NX_DATA[0]}) nor Data Exchange (exchange/data); "
-            "pass --format and the dataset layout, or convert the file"
+            f"{path} is HDF5 but neither NXtomo (an NXentry with definition NXtomo, or entry/instrument/detector/data) "
+            "nor Data Exchange (exchange/data); convert the file to one of them"
         )
     raise NanoctError(f"cannot tell the format of {path} from its extension; pass --format ({', '.join(FORMATS)})")
 
@@ -146,12 +179,54 @@ def read_angles(path: str | os.PathLike[str], *, degrees: bool = True) -> np.nda
     Raises
     ------
     NanoctError
-        If the file is missing or not numeric.
+        If the file is missing or not numeric, or the angles fail :func:`check_angles`.
     """
     table = _load_table(path, "angles")
     # one angle per line, "view angle" lines, or all angles on one line
     values = table[0] if table.shape[0] == 1 else table[:, -1]
-    return np.deg2rad(values) if degrees else values
+    angles = np.deg2rad(values) if degrees else values
+    check_angles(angles, degrees=degrees, where=f"the angles file {path}", fix="--radians")
+    return angles
+
+
+def check_angles(angles: np.ndarray, *, degrees: bool, where: str, fix: str) -> None:
+    """Refuse view angles that cannot be what the scan meant.
+
+    Parameters
+    ----------
+    angles : ndarray of shape (K,)
+        Radians.
+    degrees : bool
+        The source gave them in degrees.
+    where : str
+        The file (and dataset), for the message.
+    fix : str
+        What sets the other unit (``--radians``, the ``units`` attribute).
+
+    Raises
+    ------
+    NanoctError
+        Non-finite angles; more than one view and all angles equal; at least
+        :data:`_MIN_VIEWS_UNIT_CHECK` views in degrees spanning at most one turn in radians
+        (``2 pi`` degrees: the values are radians), or in radians spanning more than two turns
+        (the values are degrees).
+    """
+    if not np.isfinite(angles).all():
+        raise NanoctError(f"{where}: {int((~np.isfinite(angles)).sum())} angle(s) are NaN or infinite")
+    if angles.size < 2:
+        return
+    span = float(np.ptp(angles))
+    if span == 0:
+        raise NanoctError(f"{where}: all {angles.size} views have the angle {np.rad2deg(angles[0]):g} degrees")
+    if angles.size >= _MIN_VIEWS_UNIT_CHECK and degrees and np.rad2deg(span) <= 2 * np.pi * (1 + 1e-6):
+        raise NanoctError(
+            f"{where}: {angles.size} views span only {np.rad2deg(span):.4g} degrees; these look like radians "
+            f"({fix} if they are)"
+        )
+    if angles.size >= _MIN_VIEWS_UNIT_CHECK and not degrees and span > 4 * np.pi:
+        raise NanoctError(
+            f"{where}: {angles.size} views span {span:.4g} radians (more than two turns); these look like degrees"
+        )
 
 
 def read_scan(
@@ -163,8 +238,11 @@ def read_scan(
     flats: str | os.PathLike[str] | None = None,
     darks: str | os.PathLike[str] | None = None,
     is_line_integral: bool = False,
+    entry: str | None = None,
+    rows: slice | None = None,
+    crop: tuple[int, int] | None = None,
 ) -> RawScan:
-    """Read a measured scan.
+    """Read a measured scan, or the part of its detector that ``rows`` and ``crop`` select.
 
     Parameters
     ----------
@@ -182,34 +260,62 @@ def read_scan(
         TIFF or ``.npy`` flat and dark fields for TIFF and ``.npy`` scans.
     is_line_integral : bool
         The data are already line integrals (no flat/dark correction, no ``-log``).
+    entry : str, optional
+        The NXtomo entry to read, needed when the file has several.
+    rows : slice, optional
+        Detector rows to read (default all). HDF5 and ``.npy`` files read only these rows and
+        the ``crop`` columns from disk, so a few slices of a large scan fit in memory.
+    crop : (int, int), optional
+        Detector columns ``[first, stop)`` to read.
 
     Returns
     -------
     RawScan
+        Projections, flats and darks of the selected rows and columns;
+        ``source["detector_shape"]`` is the full detector ``[R, L]``.
 
     Raises
     ------
     NanoctError
-        A missing file, dataset or key, angle count != projection count, flats or darks of
-        another shape, an unknown format; each message names the file and what to do.
+        A missing, truncated or damaged file, a missing dataset or key, angle count !=
+        projection count, angles that fail :func:`check_angles`, flats or darks of another
+        shape, an unknown format; each message names the file and what to do.
     """
     fmt = fmt or detect_format(path)
     if fmt not in FORMATS:
         raise NanoctError(f"--format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
+    if entry is not None and fmt != "nxtomo":
+        raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
+    check = angles_file is None  # angles given separately replace the file's, whatever they are
+    window = _window(rows, crop)
     if fmt == "nxtomo":
-        scan = _read_nxtomo(Path(path))
+        scan = _read_nxtomo(Path(path), entry, window, check=check)
     elif fmt == "dxchange":
-        scan = _read_dxchange(Path(path))
+        scan = _read_dxchange(Path(path), window, check=check)
     else:
         if angles_file is None:
             raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
-        stack = _read_array(Path(path), fmt)
+        folder = fmt == "tiff" and Path(path).is_dir()
+        if folder:  # one file per projection: each cut as it is read
+            stack, detector = _read_tiff_folder(Path(path), window)
+        else:
+            stack = _read_array(Path(path), fmt, mmap=True)
+            stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
+            detector = stack.shape[1:]
+        if stack.ndim != 3:
+            raise NanoctError(f"{path} holds an array of shape {stack.shape}; expected (views, rows, columns)")
+        r, c = window(detector)
+        stack = stack if folder else stack[:, r, c]
+
+        def field(file: str | os.PathLike[str] | None, what: str) -> np.ndarray | None:
+            return None if file is None else _read_field(Path(file), what, detector)[:, r, c]
+
         scan = RawScan(
-            stack,
+            np.asarray(stack, dtype=np.float32),
             read_angles(angles_file, degrees=degrees),
-            flats=None if flats is None else _read_array(Path(flats), None),
-            darks=None if darks is None else _read_array(Path(darks), None),
-            source={"file": str(path), "format": fmt},
+            flats=field(flats, "flats"),
+            darks=field(darks, "darks"),
+            source={"file": str(path), "format": fmt, "detector_shape": list(detector)},
         )
     if angles_file is not None and fmt in ("nxtomo", "dxchange"):
         scan = replace(scan, angles=read_angles(angles_file, degrees=degrees))
@@ -236,8 +342,7 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     if not 0 <= tolerance < 1:
         raise NanoctError(f"--tolerance {tolerance} must lie in [0, 1)")
     proj = scan.projections
-    if not np.isfinite(proj).all():
-        raise NanoctError(f"the projections contain {int((~np.isfinite(proj)).sum())} NaN or infinite value(s)")
+    drop_bad_views(scan, drop=False)  # names the frames with NaN or infinite values
     if scan.is_line_integral:
         return proj.copy()
     dark = np.zeros(proj.shape[1:], np.float32) if scan.darks is None else scan.darks.mean(axis=0)
@@ -339,6 +444,8 @@ def import_scan(
     center_offset: float | str = 0.0,
     size: int | None = None,
     tolerance: float = 1e-3,
+    entry: str | None = None,
+    drop_bad: bool = False,
 ) -> Any:
     """Import a measured parallel-beam scan into a new data set, one sample per detector row.
 
@@ -372,6 +479,11 @@ def import_scan(
         and binning; one image pixel = one binned detector pixel).
     tolerance : float
         Fraction of non-positive flat/dark-corrected values tolerated (see :func:`line_integrals`).
+    entry : str, optional
+        NXtomo entry (see :func:`read_scan`).
+    drop_bad : bool
+        Leave out projections (and flat or dark frames) with NaN or infinite values in the
+        selected rows and columns instead of refusing the scan (:func:`drop_bad_views`).
 
     Returns
     -------
@@ -386,19 +498,23 @@ def import_scan(
     from ..core.geometry import Geometry
     from .store import DataStore, create_scan
 
+    # only the selected rows and columns are read, checked and corrected
     raw = read_scan(
         src, fmt=fmt, angles_file=angles_file, degrees=degrees, flats=flats, darks=darks,
-        is_line_integral=is_line_integral,
+        is_line_integral=is_line_integral, entry=entry, rows=rows, crop=crop,
     )  # fmt: skip
-    n_cols = raw.projections.shape[2]
+    n_rows, n_cols = raw.source["detector_shape"]
+    kept, dropped = drop_bad_views(raw, drop=drop_bad)
+    kept, repeated = drop_repeated_views(kept)
+    left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
     if center_offset == "auto":
-        center_offset = _auto_center(raw, rows, crop, tolerance)
+        center_offset = _auto_center(kept, n_cols, crop, tolerance)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
     try:
         geometry = Geometry.from_angles(
-            raw.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset
+            kept.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset
         )
     except ValueError as exc:
         raise NanoctError(f"cannot build the scan geometry: {exc}") from exc
@@ -409,49 +525,151 @@ def import_scan(
         "binning": binning,
         "center_offset_raw": center_offset,
         "line_integrals": raw.is_line_integral,
-        "flats": 0 if raw.flats is None else int(raw.flats.shape[0]),
-        "darks": 0 if raw.darks is None else int(raw.darks.shape[0]),
+        "flats": 0 if kept.flats is None else int(kept.flats.shape[0]),
+        "darks": 0 if kept.darks is None else int(kept.darks.shape[0]),
         "shared_motion": True,
+        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)],
     }
+    if left_out.size:  # shifts files keep one row per projection of the file (nabu's layout)
+        scan.update(file_views=raw.n_views, left_out_views=left_out.tolist())
+    if "raw_pixel_size_m" in raw.source:  # one stored detector pixel, after binning
+        n_kept_rows = (rows.stop - rows.start) if rows is not None else n_rows
+        x, y = raw.source["raw_pixel_size_m"]
+        scan["pixel_size_m"] = [x * binning, y * (binning if n_kept_rows >= binning else 1)]
     if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
             return store  # the same import again: nothing to do
-    # select rows and columns before the correction: only the kept pixels are corrected and judged
-    stack = sinograms(line_integrals(_select(raw, rows, crop), tolerance=tolerance), binning=binning)
+    stack = sinograms(line_integrals(kept, tolerance=tolerance), binning=binning)
     return create_scan(out, geometry, stack, scan)
 
 
-def _auto_center(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None, tolerance: float) -> float:
-    """The axis offset (raw detector pixels) from up to 8 of the selected rows: centroids, else opposite views."""
+def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> float:
+    """The axis offset (raw detector pixels) from up to 8 of the read rows: centroids, else opposite views."""
     from ..recon.center import centroid_motion, fit_center
 
-    n_rows, n_cols = raw.projections.shape[1:]
-    first_row, stop_row = (rows.start or 0, rows.stop or n_rows) if rows is not None else (0, n_rows)
-    picked = np.unique(np.linspace(first_row, max(stop_row - 1, first_row), 8).round().astype(int))
-    sinos = np.concatenate([sinograms(line_integrals(_select(raw, slice(r, r + 1), crop), tolerance=tolerance))
-                            for r in picked])  # fmt: skip
+    picked = np.unique(np.linspace(0, scan.projections.shape[1] - 1, 8).round().astype(int))
+    some = replace(
+        scan,
+        projections=scan.projections[:, picked],
+        flats=None if scan.flats is None else scan.flats[:, picked],
+        darks=None if scan.darks is None else scan.darks[:, picked],
+    )
+    sinos = sinograms(line_integrals(some, tolerance=tolerance))
     first = crop[0] if crop is not None else 0
-    offset, _, spread = centroid_motion(sinos, raw.angles)  # from the centre of the kept columns
+    offset, _, spread = centroid_motion(sinos, scan.angles)  # from the centre of the kept columns
     if spread > 0.01:  # the object leaves the detector: the centroids do not hold, use opposite views
-        offset = fit_center(sinos, raw.angles, max_offset=sinos.shape[2] / 4)
+        offset = fit_center(sinos, scan.angles, max_offset=sinos.shape[2] / 4)
     return float(first + (sinos.shape[2] - 1) / 2 + offset - (n_cols - 1) / 2)
 
 
-def _select(raw: RawScan, rows: slice | None, crop: tuple[int, int] | None) -> RawScan:
-    """The scan restricted to detector ``rows`` and columns ``crop`` (projections, flats, darks alike)."""
-    _, n_rows, n_cols = raw.projections.shape
-    if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
-        raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
-    if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
-        raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
-    r = rows if rows is not None else slice(None)
-    c = slice(*crop) if crop is not None else slice(None)
+def _angle_notes(angles: np.ndarray) -> list[str]:
+    """What an import tells about angles it keeps as they are (acquisition order)."""
+    steps = np.diff(angles)
+    if steps.size and not ((steps >= 0).all() or (steps <= 0).all()):
+        return ["the angles are not monotone; the views are kept in acquisition order, each with its angle"]
+    return []
 
-    def cut(a: np.ndarray | None) -> np.ndarray | None:
-        return None if a is None else a[:, r, c]
 
-    return replace(raw, projections=cut(raw.projections), flats=cut(raw.flats), darks=cut(raw.darks))
+def drop_repeated_views(scan: RawScan) -> tuple[RawScan, list[str]]:
+    """Leave out the views whose angle repeats that of an earlier view (modulo 360 degrees).
+
+    A geometry has one view per direction (:class:`~nanoct.core.geometry.Geometry` refuses
+    repeats), so the first view of each angle is kept: e.g. the 360-degree view of a scan
+    over ``[0, 360]`` degrees, or a view measured again. Angles are compared as the geometry
+    compares them (radians modulo ``2 pi``, rounded to 12 decimals).
+
+    Returns
+    -------
+    RawScan
+        The scan without the repeats (the same scan when there are none).
+    list of str
+        A note naming the views left out (indices among the projections), if any.
+    """
+    phase = np.round(np.mod(scan.angles, 2 * np.pi), 12)
+    _, first = np.unique(phase, return_index=True)
+    repeats = np.setdiff1d(np.arange(scan.n_views), first)
+    if repeats.size == 0:
+        return scan, []
+    note = (
+        f"left out {repeats.size} view(s) repeating the angle of an earlier view (modulo 360 degrees): "
+        f"{_listed(repeats)}"
+    )
+    keep = np.sort(first)
+    return replace(scan, projections=scan.projections[keep], angles=scan.angles[keep], views=scan.views[keep]), [note]
+
+
+def _bad_frames(stack: np.ndarray | None) -> np.ndarray:
+    """Indices of the frames of a ``(F, R, L)`` stack that hold NaN or infinite values."""
+    if stack is None:
+        return np.zeros(0, int)
+    return np.flatnonzero(~np.isfinite(stack).all(axis=(1, 2)))
+
+
+def _listed(indices: np.ndarray, limit: int = 8) -> str:
+    shown = ", ".join(str(i) for i in indices[:limit])
+    return shown + (f" ... ({indices.size} in all)" if indices.size > limit else "")
+
+
+def drop_bad_views(scan: RawScan, *, drop: bool) -> tuple[RawScan, list[str]]:
+    """Refuse, or leave out, the frames that hold NaN or infinite values.
+
+    Parameters
+    ----------
+    scan : RawScan
+    drop : bool
+        Leave such projections out (with their angles) and such flat or dark frames out of
+        the mean, instead of refusing the scan.
+
+    Returns
+    -------
+    RawScan
+        The scan without the bad frames (the same scan when there are none).
+    list of str
+        One note per kind of frame left out.
+
+    Raises
+    ------
+    NanoctError
+        Bad frames and not ``drop`` (the message names the frames, by index among the
+        projections / flats / darks, and the angles); every frame of a kind bad.
+    """
+    where = scan.source.get("file", "the scan")
+    notes: list[str] = []
+    out = {}
+    for name in ("projections", "flats", "darks"):
+        stack = getattr(scan, name)
+        bad = _bad_frames(stack)
+        if bad.size == 0:
+            continue
+        what = f"{where}: {name} {_listed(bad)}"
+        if name == "projections":
+            what += f" (angles {_listed(np.round(np.rad2deg(scan.angles[bad]), 3))} degrees)"
+        if not drop:
+            raise NanoctError(
+                f"{what} hold NaN or infinite values; pass --drop-bad-views to leave them out, or repair the file"
+            )
+        if bad.size == stack.shape[0]:
+            raise NanoctError(f"{what}: every one of the {stack.shape[0]} {name} holds NaN or infinite values")
+        out[name] = np.delete(stack, bad, axis=0)
+        if name == "projections":
+            out["angles"], out["views"] = np.delete(scan.angles, bad), np.delete(scan.views, bad)
+        notes.append(f"left out {bad.size} of {stack.shape[0]} {name} with NaN or infinite values ({_listed(bad)})")
+    return (replace(scan, **out) if out else scan), notes
+
+
+def _window(rows: slice | None, crop: tuple[int, int] | None) -> Callable[[tuple[int, ...]], tuple[slice, slice]]:
+    """The row and column slices of ``rows`` / ``crop`` on a detector of shape ``(R, L)``, checked."""
+
+    def window(shape: tuple[int, ...]) -> tuple[slice, slice]:
+        n_rows, n_cols = shape
+        if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
+            raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
+        if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
+            raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
+        return (rows if rows is not None else slice(None)), (slice(*crop) if crop is not None else slice(None))
+
+    return window
 
 
 # ---------------------------------------------------------------------------------- readers
@@ -474,66 +692,153 @@ def _open_h5(path: Path) -> Any:
         raise NanoctError(f"cannot open {path} as HDF5 ({exc}); is it a complete .h5/.nxs file?") from exc
 
 
-def _first(f: Any, candidates: tuple[str, ...]) -> str | None:
-    return next((c for c in candidates if c in f), None)
-
-
-def _read_nxtomo(path: Path) -> RawScan:
+def _read_nxtomo(path: Path, entry: str | None, window: Callable[..., tuple[slice, slice]], *, check: bool) -> RawScan:
     with _open_h5(path) as f:
-        data_path = _first(f, _NX_DATA)
-        if data_path is None:
-            raise NanoctError(f"{path}: no NXtomo detector data (looked for {', '.join(_NX_DATA)})")
-        keys_path, angles_path = _first(f, _NX_KEYS), _first(f, _NX_ANGLES)
-        if angles_path is None:
-            raise NanoctError(f"{path}: no rotation angles (looked for {', '.join(_NX_ANGLES)}); pass --angles FILE")
-        data = np.asarray(f[data_path][()], dtype=np.float32)
-        angles = np.asarray(f[angles_path][()], dtype=np.float64).ravel()
-        keys = np.zeros(data.shape[0], int) if keys_path is None else np.asarray(f[keys_path][()]).ravel()
-    if keys.size != data.shape[0] or angles.size != data.shape[0]:
-        raise NanoctError(
-            f"{path}: {data.shape[0]} detector frames but {keys.size} image keys and {angles.size} angles; "
-            "NXtomo lists one key and one angle per frame"
-        )
-    proj = keys == 0
-    if not proj.any():
-        raise NanoctError(f"{path}: no projection frames (image_key 0)")
+        frames = read_nxtomo(path, f, entry, window)
+    if check:
+        units = frames.source["angle_units"]
+        in_degrees = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1.0))
+        where = f"{path}:{frames.source['entry']}/sample/rotation_angle"
+        check_angles(frames.angles, degrees=in_degrees, where=where, fix="correct its units attribute or pass --angles")
     return RawScan(
-        data[proj],
-        np.deg2rad(angles[proj]),
-        flats=data[keys == 1] if (keys == 1).any() else None,
-        darks=data[keys == 2] if (keys == 2).any() else None,
-        source={"file": str(path), "format": "nxtomo", "data": data_path, "image_key": keys_path},
+        frames.projections,
+        frames.angles,
+        flats=frames.flats,
+        darks=frames.darks,
+        source={"file": str(path), "format": "nxtomo", **frames.source},
     )
 
 
-def _read_dxchange(path: Path) -> RawScan:
+def _read_dxchange(path: Path, window: Callable[..., tuple[slice, slice]], *, check: bool) -> RawScan:
     with _open_h5(path) as f:
         if "exchange/theta" not in f:
             raise NanoctError(f"{path}: no /exchange/theta (angles in degrees); pass --angles FILE")
-        data = np.asarray(f["exchange/data"][()], dtype=np.float32)
-        theta = np.asarray(f["exchange/theta"][()], dtype=np.float64)
-        flats = np.asarray(f["exchange/data_white"][()], np.float32) if "exchange/data_white" in f else None
-        darks = np.asarray(f["exchange/data_dark"][()], np.float32) if "exchange/data_dark" in f else None
-    return RawScan(data, np.deg2rad(theta), flats=flats, darks=darks, source={"file": str(path), "format": "dxchange"})
+        shape = f["exchange/data"].shape
+        if len(shape) != 3:
+            raise NanoctError(f"{path}:exchange/data has shape {shape}; expected (views, rows, columns)")
+        region = (slice(None), *window(shape[1:]))
+
+        def frames(name: str) -> np.ndarray | None:
+            if name not in f:
+                return None
+            if f[name].shape[1:] != shape[1:]:
+                what = "flats" if name.endswith("white") else "darks"
+                raise NanoctError(
+                    f"{path}: {what} have shape {f[name].shape} ({name}), but one projection is {shape[1:]} "
+                    f"(rows, columns); give {what} of the same detector size"
+                )
+            return read_h5_dataset(f, path, name, region)[0].astype(np.float32, copy=False)
+
+        data, flats, darks = frames("exchange/data"), frames("exchange/data_white"), frames("exchange/data_dark")
+        theta = read_h5_dataset(f, path, "exchange/theta")[0].astype(np.float64).ravel()
+    angles = np.deg2rad(theta)
+    if check:
+        check_angles(angles, degrees=True, where=f"{path}:exchange/theta", fix="pass --angles FILE")
+    source = {"file": str(path), "format": "dxchange", "detector_shape": list(shape[1:])}
+    return RawScan(data, angles, flats=flats, darks=darks, source=source)
 
 
-def _read_array(path: Path, fmt: str | None) -> np.ndarray:
+def _read_field(path: Path, what: str, detector: tuple[int, ...]) -> np.ndarray:
+    """Flat or dark fields ``(F, R, L)`` from a TIFF or ``.npy`` file, checked against the detector ``(R, L)``.
+
+    One frame ``(R, L)`` is accepted, and for a one-row detector (a sinogram) frames ``(F, L)`` or ``(L,)``.
+    """
+    field = _read_array(path, None)
+    n_rows, n_cols = detector
+    if field.ndim == 3 and field.shape[1:] == tuple(detector):
+        return field
+    if field.ndim == 2 and field.shape == tuple(detector):
+        return field[None]
+    if n_rows == 1 and field.ndim in (1, 2) and field.shape[-1] == n_cols:
+        return field.reshape(-1, 1, n_cols)
+    raise NanoctError(
+        f"--{what} {path}: {what} have shape {field.shape}, but one projection is {tuple(detector)} "
+        f"(rows, columns); give {what} recorded with the same detector size and binning as the projections"
+    )
+
+
+def _read_array(path: Path, fmt: str | None, *, mmap: bool = False) -> np.ndarray:
+    """A ``.npy`` file (memory-mapped with ``mmap``: read as it is sliced), a TIFF or a folder of TIFFs."""
     if not path.exists():
         raise NanoctError(f"{path} does not exist")
     fmt = fmt or ("npy" if path.suffix.lower() == ".npy" else "tiff")
-    try:
-        if fmt == "npy":
-            return np.load(path, allow_pickle=False)
-        import tifffile
+    if fmt == "npy":
+        try:
+            return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
+        except (OSError, ValueError, EOFError) as exc:
+            raise NanoctError(f"cannot read {path} as .npy ({exc}); is the file complete?") from exc
+    return _read_tiff_folder(path)[0] if path.is_dir() else _read_tiff(path)
 
-        if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
-            if not files:
-                raise NanoctError(f"{path} holds no .tif/.tiff files")
-            return np.stack([tifffile.imread(p) for p in files])
-        return tifffile.imread(path)
-    except (OSError, ValueError) as exc:
-        raise NanoctError(f"cannot read {path} as {fmt} ({exc})") from exc
+
+def _read_tiff_folder(
+    path: Path, window: Callable[..., tuple[slice, slice]] | None = None
+) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The TIFFs of a folder (sorted by name, one image each) stacked, each cut to ``window`` as it is read.
+
+    Returns the stack and the shape of one full image.
+    """
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".tif", ".tiff"))
+    if not files:
+        raise NanoctError(f"{path} holds no .tif/.tiff files")
+    images, first = [], None
+    for file in files:
+        image = _read_tiff(file)
+        first = first or (file, image.shape)
+        if image.shape != first[1]:
+            raise NanoctError(
+                f"{file} has shape {image.shape}, but {first[0].name} has {first[1]}; "
+                f"every TIFF of {path} must be one projection of the same size"
+            )
+        if window is not None and image.ndim == 2:
+            image = np.ascontiguousarray(image[window(image.shape)])
+        images.append(image)
+    return np.stack(images), first[1]
+
+
+# what tifffile logs (rather than raises) when the page list of a file is cut or damaged
+_TIFF_DAMAGE = ("invalid page offset", "invalid offset to page", "corrupted", "truncated", "failed to read")
+
+
+class _Complaints(logging.Handler):
+    """Collects tifffile's log messages that say a file is damaged (they are logged, not raised)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        if any(word in message for word in _TIFF_DAMAGE):
+            self.messages.append(message)
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    """A TIFF file as an array; a truncated or damaged file is refused rather than read in part."""
+    import tifffile
+
+    complaints = _Complaints()
+    logger = logging.getLogger("tifffile")
+    logger.addHandler(complaints)
+    try:
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series
+            # a file written page by page can hold one series per image: read them all, not the first
+            shapes = {(s.shape, s.dtype) for s in series}
+            if len(series) > 1 and len(shapes) > 1:
+                raise NanoctError(
+                    f"{path} holds {len(series)} image series of different shapes or types "
+                    f"({', '.join(sorted({str(s.shape) for s in series}))}); write one stack of equal images"
+                )
+            image = np.stack([s.asarray() for s in series]) if len(series) > 1 else tif.asarray()
+    except (OSError, ValueError, EOFError, struct.error) as exc:
+        raise NanoctError(f"cannot read {path} as TIFF ({exc}); the file may be truncated - copy it again") from exc
+    finally:
+        logger.removeHandler(complaints)
+    if complaints.messages:
+        raise NanoctError(
+            f"{path} is damaged or truncated (tifffile: {complaints.messages[0]}); copy it again or rewrite it"
+        )
+    return image
 
 
 # ---------------------------------------------------------------------------------- writers
@@ -585,52 +890,167 @@ def write_images(
     return path
 
 
-def write_shifts(path: str | os.PathLike[str], shifts: Any, *, angles: Any = None) -> Path:
-    """Per-view shifts as a two-column text file ``view shift_px`` (nabu-style), atomically.
+def write_shifts(
+    path: str | os.PathLike[str],
+    shifts: Any,
+    *,
+    angles: Any = None,
+    pixel_size_m: float | None = None,
+    notes: list[str] | None = None,
+    left_out: Any = (),
+) -> Path:
+    """Per-view shifts as nabu's ``translation_movements_file``, atomically.
+
+    One row ``horizontal vertical`` per view, in detector pixels, loadable with
+    ``np.loadtxt`` into shape ``(K, 2)`` (nabu's reader): ``horizontal = -shifts`` (the
+    displacement of the projection along increasing detector columns, nabu's sign; see the
+    module docstring), ``vertical = 0`` (nanoct estimates no vertical motion). Comment lines
+    (``#``) say so; with ``pixel_size_m`` each row ends with a comment giving the horizontal
+    value in nanometres.
 
     Parameters
     ----------
     path : path
         Output text file.
     shifts : array_like of shape (K,)
-        Shift of the object along the detector axis per view, in detector pixels (sign of
-        ``t . e_u``, as Dremel estimates it).
+        nanoct's shift of the object along the detector axis per view, in detector pixels
+        (sign of ``t . e_u``, as Dremel estimates it).
     angles : array_like of shape (K,), optional
-        View angles in radians, written as a comment line for the reader's benefit.
+        View angles in radians, written as a comment line.
+    pixel_size_m : float, optional
+        Size of one detector pixel at the sample, in metres.
+    notes : list of str, optional
+        More comment lines (e.g. why an import left views out).
+    left_out : sequence of int
+        Rows of projections the data set does not hold (views an import left out): the file
+        still has one row per projection of the scan, as nabu expects; these rows get the
+        value interpolated from their neighbours in acquisition order, marked by a comment,
+        and :func:`read_shifts` skips them.
 
     Returns
     -------
     Path
+
+    Raises
+    ------
+    NanoctError
+        For NaN or infinite shifts or a pixel size that is not positive (nothing is written).
     """
     from .fileio import atomic_write_text
 
     values = np.asarray(shifts, dtype=np.float64).ravel()
     if not np.isfinite(values).all():
         raise NanoctError("the shifts contain NaN or infinite values; nothing was written")
-    lines = ["# view shift_px (object shift along the detector axis, detector pixels; nanoct)"]
+    if pixel_size_m is not None and not (np.isfinite(pixel_size_m) and pixel_size_m > 0):
+        raise NanoctError(f"pixel size {pixel_size_m!r} m must be a positive number; nothing was written")
+    skipped = np.unique(np.asarray(left_out, dtype=int))
+    rows = values.size + skipped.size
+    if skipped.size and (skipped[0] < 0 or skipped[-1] >= rows):
+        raise NanoctError(f"left-out rows {skipped.tolist()} do not fit {rows} projections; nothing was written")
+    present = np.setdiff1d(np.arange(rows), skipped)
+    horizontal = np.interp(np.arange(rows), present, -values) + 0.0  # + 0.0: no "-0.000000"
+    lines = [
+        f"# {SHIFTS_HEADER}: nabu translation_movements_file, one row per projection, detector pixels",
+        "# horizontal = displacement of the projection towards higher detector columns (nabu's sign);",
+        "# nanoct's object shift t.e_u (Dremel) is -horizontal; vertical: not estimated (0)",
+    ]
+    if pixel_size_m is not None:
+        lines.append(f"# pixel size {pixel_size_m * 1e9:.6g} nm; the comment after each row: horizontal in nm")
+    lines += [f"# {note}" for note in notes or []]
+    if skipped.size:
+        lines.append(f"# {LEFT_OUT}: rows {', '.join(map(str, skipped))} (interpolated; nanoct skips them)")
     if angles is not None:
-        lines.append("# angles_deg " + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel())))
-    lines += [f"{k} {v:.6f}" for k, v in enumerate(values)]
+        lines.append(
+            "# angles_deg" + (" (rows not left out)" if skipped.size else "") + " "
+            + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel()))
+        )  # fmt: skip
+    for k, h in enumerate(horizontal):
+        comments = ([f"{h * pixel_size_m * 1e9:.3f} nm"] if pixel_size_m is not None else []) + (
+            [LEFT_OUT] if k in skipped else []
+        )
+        lines.append(f"{h:.6f} 0.000000" + (f"  # {'; '.join(comments)}" if comments else ""))
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def read_shifts(path: str | os.PathLike[str], n_views: int) -> np.ndarray:
-    """Read per-view shifts: a two-column ``view shift`` text file or one shift per line.
+def read_shifts(
+    path: str | os.PathLike[str], n_views: int | None, *, binning: int = 1, left_out: Any = ()
+) -> np.ndarray:
+    """Read per-view shifts as nanoct's object shifts along the detector axis (pixels of a data set).
+
+    Three layouts are read:
+
+    * nabu's ``translation_movements_file`` (:func:`write_shifts`): rows ``horizontal
+      vertical`` in raw detector pixels; returns ``-horizontal / binning``. The vertical
+      column must be 0 (nanoct reconstructs slice by slice and cannot apply it).
+    * nanoct's two-column ``view shift_px`` files, marked by that header: returned as
+      written (they hold the data set's pixels and nanoct's sign).
+    * one shift per line: nanoct's sign and the data set's pixels.
+
+    A two-column file without a header whose first column is exactly ``0, 1, ..., K-1`` could
+    be either of the first two and is refused.
+
+    Parameters
+    ----------
+    path : path
+        The text file.
+    n_views : int or None
+        Views of the data set; the file must have one row per view (None: any number, the
+        file is only checked).
+    binning : int
+        Detector binning of the data set (nabu files are in raw detector pixels).
+    left_out : sequence of int
+        Projections of the scan the data set does not hold (``scan.left_out_views`` of an
+        import): a nabu-layout file with one row per projection of the scan has these rows
+        skipped; a file with ``n_views`` rows is read as it is.
+
+    Returns
+    -------
+    ndarray of shape (n_views,), float64
 
     Raises
     ------
     NanoctError
-        If the file is missing, not numeric, or has another number of views.
+        If the file is missing, not numeric, has another number of rows or columns, a
+        non-zero vertical column, or the ambiguous layout above.
     """
     table = _load_table(path, "shifts")
+    header = _comment_text(path)
+    view_column = "view shift_px" in header
     if table.shape[1] == 1:
         shifts = table[:, 0]
-    else:
+    elif table.shape[1] != 2:
+        raise NanoctError(
+            f"the shifts file {path} has {table.shape[1]} columns; expected 'horizontal vertical' (nabu) per row"
+        )
+    elif view_column:
         views = table[:, 0].astype(int)
         if not np.array_equal(np.sort(views), np.arange(views.size)):
             raise NanoctError(f"the shifts file {path} must list the views 0..{views.size - 1} once each")
         shifts = np.empty(views.size)
         shifts[views] = table[:, 1]
-    if shifts.size != n_views:
-        raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}")
-    return shifts
+    else:
+        if SHIFTS_HEADER not in header and table.shape[0] > 2 and np.array_equal(table[:, 0], np.arange(len(table))):
+            raise NanoctError(
+                f"the shifts file {path} has no header and its first column is 0, 1, 2, ...: view numbers "
+                f"(add the line '# view shift_px') or horizontal shifts (add '# {SHIFTS_HEADER}')?"
+            )
+        vertical = np.abs(table[:, 1]).max()
+        if vertical > 1e-3:
+            raise NanoctError(
+                f"the shifts file {path} has vertical shifts up to {vertical:.3g} px; nanoct reconstructs slice by "
+                "slice and cannot apply them: set the second column to 0 to use the horizontal ones"
+            )
+        shifts = -table[:, 0] / binning
+        skipped = np.unique(np.asarray(left_out, dtype=int))
+        if skipped.size and n_views is not None and shifts.size == n_views + skipped.size:
+            shifts = np.delete(shifts, skipped)
+    if n_views is not None and shifts.size != n_views:
+        more = f" ({len(left_out)} more projections in the scan, left out by the import)" if len(left_out) else ""
+        raise NanoctError(f"the shifts file {path} has {shifts.size} views, the data set {n_views}{more}")
+    return shifts + 0.0
+
+
+def _comment_text(path: str | os.PathLike[str]) -> str:
+    """The ``#`` comments of a text file, joined (read after :func:`_load_table` succeeded)."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        return " ".join(line.split("#", 1)[1] for line in f if "#" in line)

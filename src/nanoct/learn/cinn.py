@@ -130,7 +130,7 @@ class CiNN(ConditionalFlow):
         (:class:`~nanoct.learn.invertible.ConditionalScale`, log-scale and location from a head
         on the conditioner's full-resolution stem features) after the input ActNorm: ``"location"``
         (``(v - mu) * exp(s)``, the tiny study's), ``"shift"`` or ``True`` (``v * exp(s) + t``,
-        the earlier form), ``False`` / ``"none"`` (the paper's architecture).
+        the shift form), ``False`` / ``"none"`` (the paper's architecture).
     """
 
     name = "cinn"

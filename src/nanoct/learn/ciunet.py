@@ -86,7 +86,7 @@ class CiUNet(ConditionalFlow):
         (:class:`~nanoct.learn.invertible.ConditionalScale`, log-scale and location from a head
         on the UNet's full-resolution decoder features) after the input ActNorm: ``"location"``
         (``(v - mu) * exp(s)``, the tiny study's), ``"shift"`` or ``True`` (``v * exp(s) + t``,
-        the earlier form), ``False`` / ``"none"`` (the paper's architecture).
+        the shift form), ``False`` / ``"none"`` (the paper's architecture).
     """
 
     name = "ciunet"

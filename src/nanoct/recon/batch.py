@@ -25,7 +25,7 @@ from ..names import reconstruction_name
 from .eta_source import EtaPlan, plan_eta
 from .registry import check_method_params, method_spec
 from .result import ReconResult
-from .shared import joint_shifts, read_shifts_file
+from .shared import joint_shifts, read_store_shifts
 
 __all__ = ["reconstruct_dataset", "reconstruct_sample"]
 
@@ -105,7 +105,7 @@ def _motion_slices(store: DataStore, value: str) -> np.ndarray:
 
 def _plan_motion(store: DataStore, checked: dict[str, Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Start shifts (from ``shifts_from``) and the slices of a joint estimate, checked."""
-    shifts0 = None if checked["shifts_from"] is None else read_shifts_file(checked["shifts_from"], store.geometry)
+    shifts0 = None if checked["shifts_from"] is None else read_store_shifts(checked["shifts_from"], store)
     if checked["fix_shifts"] and shifts0 is None:
         raise NanoctError("--param fix_shifts=true needs the motion to use: add --param shifts_from=FILE")
     if checked["fix_shifts"] and checked["motion_slices"] is not None:

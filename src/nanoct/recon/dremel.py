@@ -54,6 +54,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numba
@@ -62,6 +63,18 @@ import scipy.fft as sfft
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import (
+    ParallelRays,
+    backproject_view,
+    backproject_view_serial,
+    column_sums,
+    project_view,
+    project_view_serial,
+    ray_block,
+    ray_dot,
+    ray_setup,
+    use_threads,
+)
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
 from .params import MethodParams
@@ -407,6 +420,124 @@ def _row_col_sums(mat: sp.csr_matrix, n_views: int) -> tuple[np.ndarray, np.ndar
     return matrix_cache(mat, ("dremel_sums", n_views), compute)
 
 
+@lru_cache(maxsize=2)
+def _inverse_column_sums_of(geometry: Geometry) -> np.ndarray:
+    cols = column_sums(ParallelRays(geometry).params, geometry.n, geometry.n_det) / geometry.n_angles
+    inv_col = np.zeros(cols.shape, dtype=np.float32)
+    ok = cols > 1e-6
+    inv_col[ok] = (1.0 / cols[ok]).astype(np.float32)
+    return inv_col
+
+
+def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
+    """Inverse view-averaged column sums of the matrix-free rows (float32, 0 where empty), cached."""
+    return _inverse_column_sums_of(rays.geometry)
+
+
+@numba.njit(cache=True, nogil=True)
+def _view_step_free(
+    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads
+):  # pragma: no cover - compiled
+    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters);
+    projection and back projection use all threads (:func:`~nanoct.core.matrixfree.backproject_view`)."""
+    if threads:
+        project_view(par, n, n_det, x, p, rowsum, block)
+    else:
+        project_view_serial(par, n, n_det, x, p, rowsum, block)
+    res2 = 0.0
+    for l in range(n_det):
+        g[l] = 0.0
+    for l in range(n_det):
+        i0, w0, w1 = _interp_weights(l + d)
+        zz = 0.0
+        rs = 0.0
+        if 0 <= i0 < n_det:
+            zz += w0 * p[i0]
+            rs += w0 * rowsum[i0]
+        if 0 <= i0 + 1 < n_det:
+            zz += w1 * p[i0 + 1]
+            rs += w1 * rowsum[i0 + 1]
+        z[l] = zz
+        e = zz - y[l]
+        res2 += e * e
+        if rs > 1e-6:
+            e = e / rs
+            if 0 <= i0 < n_det:
+                g[i0] += w0 * e
+            if 0 <= i0 + 1 < n_det:
+                g[i0 + 1] += w1 * e
+    for l in range(n_det):
+        g[l] *= -omega
+    if threads:
+        backproject_view(par, n, n_det, g, x, inv_col, True, nonneg, block)
+    else:
+        backproject_view_serial(par, n, n_det, g, x, inv_col, True, nonneg, block)
+    return res2
+
+
+@numba.njit(cache=True, nogil=True)
+def _dremel_sweep_free(
+    params,
+    n,
+    inv_col,
+    y,
+    x,
+    views,
+    n_det,
+    shifts,
+    det_per_obj,
+    omega,
+    nonneg,
+    correct,
+    lam,
+    f_sr,
+    mode,
+    subpixel,
+    ycorr,
+    ymean,
+    p,
+    z,
+    g,
+    zc,
+    c,
+    rowsum,
+    block,
+    threads,
+):  # pragma: no cover - compiled
+    """:func:`_dremel_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
+    run = 0.0
+    for i in range(views.shape[0]):
+        k = views[i]
+        d = shifts[k] * det_per_obj
+        yk = y[k * n_det : (k + 1) * n_det]
+        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, omega, nonneg, p, z, g, rowsum, block, threads)
+        if correct:
+            zmean = _upsample_centre(z, f_sr, zc)
+            sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
+            shifts[k] += lam * sigma / det_per_obj
+    return run  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _shifted_residual_free(params, n, y, x, n_det, dshift, p):  # pragma: no cover - compiled
+    """:func:`_shifted_residual` with the rays traced on the fly."""
+    tot = 0.0
+    for k in range(dshift.shape[0]):
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            p[l] = ray_dot(x, n, setup, setup[6] + l * setup[7])[0]
+        for l in range(n_det):
+            i0, w0, w1 = _interp_weights(l + dshift[k])
+            zz = 0.0
+            if 0 <= i0 < n_det:
+                zz += w0 * p[i0]
+            if 0 <= i0 + 1 < n_det:
+                zz += w1 * p[i0 + 1]
+            e = zz - y[k * n_det + l]
+            tot += e * e
+    return math.sqrt(tot)
+
+
 def _measured_correlation(y: np.ndarray, n_views: int, n_det: int, f_sr: int) -> tuple[np.ndarray, np.ndarray]:
     """Up-sampled, mean-subtracted measured projections (K, f_sr L) and their means (K,)."""
     y2 = y.reshape(n_views, n_det)
@@ -459,6 +590,10 @@ class DremelParams(MethodParams):
     fix_shifts : bool, default False
         Keep the shifts at ``shifts0`` (no shift correction): SART with a known motion, e.g.
         one estimated jointly from several slices or read from another tool's file.
+    projector : {"auto", "matrix", "matrixfree"}, default "auto"
+        Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
+        computes them per view when the matrix would exceed 1 GB
+        (:func:`~nanoct.recon.rowaction.resolve_projector`).
     """
 
     n_iter: int = 32
@@ -473,6 +608,7 @@ class DremelParams(MethodParams):
     weighting: str = "additive"
     subpixel: bool = False
     fix_shifts: bool = False
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
         check_row_action(self)
@@ -538,30 +674,47 @@ def dremel(
     so estimated shifts may differ from the true ones by such a term.
     """
     p = DremelParams.check(op, **params)
-    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
+    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:
         shifts = np.zeros(n_views, dtype=np.float64)
     else:
         shifts = check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
-    rowsum, inv_col = _row_col_sums(mat, n_views)
     det_per_obj = geometry.magnification / geometry.det_spacing  # detector px per object px
     f_sr = p["f_sr"]
     ycorr, ymean = _measured_correlation(y, n_views, n_det, f_sr)
-    indices = unsigned_indices(mat)
     rng = np.random.default_rng(p["seed"])
     work = (np.zeros(n_det), np.zeros(n_det), np.zeros(n_det), np.zeros(f_sr * n_det), np.zeros(f_sr * n_det))
-    shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"], ycorr, ymean)
+    shift_args = (p["shift_relaxation"], f_sr, WEIGHTINGS.index(p["weighting"]), p["subpixel"])
     residuals: list[float] = []
     stop = "max_iter"
     start = p["n_iter"] if p["fix_shifts"] else p["correction_start"]  # first iteration with shift correction
+    free = isinstance(mat, ParallelRays)
+    if free:
+        inv_col = _inverse_column_sums(mat)
+        rowsum = np.zeros(n_det)
+    else:
+        rowsum, inv_col = _row_col_sums(mat, n_views)
+        indices = unsigned_indices(mat)
     for it in range(p["n_iter"]):
         views = view_order(n_views, p["order"], rng)
-        step_args = (views, n_det, shifts, det_per_obj, p["relaxation"], p["nonneg"], it >= start)
-        run = _dremel_sweep(mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, *work)
+        step = (det_per_obj, p["relaxation"], p["nonneg"], it >= start)
+        if free:
+            run = _dremel_sweep_free(
+                mat.params, geometry.n, inv_col, y, x, views, n_det, shifts, *step, *shift_args, ycorr, ymean,
+                *work, rowsum, ray_block(geometry), use_threads(geometry),
+            )  # fmt: skip
+        else:
+            step_args = (views, n_det, shifts, *step)
+            run = _dremel_sweep(
+                mat.indptr, indices, mat.data, rowsum, inv_col, y, x, *step_args, *shift_args, ycorr, ymean, *work
+            )
         if p["residual"] == "exact":
             dshift = shifts * det_per_obj
-            residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
+            if free:
+                residuals.append(float(_shifted_residual_free(mat.params, geometry.n, y, x, n_det, dshift, work[0])))
+            else:
+                residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), shifts.astype(np.float32)):

@@ -62,41 +62,58 @@ def ramp_filter(sino: np.ndarray, spacing: float, filter: str = "ram-lak") -> np
     return spacing * np.fft.irfft(spectrum, n=size, axis=1)[:, :n_det]
 
 
-@numba.njit(cache=True, fastmath=False)
-def _backproject_kernel(filtered, phis, n, kind_fan, source_radius, spacing, offset):  # pragma: no cover - jit
-    n_det = filtered.shape[1]
+@numba.njit(cache=True, parallel=True, fastmath={"contract"})
+def _backproject_kernel(filtered, phis, dshift, n, kind_fan, source_radius, spacing, offset):  # pragma: no cover - jit
+    """Pixel-driven back projection, image rows split over threads; returns an (n, n) float64 image.
+
+    ``filtered`` (K, L + 3) holds each filtered projection at columns ``1 .. L`` with zeros on
+    both sides, so a detector position is clamped into ``[-1, L]`` instead of tested. View
+    ``k`` is sampled at detector position ``pos - dshift[k]`` (the per-view shift correction).
+    Every pixel sums its views in order ``k = 0 .. K-1``, whatever the number of threads.
+    """
+    n_views = phis.shape[0]
+    n_det = filtered.shape[1] - 3
     centre = (n_det - 1) / 2.0 + offset  # where the rotation axis is seen
     half = (n - 1) / 2.0
+    cs = np.cos(phis)
+    sn = np.sin(phis)
     image = np.zeros((n, n))
-    for k in range(phis.shape[0]):
-        c, s = np.cos(phis[k]), np.sin(phis[k])
-        for row in range(n):
-            r2 = half - row
-            for col in range(n):
-                r1 = col - half
-                u = r1 * c + r2 * s
-                weight = 1.0
-                if kind_fan:
+    for row in numba.prange(n):
+        r2 = half - row
+        acc = np.zeros(n)
+        for k in range(n_views):
+            c, s = cs[k], sn[k]
+            f = filtered[k]
+            shift = centre - dshift[k] + 1.0  # + 1: column of detector pixel 0 in ``filtered``
+            if kind_fan:
+                for col in range(n):
+                    r1 = col - half
                     ratio = source_radius / (source_radius - r1 * s + r2 * c)
-                    u *= ratio
-                    weight = ratio * ratio
-                pos = u / spacing + centre
-                lo = int(np.floor(pos))
-                frac = pos - lo
-                val = 0.0
-                if 0 <= lo < n_det:
-                    val += (1.0 - frac) * filtered[k, lo]
-                if 0 <= lo + 1 < n_det:
-                    val += frac * filtered[k, lo + 1]
-                image[row, col] += weight * val
+                    pos = (r1 * c + r2 * s) * ratio / spacing + shift
+                    pos = min(max(pos, 0.0), n_det + 1.0)
+                    lo = int(pos)
+                    frac = pos - lo
+                    acc[col] += ratio * ratio * ((1.0 - frac) * f[lo] + frac * f[lo + 1])
+            else:
+                base = (r2 * s - half * c) / spacing + shift
+                step = c / spacing
+                for col in range(n):
+                    pos = min(max(base + col * step, 0.0), n_det + 1.0)
+                    lo = int(pos)
+                    frac = pos - lo
+                    acc[col] += (1.0 - frac) * f[lo] + frac * f[lo + 1]
+        image[row] = acc
     return image
 
 
-def _backproject(geometry: Geometry, filtered: np.ndarray, spacing: float) -> np.ndarray:
+def _backproject(geometry: Geometry, filtered: np.ndarray, spacing: float, dshift: np.ndarray) -> np.ndarray:
     """Pixel-driven back projection with linear interpolation, weighted for fan beam."""
+    padded = np.zeros((filtered.shape[0], filtered.shape[1] + 3))
+    padded[:, 1:-2] = filtered
     return _backproject_kernel(
-        np.ascontiguousarray(filtered, dtype=np.float64),
+        padded,
         geometry.angles,
+        np.ascontiguousarray(dshift, dtype=np.float64),
         geometry.n,
         geometry.kind == "fan",
         float(geometry.source_radius),
@@ -127,8 +144,8 @@ class FbpParams(MethodParams):
         return super().resolve(geometry)
 
 
-def fbp(op: Geometry | RayTransform, sino: Any, **params: Any) -> ReconResult:
-    """Filtered back projection of an (unperturbed-model) sinogram.
+def fbp(op: Geometry | RayTransform, sino: Any, *, shifts: Any = None, **params: Any) -> ReconResult:
+    """Filtered back projection, optionally with a per-view detector-shift correction.
 
     Parameters
     ----------
@@ -139,6 +156,13 @@ def fbp(op: Geometry | RayTransform, sino: Any, **params: Any) -> ReconResult:
         for the iterative methods.
     sino : array_like of shape (K, L)
         Sinogram of line integrals in pixel units; must be finite.
+    shifts : array_like of shape (K,), optional
+        Per-view object shift along the detector axis, in image pixels, with the sign and
+        units of :func:`~nanoct.recon.dremel.dremel`'s ``motion`` (and its ``shifts0``): view
+        ``k`` is back-projected as if its projection were moved by
+        ``-shifts[k] * magnification / det_spacing`` detector pixels, so
+        ``fbp(g, y, shifts=dremel(g, y).motion)`` is the motion-corrected FBP. For parallel
+        beam with ``det_spacing = 1`` the shifts are detector pixels. Default: no correction.
     **params
         The method's parameters: :class:`FbpParams`.
 
@@ -150,6 +174,11 @@ def fbp(op: Geometry | RayTransform, sino: Any, **params: Any) -> ReconResult:
     params = FbpParams.check(op, **params)
     geometry = resolve_geometry(op)
     sino = check_array(sino, "sinogram", shape=geometry.sino_shape).astype(np.float64)
+    if shifts is None:
+        dshift = np.zeros(geometry.n_angles)
+    else:  # object pixels along e_u -> detector pixels
+        shifts = check_array(shifts, "shifts", shape=(geometry.n_angles,), dtype=np.float64)
+        dshift = shifts * (geometry.magnification / geometry.det_spacing)
     if geometry.kind == "parallel":
         spacing = geometry.det_spacing
         filtered = ramp_filter(sino, spacing, params["filter"])
@@ -165,5 +194,5 @@ def fbp(op: Geometry | RayTransform, sino: Any, **params: Any) -> ReconResult:
         scale *= geometry.angle_weights[0]
     else:  # explicit angles: each view weighted by its share of the circle
         filtered *= geometry.angle_weights[:, None]
-    image = _backproject(geometry, filtered, spacing) * scale
+    image = _backproject(geometry, filtered, spacing, dshift) * scale
     return ReconResult(image=image.astype(np.float32), params={"method": "fbp", **params})

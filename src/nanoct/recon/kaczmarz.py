@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import ParallelRays, ray_add, ray_dot, ray_setup, residual_norm_free
 from ..core.operators import RayTransform
 from .params import MethodParams
 from .result import ReconResult
@@ -110,6 +111,10 @@ class KaczmarzParams(MethodParams):
         ``"exact"`` records ``||A x - y||`` after each sweep (one extra pass over the matrix);
         ``"running"`` records the root of the sum of squared residuals seen *before* each row
         update during the sweep (free, an upper-bound-like proxy).
+    projector : {"auto", "matrix", "matrixfree"}, default "auto"
+        Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
+        computes them per view when the matrix would exceed 1 GB
+        (:func:`~nanoct.recon.rowaction.resolve_projector`).
     """
 
     n_iter: int = 10
@@ -118,6 +123,7 @@ class KaczmarzParams(MethodParams):
     nonneg: bool = True
     seed: int = 0
     residual: str = "exact"
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
         check_row_action(self)
@@ -165,7 +171,9 @@ def kaczmarz(
         ``"callback"``, ``motion`` None.
     """
     p = KaczmarzParams.check(op, **params)
-    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
+    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
+    if isinstance(mat, ParallelRays):
+        return _kaczmarz_views(geometry, y, mat, x, p, callback)
     norms = row_norms_squared(mat)
     indices = unsigned_indices(mat)
     rng = np.random.default_rng(p["seed"])
@@ -178,6 +186,51 @@ def kaczmarz(
             clip_nonneg(x)
         if p["residual"] == "exact":
             residuals.append(float(residual_norm(mat.indptr, indices, mat.data, y, x)))
+        else:
+            residuals.append(math.sqrt(run))
+        if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
+            stop = "callback"
+            break
+    return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, {"method": "kaczmarz", **p})
+
+
+@numba.njit(cache=True, nogil=True)
+def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no cover - compiled
+    """:func:`_kaczmarz_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
+    run = 0.0
+    for i in range(views.shape[0]):
+        k = views[i]
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            c0 = setup[6] + l * setup[7]
+            dot, _, nr = ray_dot(x, n, setup, c0)
+            if nr <= 0.0:
+                continue
+            res = y[k * n_det + l] - dot
+            run += res * res
+            ray_add(x, n, setup, c0, omega * res / nr, x, False, False)
+    return run
+
+
+def _kaczmarz_views(
+    geometry: Geometry,
+    y: np.ndarray,
+    rays: ParallelRays,
+    x: np.ndarray,
+    p: dict[str, Any],
+    callback: Callable[[int, np.ndarray, None], Any] | None,
+) -> ReconResult:
+    """:func:`kaczmarz` with the rays traced on the fly."""
+    rng = np.random.default_rng(p["seed"])
+    residuals: list[float] = []
+    stop = "max_iter"
+    for it in range(p["n_iter"]):
+        views = view_order(geometry.n_angles, p["order"], rng)
+        run = _kaczmarz_sweep_free(rays.params, geometry.n, y, x, views, geometry.n_det, p["relaxation"])
+        if p["nonneg"]:
+            clip_nonneg(x)
+        if p["residual"] == "exact":
+            residuals.append(float(residual_norm_free(rays.params, geometry.n, geometry.n_det, y, x)))
         else:
             residuals.append(math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), None):

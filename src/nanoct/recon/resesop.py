@@ -56,11 +56,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import ParallelRays, ray_add, ray_dot, ray_set, ray_setup, residual_norm_free
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float
 from .params import MethodParams
 from .result import ReconResult
 from .rowaction import (
+    check_projector,
     check_row_action,
     clip_nonneg,
     prepare_problem,
@@ -180,6 +182,81 @@ def _resesop_sweep(
     return n_upd, run, n_flag
 
 
+@numba.njit(cache=True, nogil=True)
+def _resesop_sweep_free(
+    params, n, y, x, width, tau, views, n_det, wo, state, flags, sticky
+):  # pragma: no cover - compiled
+    """:func:`_resesop_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters).
+
+    ``state[2]`` carries the squared norm of the previous search direction's ray.
+    """
+    old = int(state[0])
+    old_val = state[1]
+    old_norm = state[2]
+    n_upd = 0
+    run = 0.0
+    for i in range(views.shape[0]):
+        k = views[i]
+        setup = ray_setup(params[k], n)
+        for l in range(n_det):
+            r = k * n_det + l
+            c0 = setup[6] + l * setup[7]
+            dot, _, nn = ray_dot(x, n, setup, c0)
+            if nn <= 0.0:
+                flags[r] = True
+                continue
+            w = dot - y[r]
+            run += w * w
+            c = width[r]
+            aw = abs(w)
+            if aw <= tau * c:
+                flags[r] = True
+                continue
+            if not sticky:
+                flags[r] = False
+            sg = 1.0 if w > 0.0 else -1.0
+            b_new = y[r] + sg * c
+            step = sg * (aw - c) / nn
+            coef_new = -step
+            coef_old = 0.0
+            if old >= 0:
+                g = ray_dot(wo, n, setup, c0)[0]
+                c_old = old_val - step * g
+                y_old = y[old]
+                w_old = width[old]
+                if c_old > y_old + w_old:
+                    b_old = y_old + w_old
+                elif c_old < y_old - w_old:
+                    b_old = y_old - w_old
+                else:
+                    b_old = c_old
+                if b_old != c_old:
+                    det = nn * old_norm - g * g
+                    if det > 1e-9 * nn * old_norm:
+                        tt = (c_old - b_old) / det
+                        coef_new += tt * g
+                        coef_old = -tt * nn
+                old_setup = ray_setup(params[old // n_det], n)
+                old_c0 = old_setup[6] + (old % n_det) * old_setup[7]
+                if coef_old != 0.0:
+                    ray_add(x, n, old_setup, old_c0, coef_old, x, False, False)
+                ray_set(wo, n, old_setup, old_c0, 0.0)
+            ray_add(x, n, setup, c0, coef_new, x, False, False)
+            ray_set(wo, n, setup, c0, 1.0)
+            old = r
+            old_val = b_new
+            old_norm = nn
+            n_upd += 1
+    state[0] = old
+    state[1] = old_val
+    state[2] = old_norm
+    n_flag = 0
+    for r in range(flags.shape[0]):
+        if flags[r]:
+            n_flag += 1
+    return n_upd, run, n_flag
+
+
 def resesop_reference(
     matrix: sp.csr_matrix,
     y: np.ndarray,
@@ -261,6 +338,10 @@ class ResesopParams(MethodParams):
         ``"sweep"``: stop after a sweep in which every ray met the discrepancy principle (no
         update). ``"sticky"``: the paper's literal flags, set once a ray meets the
         discrepancy and never cleared; stop when all are set.
+    projector : {"auto", "matrix", "matrixfree"}, default "auto"
+        Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
+        computes them per view when the matrix would exceed 1 GB
+        (:func:`~nanoct.recon.rowaction.resolve_projector`).
     """
 
     n_iter: int = 20
@@ -272,6 +353,7 @@ class ResesopParams(MethodParams):
     delta: float = 0.0
     tau: float = 1.01
     stop_rule: str = "sweep"
+    projector: str = "auto"
 
     def __post_init__(self) -> None:
         check_row_action(self)
@@ -280,6 +362,10 @@ class ResesopParams(MethodParams):
         # the discrepancy principle needs tau > 1
         self._set("tau", check_float(self.tau, "tau", low=1.0, low_open=True))
         self._set("stop_rule", check_choice(self.stop_rule, "stop_rule", STOP_RULES))
+
+    def resolve(self, geometry: Geometry) -> dict[str, Any]:
+        """The values for ``geometry`` (the projector checked against it)."""
+        return check_projector(super().resolve(geometry), geometry)
 
 
 def resesop(
@@ -329,9 +415,10 @@ def resesop(
     (Blanke et al. 2020). The ``x >= 0`` projection is one more convex set and keeps this.
     """
     p = ResesopParams.check(op, **params)
-    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0)
+    geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     width = (p["delta"] + p["eta_scale"] * expand_eta(eta, geometry)).ravel()
-    norms = row_norms_squared(mat)
+    free = isinstance(mat, ParallelRays)
+    norms = None if free else row_norms_squared(mat)
     rng = np.random.default_rng(p["seed"])
     wo = np.zeros_like(x)
     state = np.array([-1.0, 0.0, 0.0])
@@ -342,16 +429,19 @@ def resesop(
     stop = "max_iter"
     for it in range(p["n_iter"]):
         views = view_order(geometry.n_angles, p["order"], rng)
-        sweep_args = (norms, y, x, width, p["tau"], views, geometry.n_det, wo, state, flags, sticky)
-        n_upd, run, n_flag = _resesop_sweep(mat.indptr, mat.indices, mat.data, *sweep_args)
+        sweep_args = (y, x, width, p["tau"], views, geometry.n_det, wo, state, flags, sticky)
+        if free:
+            n_upd, run, n_flag = _resesop_sweep_free(mat.params, geometry.n, *sweep_args)
+        else:
+            n_upd, run, n_flag = _resesop_sweep(mat.indptr, mat.indices, mat.data, norms, *sweep_args)
         updates.append(int(n_upd))
         if p["nonneg"] and n_upd:
             clip_nonneg(x)
             if state[0] >= 0:  # x moved: <a_old, x> must be recomputed
                 r = int(state[0])
-                state[1] = row_dot_f64(mat.indices, mat.data, x, mat.indptr[r], mat.indptr[r + 1])
+                state[1] = _old_dot(mat, x, r)
         if p["residual"] == "exact":
-            residuals.append(float(residual_norm(mat.indptr, mat.indices, mat.data, y, x)))
+            residuals.append(_residual(mat, y, x))
         else:
             residuals.append(math.sqrt(run))
         if (n_upd == 0) if not sticky else (n_flag == y.shape[0]):
@@ -362,3 +452,20 @@ def resesop(
             break
     params = {"method": "resesop", **p, "n_updates": updates}
     return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, params)
+
+
+def _old_dot(rays: sp.csr_matrix | ParallelRays, x: np.ndarray, r: int) -> float:
+    """``<a_r, x>`` for ray ``r`` (float64 sum)."""
+    if isinstance(rays, ParallelRays):
+        n_det = rays.geometry.n_det
+        setup = ray_setup(rays.params[r // n_det], rays.geometry.n)
+        return float(ray_dot(x, rays.geometry.n, setup, setup[6] + (r % n_det) * setup[7])[0])
+    return float(row_dot_f64(rays.indices, rays.data, x, rays.indptr[r], rays.indptr[r + 1]))
+
+
+def _residual(rays: sp.csr_matrix | ParallelRays, y: np.ndarray, x: np.ndarray) -> float:
+    """``||A x - y||_2``."""
+    if isinstance(rays, ParallelRays):
+        g = rays.geometry
+        return float(residual_norm_free(rays.params, g.n, g.n_det, y, x))
+    return float(residual_norm(rays.indptr, rays.indices, rays.data, y, x))

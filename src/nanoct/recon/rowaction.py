@@ -19,6 +19,15 @@ View orders (:func:`view_order`)
     A fixed low-discrepancy order: position ``i`` visits view ``~ K * frac(i * g)`` with
     ``g = (sqrt(5) - 1) / 2``, so consecutive views are far apart in angle (deterministic).
 
+Projectors
+----------
+``projector="matrix"`` uses the cached CSR matrix; ``"matrixfree"`` builds the rows of one view
+at a time (:class:`nanoct.core.matrixfree.ParallelRays`, parallel beam only) and keeps only
+that view's block in memory; ``"auto"`` (default) takes the matrix while its estimated size
+(:func:`nanoct.core.matrixfree.matrix_bytes`) is at most :data:`AUTO_MATRIX_BYTES` or the beam
+is fan-shaped, and the matrix-free rows above. Both give the same iterates up to float32
+rounding of the weights and of the summation order within a row (``docs/reconstruction.md``).
+
 Non-negativity
 --------------
 Densities are non-negative, so every iterative method can project onto ``{x >= 0}``.
@@ -37,20 +46,25 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
+from ..core.matrixfree import ParallelRays, matrix_bytes
 from ..core.operators import RayTransform, system_matrix
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
 from .params import MethodParams, resolve_geometry
 
 __all__ = [
+    "AUTO_MATRIX_BYTES",
     "AUTO_RELAXATION",
     "ORDERS",
+    "PROJECTORS",
     "RESIDUALS",
     "auto_relaxation",
+    "check_projector",
     "check_row_action",
     "clip_nonneg",
     "matrix_cache",
     "prepare_problem",
     "residual_norm",
+    "resolve_projector",
     "resolve_relaxation",
     "row_dot",
     "row_dot_f64",
@@ -65,6 +79,12 @@ ORDERS = ("sequential", "random", "golden")
 #: How a method records its residual history: ``"exact"`` ``||A x - y||`` after each sweep
 #: (one more pass over the matrix) or ``"running"`` (free: from the residuals met during it).
 RESIDUALS = ("exact", "running")
+
+#: Projectors of the row-action methods (see the module docstring).
+PROJECTORS = ("auto", "matrix", "matrixfree")
+
+#: ``projector="auto"`` switches to the matrix-free rows when the cached matrix would be larger.
+AUTO_MATRIX_BYTES = 1_000_000_000
 
 #: The default relaxation of Kaczmarz and Dremel is ``min(1, AUTO_RELAXATION / K)`` for K views
 #: (the best relaxation on motion-perturbed data scales like ``1 / K``; see ``docs/choices.md``).
@@ -125,6 +145,35 @@ def check_row_action(p: MethodParams) -> None:
     p._set("nonneg", check_bool(p.nonneg, "nonneg"))
     p._set("seed", check_int(p.seed, "seed", 0))
     p._set("residual", check_choice(p.residual, "residual", RESIDUALS))
+    p._set("projector", check_choice(p.projector, "projector", PROJECTORS))
+
+
+def check_projector(values: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
+    """``values`` unchanged; raises ``ValueError`` if its ``projector`` cannot serve ``geometry``."""
+    resolve_projector(values["projector"], geometry)
+    return values
+
+
+def resolve_projector(projector: str, geometry: Geometry, matrix: Any = None) -> str:
+    """``"matrix"`` or ``"matrixfree"`` for a method's ``projector`` parameter.
+
+    A given ``matrix`` is always used; ``"auto"`` picks the matrix-free rows for a parallel
+    beam whose matrix would exceed :data:`AUTO_MATRIX_BYTES`.
+
+    Raises
+    ------
+    ValueError
+        For ``"matrixfree"`` with a fan-beam geometry or together with a ``matrix``.
+    """
+    if projector == "matrixfree":
+        if matrix is not None:
+            raise ValueError("projector='matrixfree' does not use a matrix; pass matrix=None or projector='matrix'")
+        if geometry.kind != "parallel":
+            raise ValueError("projector='matrixfree' covers parallel beam only; use 'matrix' or 'auto' for fan beam")
+        return "matrixfree"
+    if projector == "matrix" or matrix is not None or geometry.kind != "parallel":
+        return "matrix"
+    return "matrixfree" if matrix_bytes(geometry) > AUTO_MATRIX_BYTES else "matrix"
 
 
 def _check_relaxation(value: Any) -> float:
@@ -133,7 +182,9 @@ def _check_relaxation(value: Any) -> float:
 
 
 def resolve_relaxation(values: dict[str, Any], geometry: Geometry) -> dict[str, Any]:
-    """``values`` with ``relaxation=None`` replaced by :func:`auto_relaxation` of the geometry's views."""
+    """``values`` with ``relaxation=None`` replaced by :func:`auto_relaxation` of the geometry's views
+    (and ``projector`` checked against the geometry, :func:`check_projector`)."""
+    check_projector(values, geometry)
     if values["relaxation"] is None:
         values["relaxation"] = _check_relaxation(auto_relaxation(geometry.n_angles))
     return values
@@ -156,12 +207,22 @@ def prepare_problem(
     sino: Any,
     matrix: sp.csr_matrix | None,
     x0: Any,
-) -> tuple[Geometry, np.ndarray, sp.csr_matrix, np.ndarray]:
-    """Validate inputs; return geometry, flat float32 sinogram, CSR matrix and float32 start image."""
+    projector: str = "matrix",
+) -> tuple[Geometry, np.ndarray, sp.csr_matrix | ParallelRays, np.ndarray]:
+    """Validate inputs; return geometry, flat float32 sinogram, the rays and float32 start image.
+
+    The rays are the CSR matrix, or :class:`~nanoct.core.matrixfree.ParallelRays` where
+    :func:`resolve_projector` chooses the matrix-free rows.
+    """
     geometry = resolve_geometry(op)
     y = check_array(sino, "sinogram", shape=geometry.sino_shape).ravel()
     shape = (geometry.n_angles * geometry.n_det, geometry.n * geometry.n)
-    matrix = system_matrix(geometry) if matrix is None else _check_matrix(matrix, shape)
+    if resolve_projector(projector, geometry, matrix) == "matrixfree":
+        matrix = ParallelRays(geometry)
+    elif matrix is None:
+        matrix = system_matrix(geometry)
+    else:
+        matrix = _check_matrix(matrix, shape)
     if x0 is None:
         x = np.zeros(shape[1], dtype=np.float32)
     else:

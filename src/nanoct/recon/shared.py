@@ -17,12 +17,14 @@ the method's own parameters before anything is written (:func:`check_motion_para
     from these slices. Default on an imported stack with shared motion: ``"all"``; on a
     simulated store: each sample its own motion.
 ``shifts_from``
-    A shifts file (``view shift_px``, :func:`nanoct.io.scanio.write_shifts`): the starting motion
-    of every estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion
-    used as given.
+    A shifts file (nabu's ``translation_movements_file`` layout, or the two-column ``view
+    shift_px`` files, :func:`nanoct.io.scanio.read_shifts`): the starting motion of every
+    estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion used as
+    given; e.g. a beamline's estimate from nabu.
 
-Shifts files are in detector pixels; Dremel's shifts are in image pixels along the detector
-axis; the two differ by ``magnification / det_spacing`` (1 for the parallel presets).
+Shifts files are in detector pixels (nabu's: raw detector pixels, before the import's
+binning); Dremel's shifts are in image pixels along the detector axis; the two differ by
+``magnification / det_spacing`` (1 for the parallel presets).
 """
 
 from __future__ import annotations
@@ -47,7 +49,9 @@ __all__ = [
     "joint_shifts",
     "parse_slices",
     "read_shifts_file",
+    "read_store_shifts",
     "remove_translation",
+    "scan_layout",
     "write_store_shifts",
 ]
 
@@ -97,9 +101,39 @@ def parse_slices(value: Any) -> str | None:
     return ",".join(str(i) for i in indices)
 
 
-def read_shifts_file(path: str | os.PathLike[str], geometry: Geometry) -> np.ndarray:
-    """A shifts file (detector pixels) as Dremel shifts (image pixels along the detector axis), float64."""
-    return read_shifts(path, geometry.n_angles) / _det_per_obj(geometry)
+def read_shifts_file(
+    path: str | os.PathLike[str], geometry: Geometry, binning: int = 1, left_out: Any = ()
+) -> np.ndarray:
+    """A shifts file (detector pixels, :func:`~nanoct.io.scanio.read_shifts`) as Dremel shifts, float64.
+
+    Dremel's shifts are image pixels along the detector axis. ``binning`` and ``left_out``
+    describe how an import made the data set from the scan (:func:`scan_layout`): nabu's raw
+    detector pixels are divided by the binning, rows of left-out projections skipped.
+    """
+    return read_shifts(path, geometry.n_angles, binning=binning, left_out=left_out) / _det_per_obj(geometry)
+
+
+def read_store_shifts(path: str | os.PathLike[str], store: DataStore) -> np.ndarray:
+    """The shifts file ``path`` given as ``--param shifts_from`` for data set ``store``, as Dremel shifts.
+
+    Raises
+    ------
+    NanoctError
+        Naming the parameter, for a file that does not fit the data set's views.
+    """
+    try:
+        return read_shifts_file(path, store.geometry, **scan_layout(store))
+    except NanoctError as exc:
+        raise NanoctError(f"--param shifts_from={path}: {exc}") from None
+
+
+def scan_layout(store: DataStore) -> dict[str, Any]:
+    """``binning`` and ``left_out`` (projections of the scan not in the data set) of an imported data set.
+
+    Simulated data sets give binning 1 and no left-out views.
+    """
+    scan = store.meta.get("scan") or {}
+    return {"binning": int(scan.get("binning") or 1), "left_out": list(scan.get("left_out_views") or [])}
 
 
 @dataclass(frozen=True)
@@ -122,12 +156,14 @@ class SharedMotionParams(MethodParams):
         self._set("motion_slices", parse_slices(self.motion_slices))
 
     def resolve(self, geometry: Geometry) -> dict[str, Any]:
-        """The values for ``geometry``: the shifts file is read (a missing one, or one with another
-        number of views, fails here, before anything is written) and its path made absolute."""
+        """The values for ``geometry``: the shifts file is read (a missing or malformed one fails
+        here, before anything is written; its number of rows is checked against the data set,
+        which knows the views an import left out, by :func:`read_store_shifts`) and its path
+        made absolute."""
         out = super().resolve(geometry)
         if self.shifts_from is not None:
             try:
-                read_shifts_file(str(self.shifts_from), geometry)
+                read_shifts(str(self.shifts_from), None)
             except NanoctError as exc:
                 raise ValueError(f"shifts_from={self.shifts_from!r}: {exc}") from exc
             out["shifts_from"] = str(Path(str(self.shifts_from)).resolve())
@@ -168,7 +204,10 @@ def joint_shifts(
 def write_store_shifts(
     path: str | os.PathLike[str], name: str, out: str | os.PathLike[str], sample: int | None = None
 ) -> Path:
-    """Write the shifts of reconstruction ``name`` of a store as a shifts file (``view shift_px``).
+    """Write the shifts of reconstruction ``name`` of a store as nabu's ``translation_movements_file``.
+
+    The rows are in raw detector pixels (the data set's pixels times its binning), nabu's sign
+    (:func:`nanoct.io.scanio.write_shifts`); an imported scan with a pixel size adds nm.
 
     Parameters
     ----------
@@ -200,4 +239,14 @@ def write_store_shifts(
                 f"reconstruction '{name}' of {store.path} has one motion per sample; choose the sample to export"
             )
         shifts = store.read_shifts(name, [0 if sample is None else sample])[0]
-    return write_shifts(out, np.asarray(shifts) * _det_per_obj(store.geometry), angles=store.geometry.angles)
+    scan = store.meta.get("scan") or {}
+    pixel = scan.get("raw_pixel_size_m")
+    layout = scan_layout(store)
+    return write_shifts(
+        out,
+        np.asarray(shifts) * _det_per_obj(store.geometry) * layout["binning"],
+        angles=store.geometry.angles,
+        pixel_size_m=None if pixel is None else float(pixel[0]),
+        notes=[note for note in scan.get("notes", []) if note.startswith("left out")],
+        left_out=layout["left_out"],
+    )

@@ -18,10 +18,10 @@ of :func:`~nanoct.recon.dremel.dremel`'s motion: the measured view is ``p_k(x) =
 3. **axis again** (without centroids) with the views moved back by their shifts, and the
    constant part of the shifts moved into the axis (:func:`~nanoct.recon.center.separate_center`).
 
-:func:`corrected_fbp` (ramp filter, then a pixel-driven back projection with linear
-interpolation that reads each view at ``u - d_k``) and :func:`reproject` (Joseph's ray-driven
-projection) are compiled with numba and spread over the rows / views on every core;
-neither builds a matrix, so a 2048^2 slice needs a few image-sized arrays.
+:func:`corrected_fbp` (:func:`nanoct.recon.fbp.fbp` with its per-view shift: each view read at
+``u - d_k`` in the back projection) and :func:`reproject` (Joseph's ray-driven projection,
+compiled with numba, one view per core at a time) build no matrix, so a 2048^2 slice needs a
+few image-sized arrays.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from ..core.geometry import Geometry
 from ..core.validation import check_array, check_int
 from .center import centroid_motion, fit_center, separate_center, xcorr_shifts
 from .dremel import DremelParams
-from .fbp import ramp_filter
+from .fbp import fbp
 from .shared import joint_shifts, remove_translation
 
 __all__ = [
@@ -50,27 +50,6 @@ __all__ = [
     "reproject",
     "with_center",
 ]
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def _backproject_shifted(filtered, cos, sin, shifts, n, centre, inv_spacing):  # pragma: no cover - jit
-    n_views, n_det = filtered.shape
-    half = (n - 1) / 2.0
-    image = np.zeros((n, n), dtype=np.float32)
-    for row in numba.prange(n):
-        r2 = half - row
-        acc = np.zeros(n, dtype=np.float32)
-        for k in range(n_views):
-            step = cos[k] * inv_spacing
-            base = (r2 * sin[k] - half * cos[k]) * inv_spacing + centre - shifts[k]
-            for col in range(n):
-                pos = base + col * step
-                lo = int(np.floor(pos))
-                if 0 <= lo < n_det - 1:
-                    frac = pos - lo
-                    acc[col] += filtered[k, lo] + frac * (filtered[k, lo + 1] - filtered[k, lo])
-        image[row] = acc
-    return image
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -129,12 +108,10 @@ def corrected_fbp(geometry: Geometry, sinogram: Any, shifts: Any = None, filter:
     Returns
     -------
     ndarray of shape (N, N), float32
-        With ``shifts`` zero, :func:`nanoct.recon.fbp.fbp` up to interpolation rounding.
+        :func:`nanoct.recon.fbp.fbp` with ``shifts`` converted to its object pixels.
     """
-    sino = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
-    filtered = ramp_filter(sino, geometry.det_spacing, filter) * geometry.angle_weights[:, None]
-    cos, sin, d, centre, inv = _kernel_args(geometry, shifts)
-    return _backproject_shifted(filtered.astype(np.float32), cos, sin, d, geometry.n, centre, inv)
+    _, _, d, _, _ = _kernel_args(geometry, shifts)
+    return fbp(geometry, sinogram, shifts=d * geometry.det_spacing / geometry.magnification, filter=filter).image
 
 
 def reproject(geometry: Geometry, image: Any, shifts: Any = None) -> np.ndarray:
