@@ -94,3 +94,11 @@ def test_settings():
     assert setting_key("fan", True) == "fan"
     assert setting_key("parallel", False) == "unperturbed"
     assert setting_key("fan", False) is None
+
+
+def test_stack_names_and_their_command():
+    from nanoct.names import reconstruct_command, stack_name
+
+    assert stack_name("fbp") == "fbp_stack"
+    assert reconstruct_command("d", "fbp_stack") == "nanoct stack d --method fbp"
+    assert reconstruct_command("d", "dremel_stack") == "nanoct stack d --method dremel"

@@ -565,10 +565,11 @@ def import_(
     rows: str | None = typer.Option(None, "--rows", help="Detector rows (slices) FIRST:STOP (default all)."),
     crop: str | None = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep."),
     binning: int = typer.Option(1, "--binning", help="Average this many detector columns (and rows)."),
-    center_offset: float = typer.Option(
-        0.0,
+    center_offset: str = typer.Option(
+        "0",
         "--center-offset",
-        help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2).",
+        help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2), or auto "
+        "(from the views' centroids, or opposite views; see docs/measured_data.md).",
     ),
     size: int | None = typer.Option(
         None, "--size", help="Image size N (default: detector columns after crop/binning)."
@@ -595,8 +596,8 @@ def import_(
     store = import_scan(
         src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
         is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
-        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=center_offset, size=size,
-        tolerance=tolerance, entry=entry, drop_bad=drop_bad_views,
+        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset),
+        size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views,
     )  # fmt: skip
     g = store.geometry
     scan = store.meta.get("scan") or {}
@@ -607,6 +608,70 @@ def import_(
     )
     for note in scan.get("notes", []):
         typer.echo(f"note: {note}", err=True)
+
+
+def _parse_center(text: str) -> float | str:
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise NanoctError(f"--center-offset {text!r}: give a number of pixels or 'auto'") from None
+
+
+@app.command()
+def stack(
+    source: Path = typer.Argument(..., help="Data-set store, or a scan file to import into --store first."),
+    store_dir: Path | None = typer.Option(None, "--store", help="With a scan file: the new data set to import into."),
+    method: str = typer.Option("fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed)."),
+    center_offset: str = typer.Option("auto", "--center-offset", help="Axis offset in detector pixels, or auto."),
+    motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),
+    binning: int = typer.Option(8, "--binning", help="Binning of the coarse Dremel estimate (used without centroids)."),
+    coarse_iter: int = typer.Option(8, "--coarse-iter", help="Dremel iterations on the binned data (0: none)."),
+    refine: str = typer.Option(
+        "auto", "--refine", help="Binning of each projection-matching round, e.g. 2,2,1 (auto: see docs)."
+    ),
+    model: str | None = typer.Option(None, "--model", help="DEGREE,HARMONICS: use a smooth model of the motion."),
+    name: str | None = typer.Option(None, "--name", help="Output name (default METHOD_stack).", callback=_check_name),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result of that name."),
+    workers: int = WORKERS,
+    scheduler: str | None = SCHEDULER,
+    quiet: bool = QUIET,
+) -> None:
+    """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable)."""
+    from .io.store import DataStore
+    from .recon.stack_batch import reconstruct_stack
+
+    if not (source / "zarr.json").is_file():
+        if store_dir is None:
+            raise NanoctError(f"{source} is not a data set; to import a scan file, add --store NEW_DIR")
+        from .io.scanio import import_scan
+
+        source = import_scan(source, store_dir).path
+    smooth = None if model is None else _parse_ints(model, "--model", low=0)
+    if smooth is not None and len(smooth) != 2:
+        raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
+    written = reconstruct_stack(
+        source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
+        binning=binning, coarse_iter=coarse_iter, model=smooth,
+        refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
+        name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
+    )  # fmt: skip
+    info = DataStore.open(source).recons.motion_info(written) or {}
+    typer.echo(
+        f"wrote reconstructions/{written}: axis offset {info.get('center_offset', float('nan')):+.3f} px, "
+        f"shift RMS {info.get('shift_rms', float('nan')):.3f} px"
+    )
+
+
+def _parse_ints(text: str, flag: str, low: int = 1) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise NanoctError(f"{flag} {text!r}: give comma-separated whole numbers, e.g. 2,2,1") from None
+    if not values or min(values) < low:
+        raise NanoctError(f"{flag} {text!r}: every value must be >= {low}")
+    return values
 
 
 @app.command()

@@ -5,6 +5,8 @@ built from their input's. The grammar::
 
     reconstruction   <method>[_est-<source>[-<first>]][_eta<scale>]
                      fbp, dremel, resesop_eta0.8, resesop_est-residual, resesop_est-reference_eta1.2
+    stack            <method>_stack  (``nanoct stack``: one motion and axis for all slices)
+                     fbp_stack, dremel_stack
     prediction       <input>+<model>[@<train input>][%seed<S>]
                      dremel+unet, fbp+cinn-res@resesop (trained on resesop, applied to fbp),
                      resesop+unet%seed1 (training seed 1; seed 0 has no suffix)
@@ -37,6 +39,7 @@ __all__ = [
     "reconstruction_name",
     "seed_name",
     "setting_key",
+    "stack_name",
     "strip_seed",
 ]
 
@@ -154,6 +157,11 @@ def reconstruction_name(method: str, params: dict[str, Any] | None = None) -> st
     return base if np.isclose(scale, 1.0) else f"{base}_eta{scale:g}"
 
 
+def stack_name(method: str) -> str:
+    """Default store name of a stack reconstruction by ``method`` (``fbp_stack``)."""
+    return f"{method}_stack"
+
+
 def _eta_command(path: str | os.PathLike[str], method: str, name: str) -> str | None:
     """The command of a default name of a method that uses eta (``resesop_est-residual_eta0.8``), or None."""
     base, sep, scale = name.rpartition("_eta")
@@ -172,13 +180,16 @@ def _eta_command(path: str | os.PathLike[str], method: str, name: str) -> str | 
 def reconstruct_command(path: str | os.PathLike[str], name: str) -> str:
     """The ``nanoct reconstruct`` command that makes the reconstruction ``name`` (a hint for messages).
 
-    Default output names (``fbp``, ``resesop_eta0.8``, ``resesop_est-residual``) give the exact
+    Default output names (``fbp``, ``resesop_eta0.8``, ``resesop_est-residual``, ``fbp_stack``:
+    ``nanoct stack``) give the exact
     command (``STORE`` standing for the reference store of ``resesop_est-reference``); any other
     name gives a template with ``--name``.
     """
     for method, spec in METHODS.items():
         if name == method:
             return f"nanoct reconstruct {path} --method {method}"
+        if name == stack_name(method):
+            return f"nanoct stack {path} --method {method}"
         command = _eta_command(path, method, name) if spec.needs_eta else None
         if command is not None:
             return command

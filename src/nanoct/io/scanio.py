@@ -441,7 +441,7 @@ def import_scan(
     rows: slice | None = None,
     crop: tuple[int, int] | None = None,
     binning: int = 1,
-    center_offset: float = 0.0,
+    center_offset: float | str = 0.0,
     size: int | None = None,
     tolerance: float = 1e-3,
     entry: str | None = None,
@@ -467,10 +467,13 @@ def import_scan(
         Detector columns ``[first, stop)`` to keep.
     binning : int
         Detector binning (columns, and rows where there are enough).
-    center_offset : float
+    center_offset : float or "auto"
         Rotation axis relative to the centre of the raw detector row, in raw detector pixels
         (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
-        detector.
+        detector. ``"auto"``: estimated from up to 8 of the selected rows, from the views'
+        centroids (:func:`nanoct.recon.center.centroid_motion`, which the motion does not bias)
+        when the object stays on the detector, else from opposite views
+        (:func:`nanoct.recon.center.fit_center`, no motion assumed).
     size : int, optional
         Reconstructed image size N (default: the number of detector columns after cropping
         and binning; one image pixel = one binned detector pixel).
@@ -504,6 +507,8 @@ def import_scan(
     kept, dropped = drop_bad_views(raw, drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
     left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
+    if center_offset == "auto":
+        center_offset = _auto_center(kept, n_cols, crop, tolerance)
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
@@ -537,6 +542,25 @@ def import_scan(
             return store  # the same import again: nothing to do
     stack = sinograms(line_integrals(kept, tolerance=tolerance), binning=binning)
     return create_scan(out, geometry, stack, scan)
+
+
+def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> float:
+    """The axis offset (raw detector pixels) from up to 8 of the read rows: centroids, else opposite views."""
+    from ..recon.center import centroid_motion, fit_center
+
+    picked = np.unique(np.linspace(0, scan.projections.shape[1] - 1, 8).round().astype(int))
+    some = replace(
+        scan,
+        projections=scan.projections[:, picked],
+        flats=None if scan.flats is None else scan.flats[:, picked],
+        darks=None if scan.darks is None else scan.darks[:, picked],
+    )
+    sinos = sinograms(line_integrals(some, tolerance=tolerance))
+    first = crop[0] if crop is not None else 0
+    offset, _, spread = centroid_motion(sinos, scan.angles)  # from the centre of the kept columns
+    if spread > 0.01:  # the object leaves the detector: the centroids do not hold, use opposite views
+        offset = fit_center(sinos, scan.angles, max_offset=sinos.shape[2] / 4)
+    return float(first + (sinos.shape[2] - 1) / 2 + offset - (n_cols - 1) / 2)
 
 
 def _angle_notes(angles: np.ndarray) -> list[str]:

@@ -232,6 +232,15 @@ class ReconstructionArrays:
             raise StoreError(f"shared shifts of '{name}' must be {self.n_angles} finite values")
         self._group[f"reconstructions/{name}"].attrs["shared_shifts"] = [float(v) for v in values]
 
+    def motion_info(self, name: str) -> dict[str, Any] | None:
+        """What was recorded with the motion of ``name`` (axis offset, ...; None: nothing yet)."""
+        info = self._group[f"reconstructions/{name}"].attrs.get("motion_info")
+        return None if info is None else dict(info)
+
+    def set_motion_info(self, name: str, info: dict[str, Any]) -> None:
+        """Record JSON-able facts about the motion of ``name`` (one attribute)."""
+        self._group[f"reconstructions/{name}"].attrs["motion_info"] = json.loads(json.dumps(info))
+
     def params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
         return dict(self._group[f"reconstructions/{name}"].attrs.get("params", {}))

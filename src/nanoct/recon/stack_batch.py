@@ -1,0 +1,175 @@
+"""``nanoct stack``: one motion and axis for a whole measured stack, then every slice with them fixed.
+
+The motion and the rotation axis are estimated once from a few slices
+(:func:`~nanoct.recon.stack.estimate_stack_motion`), optionally replaced by a smooth model
+(:func:`~nanoct.recon.motion_model.fit_motion_model`), and recorded with the reconstruction
+(``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
+then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
+per slice); a run that is stopped resumes where it was: the recorded motion is reused and the
+slices already written are skipped (each slice is written with its progress flag last).
+"""
+
+from __future__ import annotations
+
+import os
+from functools import partial
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..core.errors import NanoctError
+from ..core.fanout import run_tasks
+from ..io.store import DataStore, open_cached
+from ..names import stack_name
+from .motion_model import fit_motion_model
+from .stack import corrected_fbp, estimate_stack_motion, with_center
+
+__all__ = ["STACK_METHODS", "reconstruct_stack"]
+
+#: Reconstruction of each slice with the stack's motion: motion-corrected FBP, or Dremel (SART
+#: view steps) with the motion held fixed.
+STACK_METHODS = ("fbp", "dremel")
+
+
+def _motion_slices(store: DataStore, value: str | None) -> list[int]:
+    done = np.flatnonzero(store.done)
+    if value in (None, "auto"):  # up to 4 slices spread over the stack
+        return sorted({int(i) for i in done[np.linspace(0, done.size - 1, min(4, done.size)).round().astype(int)]})
+    if value == "all":
+        return [int(i) for i in done]
+    try:
+        chosen = sorted({int(v) for v in value.split(",")})
+    except ValueError:
+        chosen = [-1]
+    if not set(chosen) <= set(done.tolist()):
+        raise NanoctError(
+            f"--motion-slices {value!r}: give 'auto', 'all' or comma-separated slice numbers of 0..{store.n - 1}"
+        )
+    return chosen
+
+
+def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
+    """Estimate the stack's motion and axis and record them with ``name``."""
+    slices = params["motion_slices"]
+    stages = None if params["refine"] is None else 3 + len(params["refine"])
+    with tqdm(total=stages, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
+        motion = estimate_stack_motion(
+            store.geometry,
+            store.read_array("sinograms", slices),
+            binning=params["binning"],
+            coarse_iter=params["coarse_iter"],
+            refine=None if params["refine"] is None else tuple(params["refine"]),
+            center=None if params["center"] == "auto" else params["center"],
+            progress=lambda stage: bar.update(),
+        )
+    info: dict[str, Any] = {
+        "center_offset": motion.center_offset,
+        "center_raw": motion.center_raw,
+        "center_method": motion.center_method,
+        "mass_spread": motion.mass_spread,
+        "refine_steps": motion.steps,
+        "shift_rms": float(np.sqrt(np.mean(motion.shifts**2))),
+    }
+    shifts = motion.shifts
+    if params["model"] is not None:
+        degree, harmonics = params["model"]
+        model = fit_motion_model(shifts, store.geometry.angles, degree, harmonics)
+        shifts = model.shifts
+        info["model_residual_rms"] = model.residual_rms
+    store.recons.set_shared_shifts(name, shifts)
+    store.recons.set_motion_info(name, info)
+
+
+def _reconstruct_slice(path: str, name: str, method: str, center: float, shifts: np.ndarray, index: int) -> int:
+    store = open_cached(path)
+    geometry = with_center(store.geometry, center)
+    sino = store.read_array("sinograms", [index])[0]
+    if method == "fbp":
+        image = corrected_fbp(geometry, sino, shifts)
+    else:
+        from .dremel import dremel
+
+        shifts_obj = shifts * geometry.det_spacing / geometry.magnification  # detector px -> object px
+        image = dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=True).image
+    store.write_reconstruction(name, index, image, shifts.astype(np.float32))
+    return index
+
+
+def reconstruct_stack(
+    path: str | os.PathLike[str],
+    *,
+    method: str = "fbp",
+    center: float | str = "auto",
+    motion_slices: str | None = None,
+    binning: int = 8,
+    coarse_iter: int = 8,
+    refine: tuple[int, ...] | None = None,
+    model: tuple[int, int] | None = None,
+    name: str | None = None,
+    overwrite: bool = False,
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> str:
+    """Estimate one motion and axis for a stack and reconstruct every slice with them (resumable).
+
+    Parameters
+    ----------
+    path : path
+        Data-set store (an imported scan, or a simulated parallel-beam store).
+    method : {"fbp", "dremel"}
+        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`).
+    center : float or "auto"
+        Rotation-axis offset in the store's detector pixels, or ``"auto"``: estimated with the motion.
+    motion_slices : str, optional
+        ``"auto"`` (default: up to 4 slices spread over the stack), ``"all"`` or ``"0,5,9"``.
+    binning, coarse_iter, refine
+        See :func:`~nanoct.recon.stack.estimate_stack_motion`.
+    model : (int, int), optional
+        Replace the estimate by its smooth model (polynomial degree, rotation harmonics).
+    name : str, optional
+        Output name (default :func:`~nanoct.names.stack_name`).
+    overwrite : bool
+        Delete an existing reconstruction of that name first (its motion too).
+    workers, scheduler, progress
+        See :func:`nanoct.core.fanout.run_tasks`.
+
+    Returns
+    -------
+    str
+        The output name.
+
+    Raises
+    ------
+    NanoctError
+        For a fan-beam store, an unknown method, bad slices, or a name made with other settings.
+    """
+    if method not in STACK_METHODS:
+        raise NanoctError(f"--method {method!r} is not a stack method; use one of {', '.join(STACK_METHODS)}")
+    store = DataStore.open(path, mode="r+")
+    if store.geometry.kind != "parallel":
+        raise NanoctError(f"{store.path} is a fan-beam data set; nanoct stack handles parallel-beam scans")
+    if center != "auto" and not isinstance(center, (int, float)):
+        raise NanoctError(f"--center-offset {center!r}: give a number of detector pixels or 'auto'")
+    params = {
+        "method": method,
+        "center": center if center == "auto" else float(center),
+        "motion_slices": _motion_slices(store, motion_slices),
+        "binning": int(binning),
+        "coarse_iter": int(coarse_iter),
+        "refine": None if refine is None else [int(b) for b in refine],
+        "model": None if model is None else [int(v) for v in model],
+    }
+    name = name or stack_name(method)
+    if overwrite:
+        store.delete_reconstruction(name)
+    store.prepare_reconstruction(name, params, shifts=True)
+    if store.recons.motion_info(name) is None:
+        _estimate(store, name, params, progress)
+    info = store.recons.motion_info(name)
+    shifts = store.recons.shared_shifts(name).astype(np.float64)
+    pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
+    task = partial(_reconstruct_slice, str(store.path), name, method, float(info["center_offset"]), shifts)
+    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
+    return name

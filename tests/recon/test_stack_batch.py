@@ -1,0 +1,78 @@
+"""`nanoct stack` end to end on a small analytic stack: axis, motion, every slice, resume, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nanoct.cli import run
+from nanoct.core.errors import NanoctError
+from nanoct.core.geometry import Geometry
+from nanoct.io.store import DataStore, create_scan
+from nanoct.recon import stack_batch
+from nanoct.recon.stack import corrected_fbp, reproject
+from nanoct.recon.stack_batch import reconstruct_stack
+from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
+
+L, K, S, OFFSET = 160, 240, 3, 1.8
+
+
+def _truth():
+    phi = np.arange(K) * np.pi / K
+    d = 1.2 * np.cos(2 * phi) + np.linspace(-1, 1, K) + np.random.default_rng(5).uniform(-1.5, 1.5, K)
+    basis = np.stack([np.ones(K), np.cos(phi), np.sin(phi)], axis=1)
+    return phi, d, np.linalg.lstsq(basis, d, rcond=None)[0][0]
+
+
+@pytest.fixture
+def store(tmp_path):
+    phi, d, _ = _truth()
+    sino = np.stack([ellipse_sinogram(e, phi, L, shifts=d, center_offset=OFFSET, subsamples=2)
+                     for e in stack_phantom(L, S, seed=2)])  # fmt: skip
+    return create_scan(tmp_path / "scan", Geometry.from_angles(phi, L, L), sino, {"source": "test"}).path
+
+
+def test_stack_finds_axis_and_motion_and_resumes(store, monkeypatch):
+    phi, d, constant = _truth()
+    name = reconstruct_stack(store, motion_slices="0,2", binning=4, refine=(2, 1, 1), workers=0, progress=False)
+    data = DataStore.open(store)
+    info = data.recons.motion_info(name)
+    assert name == "fbp_stack" and data.reconstruction_done(name).all()
+    assert info["center_offset"] == pytest.approx(OFFSET - constant, abs=0.25)
+    images = data.read_reconstruction(name)
+    assert np.isfinite(images).all() and images.shape == (S, L, L)
+    # the images explain the data (up to a translation of the object, which no method can tell)
+    geometry = Geometry.from_angles(phi, L, L, center_offset=info["center_offset"])
+    sino = data.read_array("sinograms", [1])[0]
+    shifts = data.read_shifts(name, [1])[0]
+    misfit = np.linalg.norm(reproject(geometry, images[1], shifts) - sino)
+    still = np.linalg.norm(reproject(geometry, corrected_fbp(geometry, sino), None) - sino)
+    truth = Geometry.from_angles(phi, L, L, center_offset=OFFSET)
+    best = np.linalg.norm(reproject(truth, corrected_fbp(truth, sino, d), d) - sino)  # FBP with the true motion
+    assert misfit < 1.1 * best and still > 1.5 * best, (misfit, still, best)
+    # resume: the recorded motion is reused and finished slices are skipped
+    monkeypatch.setattr(stack_batch, "estimate_stack_motion", lambda *a, **k: pytest.fail("estimated again"))
+    monkeypatch.setattr(stack_batch, "corrected_fbp", lambda *a, **k: pytest.fail("reconstructed again"))
+    assert reconstruct_stack(store, motion_slices="0,2", binning=4, refine=(2, 1, 1), workers=0, progress=False)
+    with pytest.raises(NanoctError, match="other parameters"):
+        reconstruct_stack(store, motion_slices="0,2", binning=2, refine=(2, 1, 1), workers=0, progress=False)
+
+
+def test_stack_with_a_given_axis_and_a_smooth_model(store):
+    name = reconstruct_stack(
+        store, center=OFFSET, model=(2, 2), binning=4, refine=(1,), workers=0, progress=False, name="smooth"
+    )
+    info = DataStore.open(store).recons.motion_info(name)
+    assert info["model_residual_rms"] > 0.3  # the jitter is what the smooth model leaves out
+
+
+def test_cli_stack_and_its_errors(store, tmp_path, capsys):
+    assert run(["stack", str(store), "--binning", "4", "--refine", "1", "--motion-slices", "1", "-w", "0", "-q"]) == 0
+    assert "axis offset" in capsys.readouterr().out
+    assert run(["stack", str(store), "--method", "resesop", "-w", "0", "-q"]) == 2
+    assert "not a stack method" in capsys.readouterr().err
+    assert run(["stack", str(store), "--motion-slices", "7", "-w", "0", "-q"]) == 2
+    assert "--motion-slices" in capsys.readouterr().err
+    assert run(["stack", str(store), "--refine", "2,x", "-w", "0", "-q"]) == 2
+    assert run(["stack", str(tmp_path / "nothing.npy"), "-q"]) == 2
+    assert "--store" in capsys.readouterr().err
