@@ -300,7 +300,10 @@ def predict(
     device: str | None = typer.Option(None, "--device", help="cpu, cuda, ... (default: CUDA when present)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result made with other parameters."),
     no_calibrate: bool = typer.Option(
-        False, "--no-calibrate", help="Store the raw std of invertible nets (default: calibrated on validation data)."
+        False, "--no-calibrate", help="Invertible nets: fit no intervals (default: calibrated on validation data)."
+    ),
+    levels: str = typer.Option(
+        "0.68,0.9,0.95", "--levels", help="Invertible nets: interval levels (nominal coverage), comma-separated."
     ),
     quiet: bool = QUIET,
 ) -> None:
@@ -308,10 +311,12 @@ def predict(
 
     Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
     nets), or <input>+<model>@<train input> when applied to another input than it was
-    trained on (the paper's input-mixing tables). The std of invertible nets is calibrated by the
-    run's monotone std maps, one per quartile of the predicted value, fitted once on the
-    validation split of the data it was trained on (Gaussian coverage at 1, 2 and 3 std;
-    docs/uncertainty.md).
+    trained on (the paper's input-mixing tables). The stored std of invertible nets is the
+    network's own; intervals mean +- multiplier x std, one multiplier per level, are fitted once
+    on the validation split of the data it was trained on (split conformal, with the coverage
+    guaranteed with probability 90 %) and stored with the result (export them with
+    'nanoct export --interval'). Images whose std level is above the validation split's are
+    reported as out of distribution (docs/uncertainty.md).
     """
     from .learn.predict import predict as predict_model
 
@@ -330,8 +335,20 @@ def predict(
         overwrite=overwrite,
         reconstruct_kwargs=kwargs or None,
         calibrate=not no_calibrate,
+        levels=tuple(_parse_levels(levels)),
     )
     typer.echo(f"wrote reconstructions/{name}")
+
+
+def _parse_levels(text: str) -> list[float]:
+    """``"0.68,0.9"`` -> [0.68, 0.9]; a clear error for anything else."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if not values or not all(0 < v < 1 for v in values):
+        raise NanoctError(f"--levels {text!r} must be comma-separated coverages between 0 and 1, e.g. 0.68,0.9,0.95")
+    return values
 
 
 @app.command()
@@ -579,6 +596,12 @@ def export(
     name: str = typer.Option(..., "--name", "-n", help="Reconstruction to export, e.g. dremel or dremel+ciunet-res."),
     out: Path = typer.Option(..., "--out", "-o", help="FILE.tif | .npy | .h5 (images or std) or FILE.txt (shifts)."),
     std: bool = typer.Option(False, "--std", help="Export the pixel-wise std instead of the images."),
+    interval: float | None = typer.Option(
+        None, "--interval", help="Export the half-width of the calibrated interval of this level (e.g. 0.9)."
+    ),
+    guaranteed: bool = typer.Option(
+        False, "--guaranteed", help="With --interval: the risk-controlling multiplier (guaranteed w.p. 1 - delta)."
+    ),
     split: str = typer.Option("all", "--split", help="test | val | train | all"),
     index: int | None = typer.Option(
         None, "--index", "-i", help="With .txt: the sample whose shifts to write (needed unless motion is shared)."
@@ -607,12 +630,20 @@ def export(
     idx = idx[store.reconstruction_done(name, idx)]
     if idx.size == 0:
         raise NanoctError(f"reconstructions/{name} has no finished sample in split '{split}'; reconstruct it first")
-    if std and not store.has_uncertainty(name):
+    if (std or interval is not None) and not store.has_uncertainty(name):
         raise NanoctError(f"reconstructions/{name} has no std (only invertible networks give one)")
-    images = store.read_uncertainty(name, idx) if std else store.read_reconstruction(name, idx)
-    attrs = {"store": str(store.path), "name": name, "content": "std" if std else "image", "samples": str(idx.tolist())}
+    if interval is not None:
+        from .learn.calibration import interval_multiplier
+
+        factor = interval_multiplier(store.reconstruction_params(name), interval, guaranteed)
+        images, content = factor * store.read_uncertainty(name, idx), f"half-width {interval:g} x{factor:.6g}"
+    elif std:
+        images, content = store.read_uncertainty(name, idx), "std"
+    else:
+        images, content = store.read_reconstruction(name, idx), "image"
+    attrs = {"store": str(store.path), "name": name, "content": content, "samples": str(idx.tolist())}
     path = write_images(out, images, attrs=attrs)
-    typer.echo(f"wrote {idx.size} {'std map' if std else 'image'}(s) of reconstructions/{name} to {path}")
+    typer.echo(f"wrote {idx.size} {content} map(s) of reconstructions/{name} to {path}")
 
 
 def _expected_error(exc: BaseException) -> str | None:
