@@ -528,6 +528,28 @@ def reproduce(
     typer.echo(f"report: {report} (and {report.with_suffix('.html').name})", err=True)
 
 
+@app.command("shift-test")
+def shift_test(
+    directory: Path = typer.Argument(..., help="Output directory of 'nanoct reproduce --preset ...'."),
+    preset: str = typer.Option("tiny-parallel", "--preset", "-p", help="The study's preset."),
+    n: int = typer.Option(20, "--n", help="Test images per shifted set."),
+    workers: int = WORKERS,
+    quiet: bool = QUIET,
+) -> None:
+    """Score a study's invertible networks on test sets they were not trained on (motion x0.5 / x1.5, noise, none).
+
+    Coverage of the 90 % intervals, correlation of the std with the error and the share of
+    images predict flags as out of distribution, per shifted set next to the study's own test
+    split; written to DIRECTORY/shift/shift.{md,json} (cached; a rerun only redoes what is missing).
+    """
+    from .study.shift import format_shift_table, shift_study
+
+    if n < 1:
+        raise NanoctError(f"--n {n} must be a positive number of test images")
+    results = shift_study(directory, preset, n=n, workers=workers, progress=not quiet)
+    typer.echo(format_shift_table(results))
+
+
 def _parse_range(text: str | None, flag: str, sep: str) -> tuple[int, int] | None:
     if text is None:
         return None
