@@ -312,7 +312,7 @@ def predict(
     Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
     nets), or <input>+<model>@<train input> when applied to another input than it was
     trained on (the paper's input-mixing tables). The stored std of invertible nets is the
-    network's own; intervals mean +- multiplier x std, one multiplier per level, are fitted once
+    network's own; intervals mean +- multiplier x std^e, one multiplier per level, are fitted once
     on the validation split of the data it was trained on (split conformal, with the coverage
     guaranteed with probability 90 %) and stored with the result (export them with
     'nanoct export --interval'). Images whose std level is above the validation split's are
@@ -655,10 +655,11 @@ def export(
     if (std or interval is not None) and not store.has_uncertainty(name):
         raise NanoctError(f"reconstructions/{name} has no std (only invertible networks give one)")
     if interval is not None:
-        from .learn.calibration import interval_multiplier
+        from .learn.calibration import half_width
 
-        factor = interval_multiplier(store.reconstruction_params(name), interval, guaranteed)
-        images, content = factor * store.read_uncertainty(name, idx), f"half-width {interval:g} x{factor:.6g}"
+        std = store.read_uncertainty(name, idx)
+        images = half_width(store.reconstruction_params(name), std, interval, guaranteed).astype("float32")
+        content = f"half-width of the {interval:g} interval"
     elif std:
         images, content = store.read_uncertainty(name, idx), "std"
     else:

@@ -9,6 +9,7 @@ import pytest
 
 from nanoct.evaluation.conformal import (
     conformal_multiplier,
+    fit_exponent,
     guaranteed_coverage,
     hb_upper_bound,
     image_miscoverage,
@@ -88,3 +89,20 @@ def test_image_miscoverage_counts_per_image(rng):
     got = image_miscoverage(err, std, [0.5, 1.0])
     for i in range(3):
         assert got[i].tolist() == pytest.approx([np.mean(np.abs(err[i]) > m) for m in (0.5, 1.0)])
+
+
+def test_fit_exponent_recovers_errors_growing_with_the_square_of_the_std(rng):
+    """Errors with spread std**2: one multiplier of the std under-covers large std and over-covers small;
+    the fitted exponent is 2 and covers each std quintile evenly."""
+    std = rng.uniform(0.1, 1.0, 100_000)
+    err = rng.normal(size=std.size) * std**2
+    p = fit_exponent(err, std, 0.9)
+    assert p == pytest.approx(2.0, abs=0.1)
+    order = np.argsort(std)
+    for exponent, spread in ((1.0, 0.05), (p, 0.02)):
+        q = conformal_multiplier(err, std**exponent, 0.9)
+        fifths = [b.mean() for b in np.array_split((np.abs(err) <= q * std**exponent)[order], 5)]
+        assert (max(abs(f - 0.9) for f in fifths) > spread) == (exponent == 1.0)
+    assert fit_exponent(rng.normal(size=std.size) * std, std, 0.9) == pytest.approx(1.0, abs=0.1)
+    with pytest.raises(ValueError, match="no candidate"):
+        fit_exponent(err, std, 0.9, exponents=())

@@ -69,6 +69,9 @@ def test_uncertainty_summary_on_a_calibrated_gaussian(rng):
     assert u["partial_corr_given_baseline"] is None
     over = uncertainty_summary(std * 3, recos, gts, multipliers={"0.9": 1.6449 / 3})  # the multiplier undoes it
     assert over["intervals"]["0.9"]["coverage"] == u["intervals"]["0.9"]["coverage"]
+    squared = uncertainty_summary(np.sqrt(std), recos, gts, multipliers={"0.9": 1.6449}, exponent=2.0)
+    assert squared["intervals"]["0.9"]["coverage"] == pytest.approx(u["intervals"]["0.9"]["coverage"])
+    assert squared["std_error_spearman"] == pytest.approx(u["std_error_spearman"])  # the ranking is the same
     assert over["ause"] == pytest.approx(u["ause"])  # the ordering does not depend on the scale
     assert over["std_error_corr"] == pytest.approx(u["std_error_corr"])
     unrelated = uncertainty_summary(rng.permutation(std.ravel()).reshape(std.shape), recos, gts)
@@ -92,13 +95,14 @@ def test_interval_scores_are_size_stratified(rng):
     """Intervals that cover on average but not where they are narrow show it in the width quintiles."""
     std = rng.uniform(0.1, 1.0, (10, 20, 20))
     err = rng.normal(size=std.shape) * 0.5  # the errors do not follow the std
-    s = interval_scores(err, std, 1.0)
+    s = interval_scores(err, std)
     assert s["coverage"] == pytest.approx(np.mean(np.abs(err) <= std))
+    assert s["width_error_corr"] == pytest.approx(np.corrcoef(std.ravel(), np.abs(err).ravel())[0, 1])
     assert s["coverage_by_width"][0] < 0.4 < 0.9 < s["coverage_by_width"][-1]
     assert s["mean_half_width"] == pytest.approx(std.mean())
     mask = np.zeros(std.shape, bool)
     mask[:5] = True  # the first five images only
-    m = interval_scores(err, std, 1.0, mask)
+    m = interval_scores(err, std, mask)
     per_image = [np.mean(np.abs(err[i]) <= std[i]) for i in range(5)]
     expected = {"min": min(per_image), "max": max(per_image), "std": np.std(per_image)}
     assert m["image_coverage"] == pytest.approx(expected)

@@ -12,12 +12,13 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
+from nanoct.evaluation.conformal import fit_exponent
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
     CALIBRATION_FORMAT,
     calibrate,
-    interval_multiplier,
+    half_width,
     load_calibration,
 )
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
@@ -89,12 +90,14 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
         errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
         stds.append(std[0, 0].numpy().astype(np.float64))
     err, std = np.stack(errs), np.stack(stds)
-    ratio = np.sort((err / std).ravel())
+    assert entry["exponent"] == fit_exponent(err, std, 0.9)
+    ratio = np.sort((err / std ** entry["exponent"]).ravel())
     assert list(entry["levels"]) == ["0.68", "0.9", "0.95"]
     for key, fit in entry["levels"].items():
         k = int(np.ceil((ratio.size + 1) * float(key)))  # the split-conformal order statistic
         assert fit["multiplier"] == pytest.approx(ratio[k - 1], rel=1e-4)
-        assert fit["val_coverage"] == pytest.approx(np.mean(err <= fit["multiplier"] * std), abs=2e-3)
+        half = fit["multiplier"] * std ** entry["exponent"]
+        assert fit["val_coverage"] == pytest.approx(np.mean(err <= half), abs=2e-3)
         assert fit["val_coverage"] >= float(key) - 2e-3
         assert 0 <= fit["guaranteed_coverage"] < fit["val_coverage"]  # three images: a weak guarantee
         assert fit["rcps_multiplier"] is None  # too few images for any guarantee at these levels
@@ -159,18 +162,18 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     np.testing.assert_array_equal(stored, raw)
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
     for one_raw, one_stored in zip(raw, stored):  # within an image the delivered map ranks as the raw std
-        half = interval_multiplier(params, 0.9) * one_stored
+        half = half_width(params, one_stored, 0.9)
         assert spearmanr(one_raw.ravel(), half.ravel()).statistic == pytest.approx(1.0, abs=1e-12)
     ood = store.reconstruction_note(name, "ood")
     assert set(ood["p_values"]) == {str(int(i)) for i in test} and store.reconstruction_note("raw", "ood") is None
     with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
         predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")
     with pytest.raises(NanoctError, match="level 0.5"):
-        interval_multiplier(params, 0.5)
+        half_width(params, stored, 0.5)
     with pytest.raises(NanoctError, match="too small to guarantee"):
-        interval_multiplier(params, 0.9, guaranteed=True)
+        half_width(params, stored, 0.9, guaranteed=True)
     with pytest.raises(NanoctError, match="no interval calibration"):
-        interval_multiplier(store.reconstruction_params("raw"), 0.9)
+        half_width(store.reconstruction_params("raw"), stored, 0.9)
 
 
 @pytest.mark.slow

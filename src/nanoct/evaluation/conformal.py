@@ -31,7 +31,9 @@ from scipy.stats import binom
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_LEVELS",
+    "EXPONENTS",
     "conformal_multiplier",
+    "fit_exponent",
     "guaranteed_coverage",
     "hb_upper_bound",
     "image_miscoverage",
@@ -44,6 +46,8 @@ __all__ = [
 DEFAULT_LEVELS = (0.68, 0.90, 0.95)
 #: Probability that the risk-control guarantee fails (the paper's default).
 DEFAULT_DELTA = 0.1
+#: Candidate exponents p of the half-width ``multiplier * std**p`` (:func:`fit_exponent`).
+EXPONENTS = tuple(np.round(np.arange(0.5, 3.001, 0.05), 2).tolist())
 
 
 def level_key(level: float) -> str:
@@ -102,6 +106,39 @@ def conformal_multiplier(err: np.ndarray, std: np.ndarray, level: float) -> floa
             "the std is zero where the error is not, or the error is zero almost everywhere"
         )
     return q
+
+
+def fit_exponent(
+    err: np.ndarray, std: np.ndarray, level: float, exponents: tuple[float, ...] = EXPONENTS, n_bins: int = 5
+) -> float:
+    """The exponent p for which the intervals ``q_p * std**p`` cover ``level`` most evenly across the std.
+
+    For each candidate p, ``q_p`` is the :func:`conformal_multiplier` of ``std**p``; the pixels are
+    split into ``n_bins`` equal-count bins by std (the same bins for every p: ``std**p`` is
+    increasing in std) and p minimises the largest deviation of a bin's coverage from ``level``
+    (ties: the p closest to 1). ``std**p`` ranks the pixels exactly as the std does, so the
+    network's ranking is kept; p > 1 widens the intervals of large std relative to small ones
+    (errors growing faster than the std).
+
+    Raises
+    ------
+    ValueError
+        As :func:`conformal_multiplier`, or if no candidate is given.
+    """
+    if not exponents:
+        raise ValueError("no candidate exponent")
+    err = np.abs(np.asarray(err, dtype=np.float64)).ravel()
+    std = np.asarray(std, dtype=np.float64).ravel()
+    order = np.argsort(std, kind="stable")
+    best, best_key = 1.0, (math.inf, math.inf)
+    for p in exponents:
+        scaled = std**p
+        q = conformal_multiplier(err, scaled, level)
+        bins = np.array_split((err <= q * scaled)[order], n_bins)
+        key = (max(abs(float(b.mean()) - level) for b in bins), abs(p - 1))
+        if key < best_key:
+            best, best_key = float(p), key
+    return best
 
 
 def image_miscoverage(err: np.ndarray, std: np.ndarray, multipliers: np.ndarray) -> np.ndarray:

@@ -53,7 +53,8 @@ def uncertainty_scores(
     calibration : dict, optional
         The interval calibration stored with the prediction (:func:`nanoct.learn.calibration.fit_intervals`):
         ``levels`` (each level's ``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``),
-        ``delta``, ``edge_sigma`` and ``edge_multipliers``; without it no intervals are scored.
+        ``exponent`` (half-width = multiplier * std**exponent), ``delta``, ``edge_sigma`` and
+        ``edge_multipliers``; without it no intervals are scored.
     support : bool array (n, H, W), optional
         The object's support (default :func:`nanoct.evaluation.metrics.support_mask` of ``gts``).
 
@@ -63,7 +64,7 @@ def uncertainty_scores(
         ``std_error_corr`` (all pixels), ``uncertainty`` = {``all``, ``support``} (the std's
         :func:`nanoct.evaluation.metrics.uncertainty_summary`, with the partial correlation given the
         edge baseline), ``edge_baseline`` = {``sigma``, ``all``, ``support``} and ``guarantee`` =
-        {``delta``, ``levels`` = {level key: {``guaranteed_coverage``, ``rcps_multiplier``}}} (the
+        {``delta``, ``exponent``, ``levels`` = {level key: {``guaranteed_coverage``, ``rcps_multiplier``}}} (the
         validation split's, empty without a calibration).
     """
     cal = calibration or {}
@@ -73,13 +74,13 @@ def uncertainty_scores(
     levels = cal.get("levels") or {}
     own_q = {k: v["multiplier"] for k, v in levels.items()}
 
-    def both(std: np.ndarray, multipliers: dict[str, float], baseline: np.ndarray | None) -> dict[str, Any]:
+    def both(std: np.ndarray, q: dict[str, float], exponent: float, edge: np.ndarray | None) -> dict[str, Any]:
         return {
-            region: uncertainty_summary(std, recos, gts, multipliers=multipliers, baseline=baseline, mask=mask)
+            region: uncertainty_summary(std, recos, gts, multipliers=q, exponent=exponent, baseline=edge, mask=mask)
             for region, mask in (("all", None), ("support", support))
         }
 
-    own = both(stds, own_q, edges)
+    own = both(stds, own_q, float(cal.get("exponent", 1.0)), edges)
     guarantee = {
         k: {"guaranteed_coverage": v["guaranteed_coverage"], "rcps_multiplier": v["rcps_multiplier"]}
         for k, v in levels.items()
@@ -87,8 +88,8 @@ def uncertainty_scores(
     return {
         "std_error_corr": own["all"]["std_error_corr"],
         "uncertainty": own,
-        "edge_baseline": {"sigma": sigma, **both(edges, cal.get("edge_multipliers") or {}, None)},
-        "guarantee": {"delta": cal.get("delta"), "levels": guarantee},
+        "edge_baseline": {"sigma": sigma, **both(edges, cal.get("edge_multipliers") or {}, 1.0, None)},
+        "guarantee": {"delta": cal.get("delta"), "exponent": cal.get("exponent"), "levels": guarantee},
     }
 
 
@@ -233,10 +234,10 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
             )
     lines += [
         "",
-        "| reconstruction | pixels | level | coverage [%] | guaranteed (val.) [%] | mean half-width "
+        "| reconstruction | pixels | level | coverage [%] | guaranteed (val.) [%] | mean half-width | width/error corr "
         "| width quintiles: min / max coverage [%] | per image: min / max [%] (std) "
         f"| edge at {level}: coverage [%] | edge: quintiles min / max [%] |",
-        "|---" * 10 + "|",
+        "|---" * 11 + "|",
     ]
     for name in names:
         r, edge, g = results[name]["uncertainty"], results[name]["edge_baseline"], results[name]["guarantee"]
@@ -249,7 +250,7 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
                 q, im = iv["coverage_by_width"], iv["image_coverage"]
                 lines.append(
                     f"| {name} | {region} | {key} | {_pct(iv['coverage'])} | {_pct(gc) if region == 'all' else ''} "
-                    f"| {iv['mean_half_width']:.3g} | {_pct(min(q))} / {_pct(max(q))} "
+                    f"| {iv['mean_half_width']:.3g} | {_num(iv['width_error_corr'])} | {_pct(min(q))} / {_pct(max(q))} "
                     f"| {_pct(im['min'])} / {_pct(im['max'])} ({_pct(im['std'])}) "
                     f"| {e_cov if key == level else ''} | {e_q if key == level else ''} |"
                 )
@@ -258,7 +259,8 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
     lines += [
         "",
         "All scores are computed on the stored std (`uncertainty/<name>`) and the intervals mean +- multiplier x "
-        "stored std, the multiplier of each level fitted by split conformal prediction on the validation split. "
+        "(stored std)^e, e fitted for even coverage across the std and the multiplier of each level by split "
+        "conformal prediction, both on the validation split. "
         f"Guaranteed: the per-image coverage that holds with probability {1 - (delta or 0.1):.0%} "
         "(Hoeffding-Bentkus bound over the validation images). Partial corr.: Pearson correlation of the std "
         "with |error| given the edge baseline. AUSE: area between the sparsification curve (mean absolute "

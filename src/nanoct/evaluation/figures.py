@@ -12,6 +12,9 @@ import numpy as np
 
 from ..io.fileio import atomic_write_bytes
 from ..io.store import DataStore
+
+# the figures read predictions, whose intervals the calibration defines
+from ..learn.calibration import half_width  # noqa: E402
 from ..names import parse_name, prediction_name
 from ..recon.fbp import fbp
 from ..sim.motion import plot_motion
@@ -140,8 +143,8 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
 
     One row per (name, sample). The input is ``reconstructions/<input>`` of the name
     (:func:`nanoct.names.parse_name`; an empty panel if absent); the last panel is the half-width
-    of the calibrated 90 % interval (the stored std times its multiplier; the stored std itself
-    where the result has no calibration), the array the scores are computed on, scaled. Error and
+    of the calibrated 90 % interval (:func:`nanoct.learn.calibration.half_width` of the stored
+    std; the stored std itself where the result has no calibration). Error and
     half-width share a colour scale per row so they can be compared directly.
     """
     from matplotlib.figure import Figure
@@ -155,10 +158,11 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         input_name = str(store.reconstruction_params(name).get("input") or parse_name(name)[0])
         reco = store.read_reconstruction(name, [index])[0]
         std = store.read_uncertainty(name, [index])[0]
-        levels = (store.reconstruction_params(name).get("calibration") or {}).get("levels") or {}
+        params = store.reconstruction_params(name)
+        levels = (params.get("calibration") or {}).get("levels") or {}
         level = "0.9" if "0.9" in levels else next(iter(levels), None)
         if level is not None:
-            std = levels[level]["multiplier"] * std
+            std = half_width(params, std, float(level))
         err = np.abs(reco - gt)
         top = float(max(err.max(), std.max())) or 1.0
         if input_name in present and input_name != name:
@@ -169,7 +173,7 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         ax_row[2].imshow(err, cmap="magma", vmin=0, vmax=top)
         ax_row[2].set_title("|mean - gt|", fontsize=9)
         im = ax_row[3].imshow(std, cmap="magma", vmin=0, vmax=top)
-        label = "std" if level is None else f"{float(level):.0%} half-width = {levels[level]['multiplier']:.3g} x std"
+        label = "std" if level is None else f"{float(level):.0%} interval half-width"
         ax_row[3].set_title(label, fontsize=9)
         fig.colorbar(im, ax=ax_row[3], shrink=0.8)
         for ax in ax_row:
@@ -190,7 +194,7 @@ def reliability_diagram(
     One column per panel (e.g. per model), one line per reconstruction name. Top row: the stored
     std read as a Gaussian std (interval of level p ``|err| <= k_p std``, ``k_p`` the two-sided
     Gaussian quantile, :func:`nanoct.evaluation.metrics.reliability`); bottom row: the calibrated intervals
-    (multiplier x stored std) at their levels, with the coverage guaranteed on the validation
+    (:func:`nanoct.learn.calibration.half_width`) at their levels, with the coverage guaranteed on the validation
     split (open markers). Pixels of all ``indices`` are pooled. On the diagonal a map is
     calibrated; above it too wide, below too narrow.
     """
@@ -205,9 +209,10 @@ def reliability_diagram(
             err = np.abs(store.read_reconstruction(name, indices) - gts)
             std = store.read_uncertainty(name, indices).astype(np.float64)
             line = axes[0, col].plot(levels, reliability(err, std, levels), marker=".", label=name)[0]
-            cal = (store.reconstruction_params(name).get("calibration") or {}).get("levels") or {}
+            params = store.reconstruction_params(name)
+            cal = (params.get("calibration") or {}).get("levels") or {}
             nominal = [float(k) for k in cal]
-            observed = [float(np.mean(err <= v["multiplier"] * std)) for v in cal.values()]
+            observed = [float(np.mean(err <= half_width(params, std, float(k)))) for k in cal]
             axes[1, col].plot(nominal, observed, marker="o", color=line.get_color(), label=name)
             guaranteed = [v["guaranteed_coverage"] for v in cal.values()]
             axes[1, col].plot(nominal, guaranteed, ls="none", marker="o", mfc="none", color=line.get_color())

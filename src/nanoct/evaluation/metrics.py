@@ -263,31 +263,32 @@ def partial_correlation(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> float:
 
 
 def interval_scores(
-    err: np.ndarray, std: np.ndarray, multiplier: float, mask: np.ndarray | None = None, n_bins: int = WIDTH_BINS
+    err: np.ndarray, half: np.ndarray, mask: np.ndarray | None = None, n_bins: int = WIDTH_BINS
 ) -> dict[str, Any]:
-    """Scores of the intervals ``|err| <= multiplier * std`` of stacks (n, H, W), over all or the masked pixels.
+    """Scores of the intervals ``|err| <= half`` of stacks (n, H, W), over all or the masked pixels.
 
     Returns
     -------
     dict
-        ``multiplier``; ``coverage`` (pooled pixels); ``mean_half_width`` (``multiplier * std``
-        averaged); ``coverage_by_width``: coverage of ``n_bins`` equal-count bins of the pixels
-        sorted by width (smallest first; size-stratified coverage); ``image_coverage``: the
+        ``coverage`` (pooled pixels); ``mean_half_width``; ``width_error_corr``: Pearson
+        correlation of the half-width with |err| (NaN if either is constant);
+        ``coverage_by_width``: coverage of ``n_bins`` equal-count bins of the pixels sorted by
+        half-width (smallest first; size-stratified coverage); ``image_coverage``: the
         per-image coverages' ``min``, ``max`` and ``std`` (spread over images; images without
         a masked pixel are left out).
     """
     err = np.abs(np.asarray(err, dtype=np.float64))
-    std = np.asarray(std, dtype=np.float64)
+    half = np.asarray(half, dtype=np.float64)
     keep = np.ones(err.shape, bool) if mask is None else np.asarray(mask, bool)
-    half = multiplier * std
     inside = err <= half
-    order = np.argsort(half[keep], kind="stable")
-    bins = np.array_split(inside[keep][order], n_bins)
+    h, e = half[keep], err[keep]
+    bins = np.array_split(inside[keep][np.argsort(h, kind="stable")], n_bins)
     per_image = np.array([inside[i][keep[i]].mean() for i in range(err.shape[0]) if keep[i].any()])
+    corr = float(np.corrcoef(h, e)[0, 1]) if h.std() > 0 and e.std() > 0 else float("nan")
     return {
-        "multiplier": float(multiplier),
         "coverage": float(inside[keep].mean()),
-        "mean_half_width": float(half[keep].mean()),
+        "mean_half_width": float(h.mean()),
+        "width_error_corr": corr,
         "coverage_by_width": [float(b.mean()) for b in bins],
         "image_coverage": {
             "min": float(per_image.min()),
@@ -303,14 +304,16 @@ def uncertainty_summary(
     gts: np.ndarray,
     *,
     multipliers: dict[str, float] | None = None,
+    exponent: float = 1.0,
     baseline: np.ndarray | None = None,
     mask: np.ndarray | None = None,
 ) -> dict[str, object]:
     """How well a pixel-wise std predicts the actual error, over all (or the masked) pixels.
 
     Every score is computed on ``stds`` as given (the stored std), and the intervals on
-    ``multiplier * stds``: a multiplier does not change any ranking, so the correlations and
-    AUSE of the std are those of every interval's width.
+    ``multiplier * stds**exponent``: that does not change any ranking, so the Spearman
+    correlation and AUSE of the std are those of every interval's width (the Pearson
+    correlation of the width is reported with each interval).
 
     Parameters
     ----------
@@ -318,6 +321,8 @@ def uncertainty_summary(
         Std, reconstructions (the network's mean) and ground truths.
     multipliers : dict, optional
         ``{level key: multiplier}`` of calibrated intervals (:mod:`nanoct.learn.calibration`).
+    exponent : float
+        Exponent of the std in the half-width.
     baseline : array (n, H, W), optional
         Another std (the edge baseline) for the partial correlation of the std with the error
         given it.
@@ -329,7 +334,7 @@ def uncertainty_summary(
     dict
         ``std_error_corr`` (Pearson) and ``std_error_spearman`` between std and absolute error
         (NaN when either is constant); ``partial_corr_given_baseline`` (None without
-        ``baseline``); ``intervals`` = {level key: :func:`interval_scores`} (empty without
+        ``baseline``); ``intervals`` = {level key: ``multiplier`` and :func:`interval_scores`} (empty without
         ``multipliers``); ``ause``, ``ause_random``, ``ause_ratio`` (:func:`sparsification`);
         ``mean_std``, ``mean_abs_error`` and ``n_pixels``.
     """
@@ -346,7 +351,9 @@ def uncertainty_summary(
     rank = float(spearmanr(std, err).statistic) if varies else float("nan")
     partial = None if baseline is None else partial_correlation(std, err, np.asarray(baseline, np.float64)[keep])
     sp = sparsification(err, std)
-    intervals = {k: interval_scores(err3, stds, q, keep) for k, q in (multipliers or {}).items()}
+    intervals = {
+        k: {"multiplier": q, **interval_scores(err3, q * stds**exponent, keep)} for k, q in (multipliers or {}).items()
+    }
     return {
         "std_error_corr": corr,
         "std_error_spearman": rank,

@@ -3,11 +3,13 @@
 The std of a conditional invertible network (over M latent samples) ranks the pixels by how
 uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
 split of the data set and input the network was trained on (the test split is never read),
-one multiplier per interval level is fitted (:func:`fit_intervals`): the interval of level
-``p`` is ``mean +- multiplier_p * std``, fitted by split-conformal prediction, stated with the
-coverage that holds with probability ``1 - delta`` (Hoeffding-Bentkus, risk-controlling
-prediction sets; :mod:`nanoct.evaluation.conformal`). A multiplier keeps the network's ranking
-of the pixels exactly. On the same validation outputs the multipliers of the edge baseline
+one exponent ``e`` and one multiplier per interval level are fitted (:func:`fit_intervals`):
+the interval of level ``p`` is ``mean +- multiplier_p * std**e``, ``e`` chosen so that the
+coverage is even across the std (:func:`nanoct.evaluation.conformal.fit_exponent`), the
+multiplier by split-conformal prediction, stated with the coverage that holds with
+probability ``1 - delta`` (Hoeffding-Bentkus, risk-controlling prediction sets;
+:mod:`nanoct.evaluation.conformal`). The half-width is increasing in the std, so it keeps the
+network's ranking of the pixels exactly. On the same validation outputs the multipliers of the edge baseline
 (:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
 validation images' std level is kept for the out-of-distribution check of
 :func:`nanoct.learn.predict.predict`.
@@ -37,6 +39,7 @@ from ..evaluation.conformal import (
     DEFAULT_DELTA,
     DEFAULT_LEVELS,
     conformal_multiplier,
+    fit_exponent,
     guaranteed_coverage,
     level_key,
     rcps_multiplier,
@@ -57,8 +60,9 @@ __all__ = [
     "OOD_ALPHA",
     "calibrate",
     "fit_intervals",
+    "EXPONENT_LEVEL",
+    "half_width",
     "image_statistic",
-    "interval_multiplier",
     "load_calibration",
     "ood_p_values",
     "sample_outputs",
@@ -69,6 +73,8 @@ CALIBRATION_FILE = "calibration.json"
 CALIBRATION_FORMAT = 4
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
+#: Level at which the exponent of the half-width is fitted (then shared by every level).
+EXPONENT_LEVEL = 0.9
 
 
 def _sha256(path: Path) -> str:
@@ -176,9 +182,11 @@ def fit_intervals(
     delta: float = DEFAULT_DELTA,
     edge_sigma: float = EDGE_SIGMA,
 ) -> dict[str, Any]:
-    """Fit the interval multipliers of the std and of the edge baseline on validation outputs (n, H, W).
+    """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
 
-    For each level: the split-conformal multiplier of the raw std
+    The exponent ``e`` of the half-width ``multiplier * std**e``
+    (:func:`nanoct.evaluation.conformal.fit_exponent` at :data:`EXPONENT_LEVEL`); for each level:
+    the split-conformal multiplier of ``std**e``
     (:func:`nanoct.evaluation.conformal.conformal_multiplier`, all pixels of all images pooled), the
     coverage it keeps with probability ``1 - delta`` (:func:`~nanoct.evaluation.conformal.guaranteed_coverage`,
     Hoeffding-Bentkus over the images), the risk-controlling multiplier
@@ -190,7 +198,7 @@ def fit_intervals(
     Returns
     -------
     dict
-        ``delta``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``,
+        ``delta``, ``exponent``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``,
         ``rcps_multiplier``, ``val_coverage``}}, ``edge_sigma``, ``edge_multipliers`` =
         {level key: multiplier}, ``ood`` = {``statistic``: "mean_std", ``alpha``, ``val``: the
         validation images' values, sorted}.
@@ -206,24 +214,27 @@ def fit_intervals(
     fitted: dict[str, Any] = {}
     edge_fit: dict[str, float] = {}
     try:
+        exponent = fit_exponent(err, stds, EXPONENT_LEVEL)
+        scaled = stds**exponent
         for level in levels:
             key = level_key(level)
-            q = conformal_multiplier(err, stds, level)
+            q = conformal_multiplier(err, scaled, level)
             try:
-                rcps: float | None = rcps_multiplier(err, stds, level, delta)
+                rcps: float | None = rcps_multiplier(err, scaled, level, delta)
             except ValueError:
                 rcps = None
             fitted[key] = {
                 "multiplier": q,
-                "guaranteed_coverage": guaranteed_coverage(err, stds, q, delta),
+                "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta),
                 "rcps_multiplier": rcps,
-                "val_coverage": float(np.mean(err <= q * stds)),
+                "val_coverage": float(np.mean(err <= q * scaled)),
             }
             edge_fit[key] = conformal_multiplier(err, edges, level)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
         "delta": float(delta),
+        "exponent": exponent,
         "levels": fitted,
         "edge_sigma": float(edge_sigma),
         "edge_multipliers": edge_fit,
@@ -231,12 +242,12 @@ def fit_intervals(
     }
 
 
-def interval_multiplier(params: dict[str, Any], level: float, guaranteed: bool = False) -> float:
-    """The multiplier of the stored std giving the interval half-width of ``level`` of a prediction.
+def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False) -> np.ndarray:
+    """The half-width of the interval of ``level`` of a prediction: ``multiplier * std**exponent`` (float64).
 
-    ``params``: the prediction's stored parameters (with its ``calibration``). ``guaranteed``
-    takes the risk-controlling multiplier (coverage guaranteed with probability ``1 - delta``)
-    instead of the split-conformal one.
+    ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
+    std. ``guaranteed`` takes the risk-controlling multiplier (coverage guaranteed with
+    probability ``1 - delta``) instead of the split-conformal one.
 
     Raises
     ------
@@ -244,7 +255,8 @@ def interval_multiplier(params: dict[str, Any], level: float, guaranteed: bool =
         If the prediction has no calibration, was not calibrated at ``level``, or (``guaranteed``)
         the validation split was too small for a guarantee at that level.
     """
-    levels = (params.get("calibration") or {}).get("levels")
+    cal = params.get("calibration") or {}
+    levels = cal.get("levels")
     if not levels:
         raise NanoctError("this prediction has no interval calibration; predict it again without --no-calibrate")
     key = level_key(level)
@@ -253,16 +265,14 @@ def interval_multiplier(params: dict[str, Any], level: float, guaranteed: bool =
             f"no interval of level {key} was calibrated (levels: {', '.join(levels)}); predict again with "
             f"--levels including {key}"
         )
-    entry = levels[key]
-    if not guaranteed:
-        return float(entry["multiplier"])
-    if entry["rcps_multiplier"] is None:
+    q = levels[key]["rcps_multiplier" if guaranteed else "multiplier"]
+    if q is None:
         raise NanoctError(
-            f"the validation split ({params['calibration'].get('n_images')} images) is too small to guarantee "
-            f"{float(key):.0%} coverage with probability {1 - params['calibration']['delta']:.0%}; "
+            f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
+            f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
             "leave out --guaranteed or choose a lower level"
         )
-    return float(entry["rcps_multiplier"])
+    return float(q) * np.asarray(std, dtype=np.float64) ** cal["exponent"]
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
