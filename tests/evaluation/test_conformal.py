@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from nanoct.evaluation.conformal import (
+    apply_width_map,
     conformal_multiplier,
-    fit_exponent,
+    fit_width_map,
     guaranteed_coverage,
+    half_width_of,
     hb_upper_bound,
     image_miscoverage,
     level_key,
@@ -91,18 +93,27 @@ def test_image_miscoverage_counts_per_image(rng):
         assert got[i].tolist() == pytest.approx([np.mean(np.abs(err[i]) > m) for m in (0.5, 1.0)])
 
 
-def test_fit_exponent_recovers_errors_growing_with_the_square_of_the_std(rng):
+def test_width_map_evens_out_coverage_and_keeps_the_ranking(rng):
     """Errors with spread std**2: one multiplier of the std under-covers large std and over-covers small;
-    the fitted exponent is 2 and covers each std quintile evenly."""
+    the width map (the 90 % quantile of |err| given the std) covers each std quintile within 2 points,
+    and it is strictly increasing (the same ranking as the std)."""
     std = rng.uniform(0.1, 1.0, 100_000)
     err = rng.normal(size=std.size) * std**2
-    p = fit_exponent(err, std, 0.9)
-    assert p == pytest.approx(2.0, abs=0.1)
+    m = fit_width_map(err, std, 0.9)
+    assert np.all(np.diff(m["std"]) > 0) and np.all(np.diff(m["width"]) > 0)
+    grid = np.linspace(0.05, 1.5, 1000)
+    assert np.all(np.diff(apply_width_map(grid, m)) > 0)
+    # the knots follow the true quantile 1.645 * s**2 within 5 %
+    np.testing.assert_allclose(m["width"], 1.6449 * np.asarray(m["std"]) ** 2, rtol=0.05)
     order = np.argsort(std)
-    for exponent, spread in ((1.0, 0.05), (p, 0.02)):
-        q = conformal_multiplier(err, std**exponent, 0.9)
-        fifths = [b.mean() for b in np.array_split((np.abs(err) <= q * std**exponent)[order], 5)]
-        assert (max(abs(f - 0.9) for f in fifths) > spread) == (exponent == 1.0)
-    assert fit_exponent(rng.normal(size=std.size) * std, std, 0.9) == pytest.approx(1.0, abs=0.1)
-    with pytest.raises(ValueError, match="no candidate"):
-        fit_exponent(err, std, 0.9, exponents=())
+    fresh = rng.normal(size=std.size) * std**2
+    for entry, worst in (({"multiplier": conformal_multiplier(err, std, 0.9)}, 0.05), ({"map": m}, 0.02)):
+        if "map" in entry:
+            entry["multiplier"] = conformal_multiplier(err, half_width_of(std, {"map": m, "multiplier": 1.0}), 0.9)
+        inside = np.abs(fresh) <= half_width_of(std, entry)
+        fifths = [b.mean() for b in np.array_split(inside[order], 5)]
+        assert (max(abs(f - 0.9) for f in fifths) > worst) == ("map" not in entry)
+        assert inside.mean() == pytest.approx(0.9, abs=0.005)
+    assert apply_width_map(np.array([0.0]), m)[0] == 0.0
+    with pytest.raises(ValueError, match="fewer than two distinct"):
+        fit_width_map(err, np.full(std.size, 0.5), 0.9)

@@ -30,8 +30,7 @@ def test_figures(tiny_store, tmp_path):
     levels = {k: {"multiplier": q, **entry} for k, q in (("0.68", 1.0), ("0.9", 1.64))}
     params = {
         "input": "fig_fbp",
-        "calibration": {"delta": 0.1, "exponent": 1.0, "levels": levels}
-        | {"edge_multipliers": {"0.9": 20.0}, "edge_sigma": 1.0},
+        "calibration": {"delta": 0.1, "levels": levels} | {"edge_multipliers": {"0.9": 20.0}, "edge_sigma": 1.0},
     }
     store.prepare_reconstruction("fig_fbp+fake", params, uncertainty=True)
     for i, gt in zip(test, store.read_phantoms(test)):

@@ -62,16 +62,16 @@ def test_uncertainty_summary_on_a_calibrated_gaussian(rng):
     std = rng.uniform(0.01, 0.2, (4, 32, 32))
     gts = rng.random((4, 32, 32))
     recos = gts + rng.normal(0, 1, std.shape) * std  # errors drawn with exactly that std
-    u = uncertainty_summary(std, recos, gts, multipliers={"0.9": 1.6449})
+    u = uncertainty_summary(std, recos, gts, half_widths={"0.9": 1.6449 * std})
     assert u["intervals"]["0.9"]["coverage"] == pytest.approx(0.9, abs=0.02) and u["n_pixels"] == std.size
     assert u["std_error_corr"] > 0.4 and u["std_error_spearman"] > 0.4  # larger std, larger errors
     assert u["ause_ratio"] < 0.8  # ordering by std beats random order
     assert u["partial_corr_given_baseline"] is None
-    over = uncertainty_summary(std * 3, recos, gts, multipliers={"0.9": 1.6449 / 3})  # the multiplier undoes it
-    assert over["intervals"]["0.9"]["coverage"] == u["intervals"]["0.9"]["coverage"]
-    squared = uncertainty_summary(np.sqrt(std), recos, gts, multipliers={"0.9": 1.6449}, exponent=2.0)
-    assert squared["intervals"]["0.9"]["coverage"] == pytest.approx(u["intervals"]["0.9"]["coverage"])
-    assert squared["std_error_spearman"] == pytest.approx(u["std_error_spearman"])  # the ranking is the same
+    over = uncertainty_summary(std * 3, recos, gts, half_widths={"0.9": 1.6449 * std})  # the same intervals
+    assert over["intervals"]["0.9"] == u["intervals"]["0.9"]
+    assert over["ause"] == pytest.approx(u["ause"]) and over["std_error_spearman"] == pytest.approx(
+        u["std_error_spearman"]
+    )
     assert over["ause"] == pytest.approx(u["ause"])  # the ordering does not depend on the scale
     assert over["std_error_corr"] == pytest.approx(u["std_error_corr"])
     unrelated = uncertainty_summary(rng.permutation(std.ravel()).reshape(std.shape), recos, gts)
@@ -177,7 +177,7 @@ def test_support_mask_and_restriction():
     recos[0, 7, 7] += 0.2
     std[mask] = np.abs(recos - gts)[mask] + 0.01
     u_all = uncertainty_summary(std, recos, gts)
-    u_in = uncertainty_summary(std, recos, gts, mask=mask, multipliers={"0.68": 1.0})
+    u_in = uncertainty_summary(std, recos, gts, mask=mask, half_widths={"0.68": std})
     assert u_in["n_pixels"] == 13 and u_all["n_pixels"] == gts.size
     assert u_in["mean_abs_error"] == pytest.approx(0.2 / 13)
     assert u_in["intervals"]["0.68"]["coverage"] == 1.0 and u_in["ause"] == pytest.approx(0, abs=1e-12)

@@ -12,7 +12,7 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
-from nanoct.evaluation.conformal import fit_exponent
+from nanoct.evaluation.conformal import apply_width_map, fit_width_map
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
@@ -78,7 +78,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 4 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 5 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -90,13 +90,15 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
         errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
         stds.append(std[0, 0].numpy().astype(np.float64))
     err, std = np.stack(errs), np.stack(stds)
-    assert entry["exponent"] == fit_exponent(err, std, 0.9)
-    ratio = np.sort((err / std ** entry["exponent"]).ravel())
     assert list(entry["levels"]) == ["0.68", "0.9", "0.95"]
     for key, fit in entry["levels"].items():
+        ref = fit_width_map(err, std, float(key))
+        np.testing.assert_allclose(fit["map"]["std"], ref["std"], rtol=1e-4)
+        np.testing.assert_allclose(fit["map"]["width"], ref["width"], rtol=1e-3)
+        ratio = np.sort((err / apply_width_map(std, fit["map"])).ravel())
         k = int(np.ceil((ratio.size + 1) * float(key)))  # the split-conformal order statistic
         assert fit["multiplier"] == pytest.approx(ratio[k - 1], rel=1e-4)
-        half = fit["multiplier"] * std ** entry["exponent"]
+        half = fit["multiplier"] * apply_width_map(std, fit["map"])
         assert fit["val_coverage"] == pytest.approx(np.mean(err <= half), abs=2e-3)
         assert fit["val_coverage"] >= float(key) - 2e-3
         assert 0 <= fit["guaranteed_coverage"] < fit["val_coverage"]  # three images: a weak guarantee
@@ -117,7 +119,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     refit = calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
     assert calls == [1, 1, 1]
     # an entry of an earlier format is fitted again, not reused
-    old = {k: v for k, v in refit.items() if k != "levels"} | {"format": 3}
+    old = {k: v for k, v in refit.items() if k != "levels"} | {"format": 4}
     (run / CALIBRATION_FILE).write_text(json.dumps({"best": old}))
     assert calibrate(path, run, reconstruct_kwargs={"n_samples": 5}) == refit and calls == [1, 1, 1, 1]
     with pytest.raises(ValueError, match="strictly between 0 and 1"):
@@ -136,11 +138,12 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
             store._group["reconstructions/fbp"][int(i)] = rng.random((63, 63)).astype(np.float32)
     after = calibrate(path, run, reconstruct_kwargs=M, refit=True)
     assert after["levels"] == before["levels"] and after["edge_multipliers"] == before["edge_multipliers"]
-    for i in store.indices("val"):  # alter the validation input: the multipliers change
+    for i in store.indices("val"):  # alter the validation input: the fit changes
         x = store.read_reconstruction("fbp", [int(i)])[0]
         store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
-    assert changed["levels"]["0.9"]["multiplier"] != pytest.approx(before["levels"]["0.9"]["multiplier"], rel=1e-3)
+    new, old = changed["levels"]["0.9"]["map"]["width"], before["levels"]["0.9"]["map"]["width"]
+    assert new != pytest.approx(old, rel=1e-3)
 
 
 @pytest.mark.slow
@@ -156,7 +159,7 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert entry["format"] == 4 and params["calibration"] == entry
+    assert entry["format"] == 5 and params["calibration"] == entry
     assert "calibration" not in store.reconstruction_params("raw")
     raw, stored = store.read_uncertainty("raw", test), store.read_uncertainty(name, test)
     np.testing.assert_array_equal(stored, raw)

@@ -23,6 +23,7 @@ that holds with probability ``1 - delta`` (one minus the bound on its loss).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
@@ -31,9 +32,12 @@ from scipy.stats import binom
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_LEVELS",
-    "EXPONENTS",
+    "WIDTH_MAP_BINS",
+    "WIDTH_MAP_MIN_SLOPE",
+    "apply_width_map",
     "conformal_multiplier",
-    "fit_exponent",
+    "fit_width_map",
+    "half_width_of",
     "guaranteed_coverage",
     "hb_upper_bound",
     "image_miscoverage",
@@ -46,8 +50,10 @@ __all__ = [
 DEFAULT_LEVELS = (0.68, 0.90, 0.95)
 #: Probability that the risk-control guarantee fails (the paper's default).
 DEFAULT_DELTA = 0.1
-#: Candidate exponents p of the half-width ``multiplier * std**p`` (:func:`fit_exponent`).
-EXPONENTS = tuple(np.round(np.arange(0.5, 3.001, 0.05), 2).tolist())
+#: Equal-count bins of the std in which :func:`fit_width_map` takes the quantile of |err|.
+WIDTH_MAP_BINS = 20
+#: Smallest slope of a width map in log(std) -> log(width); it keeps the map strictly increasing.
+WIDTH_MAP_MIN_SLOPE = 0.05
 
 
 def level_key(level: float) -> str:
@@ -108,37 +114,59 @@ def conformal_multiplier(err: np.ndarray, std: np.ndarray, level: float) -> floa
     return q
 
 
-def fit_exponent(
-    err: np.ndarray, std: np.ndarray, level: float, exponents: tuple[float, ...] = EXPONENTS, n_bins: int = 5
-) -> float:
-    """The exponent p for which the intervals ``q_p * std**p`` cover ``level`` most evenly across the std.
+def fit_width_map(
+    err: np.ndarray, std: np.ndarray, level: float, n_bins: int = WIDTH_MAP_BINS, min_slope: float = WIDTH_MAP_MIN_SLOPE
+) -> dict[str, list[float]]:
+    """A strictly increasing map from std to the ``level`` quantile of |err| (monotone quantile regression on the std).
 
-    For each candidate p, ``q_p`` is the :func:`conformal_multiplier` of ``std**p``; the pixels are
-    split into ``n_bins`` equal-count bins by std (the same bins for every p: ``std**p`` is
-    increasing in std) and p minimises the largest deviation of a bin's coverage from ``level``
-    (ties: the p closest to 1). ``std**p`` ranks the pixels exactly as the std does, so the
-    network's ranking is kept; p > 1 widens the intervals of large std relative to small ones
-    (errors growing faster than the std).
+    The pixels are sorted by std and split into ``n_bins`` equal-count bins; the knot of a bin is
+    (median std, ``level`` quantile of its |err|). The knots' widths are made increasing: each is
+    at least the previous one times ``(x_b / x_{b-1})**min_slope`` (a slope of at least
+    ``min_slope`` in log-log), so the map is strictly increasing and ranks the pixels exactly as
+    the std does. Applied by :func:`apply_width_map`.
 
     Raises
     ------
     ValueError
-        As :func:`conformal_multiplier`, or if no candidate is given.
+        If the std has fewer than two distinct positive bin medians, or every error is zero.
     """
-    if not exponents:
-        raise ValueError("no candidate exponent")
     err = np.abs(np.asarray(err, dtype=np.float64)).ravel()
     std = np.asarray(std, dtype=np.float64).ravel()
-    order = np.argsort(std, kind="stable")
-    best, best_key = 1.0, (math.inf, math.inf)
-    for p in exponents:
-        scaled = std**p
-        q = conformal_multiplier(err, scaled, level)
-        bins = np.array_split((err <= q * scaled)[order], n_bins)
-        key = (max(abs(float(b.mean()) - level) for b in bins), abs(p - 1))
-        if key < best_key:
-            best, best_key = float(p), key
-    return best
+    scores(err, std)  # checks shapes and values
+    pos = std > 0
+    e, s_ = err[pos], std[pos]
+    bins = np.array_split(np.argsort(s_, kind="stable"), min(n_bins, max(s_.size // 50, 1)))
+    x = np.array([np.median(s_[b]) for b in bins if b.size])
+    y = np.array([np.quantile(e[b], level) for b in bins if b.size])
+    keep = np.r_[True, np.diff(x) > 0]  # equal medians (ties): keep the first
+    x, y = x[keep], np.maximum.accumulate(y)[keep]
+    if x.size < 2 or y[-1] <= 0:
+        raise ValueError("the std takes fewer than two distinct values, or every error is zero: no width map")
+    y = np.maximum(y, y[y > 0].min())
+    for j in range(1, x.size):
+        y[j] = max(y[j], y[j - 1] * (x[j] / x[j - 1]) ** min_slope)
+    return {"std": x.tolist(), "width": y.tolist()}
+
+
+def apply_width_map(std: np.ndarray, width_map: dict[str, list[float]]) -> np.ndarray:
+    """The width map of :func:`fit_width_map` at ``std`` (float64): piecewise linear in log-log between
+    the knots, continued with the end segments' slopes; a zero std gives zero."""
+    lx, ly = np.log(width_map["std"]), np.log(width_map["width"])
+    std = np.asarray(std, dtype=np.float64)
+    pos = std > 0
+    ls = np.log(np.where(pos, std, 1.0))
+    out = np.interp(ls, lx, ly)
+    first, last = (ly[1] - ly[0]) / (lx[1] - lx[0]), (ly[-1] - ly[-2]) / (lx[-1] - lx[-2])
+    out = np.where(ls < lx[0], ly[0] + first * (ls - lx[0]), out)
+    out = np.where(ls > lx[-1], ly[-1] + last * (ls - lx[-1]), out)
+    return np.where(pos, np.exp(out), 0.0)
+
+
+def half_width_of(std: np.ndarray, entry: dict[str, Any], multiplier: str = "multiplier") -> np.ndarray:
+    """Half-width ``entry[multiplier] * g(std)`` of a calibrated interval; g = ``entry["map"]``
+    (:func:`apply_width_map`) where the entry has one, else the identity."""
+    base = apply_width_map(std, entry["map"]) if entry.get("map") else np.asarray(std, dtype=np.float64)
+    return float(entry[multiplier]) * base
 
 
 def image_miscoverage(err: np.ndarray, std: np.ndarray, multipliers: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ from ..io.provenance import environment_info
 from ..io.store import DataStore
 from ..names import parse_name, setting_key
 from .conclusions import format_conclusions
+from .conformal import half_width_of
 from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
 
 __all__ = [
@@ -52,9 +53,9 @@ def uncertainty_scores(
         The stored std (``uncertainty/<name>``), reconstructions (the network's mean) and ground truths.
     calibration : dict, optional
         The interval calibration stored with the prediction (:func:`nanoct.learn.calibration.fit_intervals`):
-        ``levels`` (each level's ``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``),
-        ``exponent`` (half-width = multiplier * std**exponent), ``delta``, ``edge_sigma`` and
-        ``edge_multipliers``; without it no intervals are scored.
+        ``levels`` (each level's width ``map``, ``multiplier``, ``guaranteed_coverage``,
+        ``rcps_multiplier``: half-width :func:`nanoct.evaluation.conformal.half_width_of`), ``delta``,
+        ``edge_sigma`` and ``edge_multipliers``; without it no intervals are scored.
     support : bool array (n, H, W), optional
         The object's support (default :func:`nanoct.evaluation.metrics.support_mask` of ``gts``).
 
@@ -64,7 +65,7 @@ def uncertainty_scores(
         ``std_error_corr`` (all pixels), ``uncertainty`` = {``all``, ``support``} (the std's
         :func:`nanoct.evaluation.metrics.uncertainty_summary`, with the partial correlation given the
         edge baseline), ``edge_baseline`` = {``sigma``, ``all``, ``support``} and ``guarantee`` =
-        {``delta``, ``exponent``, ``levels`` = {level key: {``guaranteed_coverage``, ``rcps_multiplier``}}} (the
+        {``delta``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``}}} (the
         validation split's, empty without a calibration).
     """
     cal = calibration or {}
@@ -72,24 +73,26 @@ def uncertainty_scores(
     sigma = float(cal.get("edge_sigma", EDGE_SIGMA))
     edges = edge_std(recos, sigma)
     levels = cal.get("levels") or {}
-    own_q = {k: v["multiplier"] for k, v in levels.items()}
 
-    def both(std: np.ndarray, q: dict[str, float], exponent: float, edge: np.ndarray | None) -> dict[str, Any]:
+    def both(std: np.ndarray, entries: dict[str, dict[str, Any]], edge: np.ndarray | None) -> dict[str, Any]:
+        half = {k: half_width_of(std, v) for k, v in entries.items()}
         return {
-            region: uncertainty_summary(std, recos, gts, multipliers=q, exponent=exponent, baseline=edge, mask=mask)
+            region: uncertainty_summary(std, recos, gts, half_widths=half, baseline=edge, mask=mask)
             for region, mask in (("all", None), ("support", support))
         }
 
-    own = both(stds, own_q, float(cal.get("exponent", 1.0)), edges)
+    own = both(stds, levels, edges)
+    edge_entries = {k: {"multiplier": q} for k, q in (cal.get("edge_multipliers") or {}).items()}
     guarantee = {
-        k: {"guaranteed_coverage": v["guaranteed_coverage"], "rcps_multiplier": v["rcps_multiplier"]}
+        k: {"multiplier": v["multiplier"], "guaranteed_coverage": v["guaranteed_coverage"]}
+        | {"rcps_multiplier": v["rcps_multiplier"]}
         for k, v in levels.items()
     }
     return {
         "std_error_corr": own["all"]["std_error_corr"],
         "uncertainty": own,
-        "edge_baseline": {"sigma": sigma, **both(edges, cal.get("edge_multipliers") or {}, 1.0, None)},
-        "guarantee": {"delta": cal.get("delta"), "exponent": cal.get("exponent"), "levels": guarantee},
+        "edge_baseline": {"sigma": sigma, **both(edges, edge_entries, None)},
+        "guarantee": {"delta": cal.get("delta"), "levels": guarantee},
     }
 
 
@@ -259,8 +262,8 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
     lines += [
         "",
         "All scores are computed on the stored std (`uncertainty/<name>`) and the intervals mean +- multiplier x "
-        "(stored std)^e, e fitted for even coverage across the std and the multiplier of each level by split "
-        "conformal prediction, both on the validation split. "
+        "g(stored std), g the level's quantile of |error| given the std (strictly increasing) and the multiplier "
+        "of each level by split conformal prediction, both fitted on the validation split. "
         f"Guaranteed: the per-image coverage that holds with probability {1 - (delta or 0.1):.0%} "
         "(Hoeffding-Bentkus bound over the validation images). Partial corr.: Pearson correlation of the std "
         "with |error| given the edge baseline. AUSE: area between the sparsification curve (mean absolute "

@@ -303,26 +303,24 @@ def uncertainty_summary(
     recos: np.ndarray,
     gts: np.ndarray,
     *,
-    multipliers: dict[str, float] | None = None,
-    exponent: float = 1.0,
+    half_widths: dict[str, np.ndarray] | None = None,
     baseline: np.ndarray | None = None,
     mask: np.ndarray | None = None,
 ) -> dict[str, object]:
     """How well a pixel-wise std predicts the actual error, over all (or the masked) pixels.
 
-    Every score is computed on ``stds`` as given (the stored std), and the intervals on
-    ``multiplier * stds**exponent``: that does not change any ranking, so the Spearman
-    correlation and AUSE of the std are those of every interval's width (the Pearson
-    correlation of the width is reported with each interval).
+    Every score is computed on ``stds`` as given (the stored std), and the intervals on the
+    ``half_widths`` given (calibrated intervals are strictly increasing functions of the std,
+    so the Spearman correlation and AUSE of the std are those of every interval's width; the
+    Pearson correlation of the width is reported with each interval).
 
     Parameters
     ----------
     stds, recos, gts : array (n, H, W)
         Std, reconstructions (the network's mean) and ground truths.
-    multipliers : dict, optional
-        ``{level key: multiplier}`` of calibrated intervals (:mod:`nanoct.learn.calibration`).
-    exponent : float
-        Exponent of the std in the half-width.
+    half_widths : dict, optional
+        ``{level key: half-width array (n, H, W)}`` of calibrated intervals
+        (:func:`nanoct.evaluation.conformal.half_width_of`).
     baseline : array (n, H, W), optional
         Another std (the edge baseline) for the partial correlation of the std with the error
         given it.
@@ -334,8 +332,8 @@ def uncertainty_summary(
     dict
         ``std_error_corr`` (Pearson) and ``std_error_spearman`` between std and absolute error
         (NaN when either is constant); ``partial_corr_given_baseline`` (None without
-        ``baseline``); ``intervals`` = {level key: ``multiplier`` and :func:`interval_scores`} (empty without
-        ``multipliers``); ``ause``, ``ause_random``, ``ause_ratio`` (:func:`sparsification`);
+        ``baseline``); ``intervals`` = {level key: :func:`interval_scores`} (empty without
+        ``half_widths``); ``ause``, ``ause_random``, ``ause_ratio`` (:func:`sparsification`);
         ``mean_std``, ``mean_abs_error`` and ``n_pixels``.
     """
     stds = check_array(stds, "std", ndim=3, dtype=np.float64)
@@ -351,9 +349,7 @@ def uncertainty_summary(
     rank = float(spearmanr(std, err).statistic) if varies else float("nan")
     partial = None if baseline is None else partial_correlation(std, err, np.asarray(baseline, np.float64)[keep])
     sp = sparsification(err, std)
-    intervals = {
-        k: {"multiplier": q, **interval_scores(err3, q * stds**exponent, keep)} for k, q in (multipliers or {}).items()
-    }
+    intervals = {k: interval_scores(err3, h, keep) for k, h in (half_widths or {}).items()}
     return {
         "std_error_corr": corr,
         "std_error_spearman": rank,

@@ -3,13 +3,14 @@
 The std of a conditional invertible network (over M latent samples) ranks the pixels by how
 uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
 split of the data set and input the network was trained on (the test split is never read),
-one exponent ``e`` and one multiplier per interval level are fitted (:func:`fit_intervals`):
-the interval of level ``p`` is ``mean +- multiplier_p * std**e``, ``e`` chosen so that the
-coverage is even across the std (:func:`nanoct.evaluation.conformal.fit_exponent`), the
-multiplier by split-conformal prediction, stated with the coverage that holds with
-probability ``1 - delta`` (Hoeffding-Bentkus, risk-controlling prediction sets;
-:mod:`nanoct.evaluation.conformal`). The half-width is increasing in the std, so it keeps the
-network's ranking of the pixels exactly. On the same validation outputs the multipliers of the edge baseline
+per interval level a strictly increasing width map of the std and a multiplier are fitted
+(:func:`fit_intervals`): the interval of level ``p`` is ``mean +- multiplier_p * g_p(std)``,
+``g_p`` the ``p`` quantile of |error| given the std (monotone, binned in the std:
+:func:`nanoct.evaluation.conformal.fit_width_map`), the multiplier by split-conformal prediction,
+stated with the coverage that holds with probability ``1 - delta`` (Hoeffding-Bentkus,
+risk-controlling prediction sets; :mod:`nanoct.evaluation.conformal`). The half-width is
+strictly increasing in the std, so it keeps the network's ranking of the pixels exactly. On
+the same validation outputs the multipliers of the edge baseline
 (:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
 validation images' std level is kept for the out-of-distribution check of
 :func:`nanoct.learn.predict.predict`.
@@ -39,8 +40,9 @@ from ..evaluation.conformal import (
     DEFAULT_DELTA,
     DEFAULT_LEVELS,
     conformal_multiplier,
-    fit_exponent,
+    fit_width_map,
     guaranteed_coverage,
+    half_width_of,
     level_key,
     rcps_multiplier,
 )
@@ -60,7 +62,6 @@ __all__ = [
     "OOD_ALPHA",
     "calibrate",
     "fit_intervals",
-    "EXPONENT_LEVEL",
     "half_width",
     "image_statistic",
     "load_calibration",
@@ -70,11 +71,9 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 4
+CALIBRATION_FORMAT = 5
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
-#: Level at which the exponent of the half-width is fitted (then shared by every level).
-EXPONENT_LEVEL = 0.9
 
 
 def _sha256(path: Path) -> str:
@@ -184,9 +183,9 @@ def fit_intervals(
 ) -> dict[str, Any]:
     """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
 
-    The exponent ``e`` of the half-width ``multiplier * std**e``
-    (:func:`nanoct.evaluation.conformal.fit_exponent` at :data:`EXPONENT_LEVEL`); for each level:
-    the split-conformal multiplier of ``std**e``
+    For each level: the width map ``g`` of the std (:func:`nanoct.evaluation.conformal.fit_width_map`,
+    the level's quantile of |error| in 20 bins of the std, strictly increasing), the
+    split-conformal multiplier of ``g(std)``
     (:func:`nanoct.evaluation.conformal.conformal_multiplier`, all pixels of all images pooled), the
     coverage it keeps with probability ``1 - delta`` (:func:`~nanoct.evaluation.conformal.guaranteed_coverage`,
     Hoeffding-Bentkus over the images), the risk-controlling multiplier
@@ -198,7 +197,7 @@ def fit_intervals(
     Returns
     -------
     dict
-        ``delta``, ``exponent``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``,
+        ``delta``, ``levels`` = {level key: {``map``, ``multiplier``, ``guaranteed_coverage``,
         ``rcps_multiplier``, ``val_coverage``}}, ``edge_sigma``, ``edge_multipliers`` =
         {level key: multiplier}, ``ood`` = {``statistic``: "mean_std", ``alpha``, ``val``: the
         validation images' values, sorted}.
@@ -214,16 +213,17 @@ def fit_intervals(
     fitted: dict[str, Any] = {}
     edge_fit: dict[str, float] = {}
     try:
-        exponent = fit_exponent(err, stds, EXPONENT_LEVEL)
-        scaled = stds**exponent
         for level in levels:
             key = level_key(level)
+            width_map = fit_width_map(err, stds, level)
+            scaled = half_width_of(stds, {"map": width_map, "multiplier": 1.0})
             q = conformal_multiplier(err, scaled, level)
             try:
                 rcps: float | None = rcps_multiplier(err, scaled, level, delta)
             except ValueError:
                 rcps = None
             fitted[key] = {
+                "map": width_map,
                 "multiplier": q,
                 "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta),
                 "rcps_multiplier": rcps,
@@ -234,7 +234,6 @@ def fit_intervals(
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
         "delta": float(delta),
-        "exponent": exponent,
         "levels": fitted,
         "edge_sigma": float(edge_sigma),
         "edge_multipliers": edge_fit,
@@ -243,7 +242,7 @@ def fit_intervals(
 
 
 def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False) -> np.ndarray:
-    """The half-width of the interval of ``level`` of a prediction: ``multiplier * std**exponent`` (float64).
+    """The half-width of the interval of ``level`` of a prediction: ``multiplier * g(std)`` (float64).
 
     ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
     std. ``guaranteed`` takes the risk-controlling multiplier (coverage guaranteed with
@@ -265,14 +264,14 @@ def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed
             f"no interval of level {key} was calibrated (levels: {', '.join(levels)}); predict again with "
             f"--levels including {key}"
         )
-    q = levels[key]["rcps_multiplier" if guaranteed else "multiplier"]
-    if q is None:
+    which = "rcps_multiplier" if guaranteed else "multiplier"
+    if levels[key][which] is None:
         raise NanoctError(
             f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
             f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
             "leave out --guaranteed or choose a lower level"
         )
-    return float(q) * np.asarray(std, dtype=np.float64) ** cal["exponent"]
+    return half_width_of(std, levels[key], which)
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
