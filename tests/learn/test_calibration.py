@@ -167,6 +167,13 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     for one_raw, one_stored in zip(raw, stored):  # within an image the delivered map ranks as the raw std
         half = half_width(params, one_stored, 0.9)
         assert spearmanr(one_raw.ravel(), half.ravel()).statistic == pytest.approx(1.0, abs=1e-12)
+    # export --interval writes exactly these half-widths
+    from nanoct.cli import run as cli
+
+    out = str(tmp_path / "hw.npy")
+    assert cli(["export", str(path), "--name", name, "--out", out, "--split", "test", "--interval", "0.9"]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "hw.npy"), half_width(params, stored, 0.9), rtol=1e-6)
+    assert cli(["export", str(path), "--name", "raw", "--out", str(tmp_path / "x.npy"), "--interval", "0.9"]) == 2
     ood = store.reconstruction_note(name, "ood")
     assert set(ood["p_values"]) == {str(int(i)) for i in test} and store.reconstruction_note("raw", "ood") is None
     with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
