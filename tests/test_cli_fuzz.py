@@ -141,7 +141,8 @@ def test_random_arguments(base, stand_ins, argv):
         label = args[0] if args and args[0] in COMMANDS else "(no command)"
         out, err = io.StringIO(), io.StringIO()
         try:
-            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            # relative paths (a word such as "cpu" taken for a directory) land in the workspace
+            with contextlib.chdir(work), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
                 code = run(args)
         except _Reached:
             event(f"{label}: reached the work")

@@ -69,7 +69,7 @@ def test_quick_start_is_two_commands_on_a_fresh_machine():
 
 def test_command_table_names_every_command():
     table = _section("Commands")
-    listed = set(re.findall(r"^\| `nanoct (\w+)", table, re.M))
+    listed = set(re.findall(r"^\| `nanoct ([\w-]+)", table, re.M))
     assert listed == set(typer.main.get_command(app).commands)
 
 

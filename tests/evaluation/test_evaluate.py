@@ -12,11 +12,10 @@ from nanoct.evaluation.evaluate import (
     format_uncertainty_table,
     mixing_matrices,
     per_image_values,
-    read_std,
     store_setting,
     write_report_tables,
 )
-from nanoct.evaluation.metrics import apply_std_map, coverage, edge_std, psnr, ssim, support_mask
+from nanoct.evaluation.metrics import edge_std, psnr, ssim, support_mask
 from nanoct.io.store import DataStore
 
 
@@ -42,115 +41,111 @@ def test_mixing_and_tables():
     assert "| fbp | 22.00 ± 1.00 | 25.00 ± 1.00 |" in text  # row fbp: applied to fbp, resesop
 
 
-@pytest.mark.slow
-def test_evaluate_store_with_uncertainty(tiny_store, tmp_path):
+def _calibration(levels: dict[str, float], edge: dict[str, float]) -> dict:
+    """A stored calibration as :func:`nanoct.learn.calibration.fit_intervals` makes it (values made up)."""
+    width_map = {"std": [0.02, 0.05, 0.08], "width": [0.01, 0.05, 0.06]}  # made up, increasing
+    return {
+        "delta": 0.1,
+        "levels": {
+            k: {"map": width_map, "multiplier": q, "guaranteed_coverage": float(k) - 0.1, "rcps_multiplier": None}
+            for k, q in levels.items()
+        },
+        "edge_sigma": 1.5,
+        "edge_multipliers": edge,
+        "ood": {"statistic": "mean_std", "alpha": 0.05, "val": [0.04, 0.05, 0.06]},
+    }
+
+
+def test_every_reported_uncertainty_number_is_recomputed_from_the_stored_arrays(tiny_store, tmp_path):
+    """One truth: evaluate --json and the report's numbers are those of uncertainty/<name> and its multipliers."""
+    from scipy import stats
+
     store = DataStore.open(tiny_store.path, mode="r+")
     test = store.indices("test")
-    gts = store.read_phantoms(test)
-    scale = 0.5  # as predict stored it before the map: calibrated std = scale * raw, scale in the parameters
-    store.prepare_reconstruction(
-        "eval_truth+fake", {"calibration": {"scale": scale, "edge_scale": 3.0, "edge_sigma": 1.5}}, uncertainty=True
-    )
+    gts = store.read_phantoms(test).astype(np.float64)
+    cal = _calibration({"0.68": 1.0, "0.9": 1.645, "0.95": 1.96}, {"0.68": 30.0, "0.9": 50.0, "0.95": 60.0})
+    store.prepare_reconstruction("eval_truth+fake", {"calibration": cal}, uncertainty=True)
     rng = np.random.default_rng(0)
     for i, g in zip(test, gts):
-        std = rng.uniform(0.02, 0.08, g.shape).astype(np.float32)  # errors drawn with this (raw) std
-        store.write_reconstruction("eval_truth+fake", int(i), g + rng.normal(0, 1, g.shape) * std, std=scale * std)
+        std = rng.uniform(0.02, 0.08, g.shape).astype(np.float32)  # errors drawn with this std
+        store.write_reconstruction("eval_truth+fake", int(i), g + rng.normal(0, 1, g.shape) * std, std=std)
     results = evaluate_store(store, "test", names=["eval_truth+fake"])
-    r = results["eval_truth+fake"]
-    recos = store.read_reconstruction("eval_truth+fake", test)
-    expected = np.mean([psnr(x, g) for x, g in zip(recos, gts)])
-    assert r["psnr_mean"] == pytest.approx(expected) and r["n"] == len(test)
-    u = r["uncertainty"]
-    assert u["all"]["scale"] == scale and u["all"]["mean_std"] == pytest.approx(0.05, rel=0.01)  # raw = stored / scale
-    assert u["all"]["coverage"]["raw"]["1"] == pytest.approx(0.683, abs=0.05)
-    assert u["all"]["coverage"]["calibrated"]["1"] == pytest.approx(
-        coverage(recos - gts, store.read_uncertainty("eval_truth+fake", test))["1"]
-    )
-    assert u["all"]["calibration"] == "scale" and u["all"]["coverage"]["scaled"] == u["all"]["coverage"]["calibrated"]
-    mask = support_mask(gts)
-    assert u["support"]["n_pixels"] == mask.sum() < u["all"]["n_pixels"]
-    edge = r["edge_baseline"]
-    assert edge["sigma"] == 1.5 and edge["scale"] == 3.0
-    raw_edge = edge_std(recos, 1.5)
-    ref = coverage((recos - gts)[mask], 3.0 * raw_edge[mask])
-    assert edge["support"]["coverage"]["calibrated"] == pytest.approx(ref)
-    assert r["std_error_corr"] == u["all"]["std_error_corr"] > 0.3
-    assert u["all"]["ause_ratio"] < 0.8
     md, js = write_report_tables(store, results, tmp_path)
-    payload = json.loads(js.read_text())
-    assert set(payload["results"]["eval_truth+fake"]) >= {
-        "psnr_mean",
-        "psnr_std",
-        "ssim_mean",
-        "ssim_std",
-        "n",
-        "std_error_corr",
-        "uncertainty",
-        "edge_baseline",
-    }
+    r = json.loads(js.read_text())["results"]["eval_truth+fake"]
+    # independent recomputation from the arrays in the store
+    recos = store.read_reconstruction("eval_truth+fake", test).astype(np.float64)
+    stored = store.read_uncertainty("eval_truth+fake", test).astype(np.float64)
+    err = np.abs(recos - gts)
+    edges = edge_std(recos, 1.5)
+    assert r["psnr_mean"] == pytest.approx(np.mean([psnr(x, g) for x, g in zip(recos, gts)]))
+    for region, mask in (("all", np.ones(err.shape, bool)), ("support", support_mask(gts))):
+        u, e, s_, b_ = r["uncertainty"][region], err[mask], stored[mask], edges[mask]
+        assert u["n_pixels"] == mask.sum()
+        assert u["std_error_corr"] == pytest.approx(stats.pearsonr(s_, e).statistic, abs=1e-9)
+        assert u["std_error_spearman"] == pytest.approx(stats.spearmanr(s_, e).statistic, abs=1e-9)
+        # partial correlation: correlation of the residuals of both after a linear fit on the edge baseline
+        res_s = s_ - np.polyval(np.polyfit(b_, s_, 1), b_)
+        res_e = e - np.polyval(np.polyfit(b_, e, 1), b_)
+        assert u["partial_corr_given_baseline"] == pytest.approx(np.corrcoef(res_s, res_e)[0, 1], abs=1e-6)
+        assert u["mean_std"] == pytest.approx(s_.mean())
+        for key, entry in cal["levels"].items():
+            iv, q = u["intervals"][key], entry["multiplier"]
+            # the width map by hand: linear in log-log between the knots, end slopes beyond
+            lx, ly = np.log([0.02, 0.05, 0.08]), np.log([0.01, 0.05, 0.06])
+            ls = np.log(s_)
+            slope = np.where(ls < lx[1], (ly[1] - ly[0]) / (lx[1] - lx[0]), (ly[2] - ly[1]) / (lx[2] - lx[1]))
+            half = q * np.exp(np.where(ls < lx[1], ly[0], ly[1]) + slope * (ls - np.where(ls < lx[1], lx[0], lx[1])))
+            assert iv["coverage"] == pytest.approx(np.mean(e <= half))
+            assert iv["mean_half_width"] == pytest.approx(half.mean())
+            assert iv["width_error_corr"] == pytest.approx(stats.pearsonr(half, e).statistic, abs=1e-9)
+            order = np.argsort(s_, kind="stable")
+            fifths = np.array_split((e <= half)[order], 5)
+            assert iv["coverage_by_width"] == pytest.approx([f.mean() for f in fifths])
+            full = np.zeros(err.shape)
+            full[mask] = half
+            per_image = [np.mean(err[i][mask[i]] <= full[i][mask[i]]) for i in range(len(test))]
+            assert iv["image_coverage"]["std"] == pytest.approx(np.std(per_image))
+            assert iv["image_coverage"]["min"] == pytest.approx(min(per_image))
+            assert r["guarantee"]["levels"][key]["guaranteed_coverage"] == entry["guaranteed_coverage"]
+            edge_cov = r["edge_baseline"][region]["intervals"][key]["coverage"]
+            assert edge_cov == pytest.approx(np.mean(e <= cal["edge_multipliers"][key] * b_))
+        # AUSE by brute force: MAE left after removing the largest std vs the largest errors
+        n = e.size
+        keep = [n - int(np.floor(f * n + 1e-9)) for f in np.arange(100) / 100]
+        by_std, by_err = e[np.argsort(-s_, kind="stable")][::-1], np.sort(e)
+        curve = np.array([by_std[:k].mean() for k in keep]) / e.mean()
+        oracle = np.array([by_err[:k].mean() for k in keep]) / e.mean()
+        assert u["ause"] == pytest.approx(np.trapezoid(curve - oracle, np.arange(100) / 100), rel=1e-6)
+    assert r["std_error_corr"] == r["uncertainty"]["all"]["std_error_corr"] > 0.3
+    assert r["uncertainty"]["all"]["intervals"]["0.9"]["coverage"] > 0.5
     text = md.read_text()
-    assert "within 1/2/3 std, raw [%]" in text and "| eval_truth+fake | support |" in text
+    u = r["uncertainty"]["all"]
+    assert f"| eval_truth+fake | all | {u['std_error_corr']:.3f} | {u['std_error_spearman']:.3f} |" in text
+    cov = u["intervals"]["0.9"]["coverage"]
+    assert f"| eval_truth+fake | all | 0.9 | {100 * cov:.1f} | 80.0 |" in text
     store.delete_reconstruction("eval_truth+fake")
     assert not store.has_uncertainty("eval_truth+fake")
-
-
-def test_evaluate_store_with_a_std_map(tiny_store, tmp_path):
-    """Predict stores the raw std through the map: read_std inverts it, the report has all three coverages."""
-    store = DataStore.open(tiny_store.path, mode="r+")
-    test = store.indices("test")
-    gts = store.read_phantoms(test)
-    std_map = {"std": [0.03, 0.06], "calibrated": [0.01, 0.05]}  # slope log(5)/log(2) in log-log
-    cal = {"std_map": std_map, "scale": 0.5, "edge_scale": 3.0, "edge_sigma": 1.0}
-    store.prepare_reconstruction("eval_map+fake", {"calibration": cal}, uncertainty=True)
-    rng = np.random.default_rng(1)
-    raws = []
-    for i, g in zip(test, gts):
-        raw = rng.uniform(0.02, 0.08, g.shape).astype(np.float32)
-        true = apply_std_map(raw, std_map)  # the errors follow the mapped std
-        store.write_reconstruction("eval_map+fake", int(i), g + rng.normal(0, 1, g.shape) * true, std=true)
-        raws.append(raw)
-    recovered, got = read_std(store, "eval_map+fake", test)
-    np.testing.assert_allclose(recovered, np.stack(raws), rtol=1e-5)
-    assert got == cal
-    r = evaluate_store(store, "test", names=["eval_map+fake"])["eval_map+fake"]
-    recos = store.read_reconstruction("eval_map+fake", test)
-    u = r["uncertainty"]["all"]
-    assert u["calibration"] == "map" and u["mean_std"] == pytest.approx(0.05, rel=0.01)
-    assert u["coverage"]["calibrated"] == pytest.approx(
-        coverage(recos - gts, store.read_uncertainty("eval_map+fake", test))
-    )
-    assert u["coverage"]["calibrated"]["2"] == pytest.approx(0.9545, abs=0.01)
-    assert u["coverage"]["scaled"] == pytest.approx(coverage(recos - gts, 0.5 * np.stack(raws)))
-    assert r["edge_baseline"]["all"]["calibration"] == "scale"  # the edge baseline keeps its one factor
-    _, js = write_report_tables(store, {"eval_map+fake": r}, tmp_path)
-    payload = json.loads(js.read_text())["results"]["eval_map+fake"]["uncertainty"]["all"]["coverage"]
-    assert set(payload) == {"expected", "raw", "scaled", "calibrated"}
-    text = (tmp_path / "evaluation.md").read_text()
-    cells = [_pct(u["coverage"][k]) for k in ("raw", "scaled")] + ["0.5", _pct(u["coverage"]["calibrated"])]
-    assert "| eval_map+fake | all | " in text and " | ".join(cells) in text
-    store.delete_reconstruction("eval_map+fake")
-
-
-def _pct(cov):
-    return " / ".join(f"{cov[k] * 100:.0f}" for k in ("1", "2", "3"))
 
 
 def test_uncertainty_table_without_calibration():
     u = {
         "std_error_corr": 0.5,
-        "coverage": {"raw": {"1": 0.9, "2": 0.95, "3": 1.0}, "calibrated": None},
-        "scale": None,
+        "std_error_spearman": 0.4,
+        "partial_corr_given_baseline": 0.25,
+        "intervals": {},
         "ause": 0.1,
         "ause_random": 0.4,
         "ause_ratio": 0.25,
     }
-    edge = {"sigma": 1.0, "scale": None, "all": u, "support": u}
+    edge = {"sigma": 1.0, "all": u | {"partial_corr_given_baseline": None}, "support": u}
+    guarantee = {"delta": None, "levels": {}}
     results = {
         "fbp": _scores(20),
-        "fbp+cinn": _scores(21) | {"uncertainty": {"all": u, "support": u}} | {"edge_baseline": edge},
+        "fbp+cinn": _scores(21)
+        | {"uncertainty": {"all": u, "support": u}, "edge_baseline": edge, "guarantee": guarantee},
     }
     table = format_uncertainty_table(results)
-    assert "| fbp+cinn | all | 0.500 | 90 / 95 / 100 | - | - | - | 0.100 / 0.400 (0.25) | 0.500 | - |" in table
+    assert "| fbp+cinn | all | 0.500 | 0.400 | 0.250 | 0.100 / 0.400 (0.25) | 0.500 | 0.400 |" in table
     assert "| fbp |" not in table and format_uncertainty_table({"fbp": _scores(20)}) == ""
 
 

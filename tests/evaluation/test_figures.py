@@ -12,7 +12,6 @@ from nanoct.evaluation.figures import (
     uncertainty_maps,
     uncertainty_report,
 )
-from nanoct.evaluation.metrics import apply_std_map
 from nanoct.io.store import DataStore
 from nanoct.recon.batch import reconstruct_dataset
 
@@ -27,16 +26,16 @@ def test_figures(tiny_store, tmp_path):
     reconstruct_dataset(store.path, "fbp", split="test", name="fig_fbp", workers=0, progress=False)
     test = [int(i) for i in store.indices("test")]
     rng = np.random.default_rng(0)
-    std_map = {"std": [0.02, 0.08], "calibrated": [0.01, 0.06]}
+    entry = {"guaranteed_coverage": 0.5, "rcps_multiplier": None}
+    levels = {k: {"multiplier": q, **entry} for k, q in (("0.68", 1.0), ("0.9", 1.64))}
     params = {
         "input": "fig_fbp",
-        "calibration": {"std_map": std_map, "scale": 0.5, "edge_scale": 2.0, "edge_sigma": 1.0},
+        "calibration": {"delta": 0.1, "levels": levels} | {"edge_multipliers": {"0.9": 20.0}, "edge_sigma": 1.0},
     }
     store.prepare_reconstruction("fig_fbp+fake", params, uncertainty=True)
     for i, gt in zip(test, store.read_phantoms(test)):
         std = rng.uniform(0.01, 0.1, gt.shape).astype(np.float32)
-        calibrated = apply_std_map(std, std_map)
-        store.write_reconstruction("fig_fbp+fake", i, gt + rng.normal(0, 1, gt.shape) * calibrated, std=calibrated)
+        store.write_reconstruction("fig_fbp+fake", i, gt + rng.normal(0, 1, gt.shape) * std, std=std)
     runs = tmp_path / "runs"
     (runs / "fake-fig_fbp").mkdir(parents=True)
     log = "epoch,train_loss,val_loss,val_nll_bpd\n1,2.0,1.5,1.4\n2,1.2,1.1,1.0\n3,1.0,1.05,0.9\n"

@@ -12,10 +12,15 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
-from nanoct.evaluation.evaluate import read_std
-from nanoct.evaluation.metrics import GAUSSIAN_COVERAGE, apply_std_map, coverage, fit_std_map
+from nanoct.evaluation.conformal import apply_width_map, fit_width_map
 from nanoct.io.store import DataStore
-from nanoct.learn.calibration import CALIBRATION_FILE, CALIBRATION_FORMAT, calibrate, load_calibration
+from nanoct.learn.calibration import (
+    CALIBRATION_FILE,
+    CALIBRATION_FORMAT,
+    calibrate,
+    half_width,
+    load_calibration,
+)
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 from nanoct.learn.predict import predict
 from nanoct.learn.train import TrainConfig, train
@@ -73,51 +78,52 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
+    assert entry["format"] == CALIBRATION_FORMAT == 5 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
     model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
-    errs, stds, means = [], [], []
+    errs, stds = [], []
     for i in val:
         x = torch.from_numpy(store.read_reconstruction("fbp", [i]))[:, None]
         mean, std = model.reconstruct(x, n_samples=4, seed=int(i))
-        means.append(mean[0, 0].numpy())
         errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
         stds.append(std[0, 0].numpy().astype(np.float64))
-    err, std = np.concatenate([e.ravel() for e in errs]), np.concatenate([s.ravel() for s in stds])
-    values = np.concatenate([m.ravel() for m in means])
-    ratio = err / std
-    assert entry["scale"] == pytest.approx(np.quantile(ratio, 0.6827, method="inverted_cdf"), rel=1e-4)
-    assert entry["coverage_scaled"]["1"] == pytest.approx(0.6827, abs=2e-3)
-    assert entry["coverage_raw"]["1"] == pytest.approx(np.mean(ratio <= 1), abs=2e-3)
-    assert entry["format"] == CALIBRATION_FORMAT == 3
-    # the map: one per quartile of the mean, on the same validation outputs, fitted independently
-    edges = np.quantile(values, [0.25, 0.5, 0.75])
-    np.testing.assert_allclose(entry["std_map"]["value_edges"], edges, rtol=1e-5)
-    which = np.searchsorted(entry["std_map"]["value_edges"], values, side="right")
-    for j, one in enumerate(entry["std_map"]["maps"]):
-        ref = fit_std_map(err[which == j], std[which == j])
-        np.testing.assert_allclose(one["std"], ref["std"], rtol=1e-4)
-        np.testing.assert_allclose(one["calibrated"], ref["calibrated"], rtol=1e-3)
-    cov = coverage(err, apply_std_map(std, entry["std_map"], values))
-    assert entry["coverage_calibrated"] == pytest.approx(cov, abs=2e-3)
-    assert entry["coverage_calibrated"]["2"] == pytest.approx(GAUSSIAN_COVERAGE["2"], abs=0.03)
-    # a second call reuses the stored fit; other sampling arguments or another checkpoint file refit
+    err, std = np.stack(errs), np.stack(stds)
+    assert list(entry["levels"]) == ["0.68", "0.9", "0.95"]
+    for key, fit in entry["levels"].items():
+        ref = fit_width_map(err, std, float(key))
+        np.testing.assert_allclose(fit["map"]["std"], ref["std"], rtol=1e-4)
+        np.testing.assert_allclose(fit["map"]["width"], ref["width"], rtol=1e-3)
+        ratio = np.sort((err / apply_width_map(std, fit["map"])).ravel())
+        k = int(np.ceil((ratio.size + 1) * float(key)))  # the split-conformal order statistic
+        assert fit["multiplier"] == pytest.approx(ratio[k - 1], rel=1e-4)
+        half = fit["multiplier"] * apply_width_map(std, fit["map"])
+        assert fit["val_coverage"] == pytest.approx(np.mean(err <= half), abs=2e-3)
+        assert fit["val_coverage"] >= float(key) - 2e-3
+        assert 0 <= fit["guaranteed_coverage"] < fit["val_coverage"]  # three images: a weak guarantee
+        assert fit["rcps_multiplier"] is None  # too few images for any guarantee at these levels
+    assert entry["ood"]["val"] == pytest.approx(sorted(std.mean(axis=(1, 2))), rel=1e-5)
+    # a second call reuses the stored fit; other sampling arguments, levels or checkpoint file refit
     calls = []
     real = cal_mod.sample_outputs
     monkeypatch.setattr(cal_mod, "sample_outputs", lambda *a, **k: (calls.append(1), real(*a, **k))[1])
     assert calibrate(path, run, reconstruct_kwargs=M) == entry and calls == []
     other = calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
-    assert calls == [1] and other["n_samples"] == 5 and other["scale"] != entry["scale"]
+    assert calls == [1] and other["n_samples"] == 5 and other["levels"] != entry["levels"]
+    two = calibrate(path, run, reconstruct_kwargs={"n_samples": 5}, levels=(0.5, 0.8))
+    assert calls == [1, 1] and list(two["levels"]) == ["0.5", "0.8"]
     ckpt = torch.load(run / "best.pt", weights_only=True)
     ckpt["step"] += 1  # another checkpoint file
     torch.save(ckpt, run / "best.pt")
     refit = calibrate(path, run, reconstruct_kwargs={"n_samples": 5})
-    assert calls == [1, 1]
-    # an entry of the earlier format (one factor, no map) is fitted again, not reused
-    old = {k: v for k, v in refit.items() if k not in ("std_map", "coverage_scaled")} | {"format": 1}
+    assert calls == [1, 1, 1]
+    # an entry of an earlier format is fitted again, not reused
+    old = {k: v for k, v in refit.items() if k != "levels"} | {"format": 4}
     (run / CALIBRATION_FILE).write_text(json.dumps({"best": old}))
-    assert calibrate(path, run, reconstruct_kwargs={"n_samples": 5}) == refit and calls == [1, 1, 1]
+    assert calibrate(path, run, reconstruct_kwargs={"n_samples": 5}) == refit and calls == [1, 1, 1, 1]
+    with pytest.raises(ValueError, match="strictly between 0 and 1"):
+        calibrate(path, run, reconstruct_kwargs=M, levels=(0.9, 1.0))
 
 
 @pytest.mark.slow
@@ -131,43 +137,53 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
             store._group["phantoms"][int(i)] = rng.random((63, 63)).astype(np.float32)
             store._group["reconstructions/fbp"][int(i)] = rng.random((63, 63)).astype(np.float32)
     after = calibrate(path, run, reconstruct_kwargs=M, refit=True)
-    assert after["scale"] == before["scale"] and after["edge_scale"] == before["edge_scale"]
-    assert after["std_map"] == before["std_map"]
-    for i in store.indices("val"):  # alter the validation input: the factor changes
+    assert after["levels"] == before["levels"] and after["edge_multipliers"] == before["edge_multipliers"]
+    for i in store.indices("val"):  # alter the validation input: the fit changes
         x = store.read_reconstruction("fbp", [int(i)])[0]
         store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
-    assert changed["scale"] != pytest.approx(before["scale"], rel=1e-3)
-    assert changed["std_map"]["maps"][0]["calibrated"] != pytest.approx(
-        before["std_map"]["maps"][0]["calibrated"], rel=1e-3
-    )
+    new, old = changed["levels"]["0.9"]["map"]["width"], before["levels"]["0.9"]["map"]["width"]
+    assert new != pytest.approx(old, rel=1e-3)
 
 
 @pytest.mark.slow
-def test_predict_applies_the_map(setup, tmp_path):
+def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
+    """The stored std is the network's (ranking kept exactly); the intervals are multiples of it."""
+    from scipy.stats import spearmanr
+
     path, run = _copy(setup, tmp_path)
-    (run / CALIBRATION_FILE).write_text(json.dumps({"best": {"format": 1, "checkpoint": "best", "scale": 1.0}}))
+    (run / CALIBRATION_FILE).write_text(json.dumps({"best": {"format": 3, "checkpoint": "best", "scale": 1.0}}))
     name = predict(path, run, progress=False, reconstruct_kwargs=M)  # the old-format entry is refitted
     predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", calibrate=False)
     entry = load_calibration(run)["best"]
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert entry["format"] == 3 and params["calibration"] == entry
+    assert entry["format"] == 5 and params["calibration"] == entry
     assert "calibration" not in store.reconstruction_params("raw")
-    raw = store.read_uncertainty("raw", test)
-    stored = store.read_uncertainty(name, test)
-    means = store.read_reconstruction(name, test)
-    np.testing.assert_allclose(stored, apply_std_map(raw, entry["std_map"], means), rtol=1e-6)
-    assert not np.allclose(stored, entry["scale"] * raw, rtol=1e-2)  # the map, not the one factor
+    raw, stored = store.read_uncertainty("raw", test), store.read_uncertainty(name, test)
+    np.testing.assert_array_equal(stored, raw)
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
-    recovered, cal = read_std(store, name, test)
-    np.testing.assert_allclose(recovered, raw, rtol=1e-5)
-    assert cal["edge_scale"] == entry["edge_scale"]
+    for one_raw, one_stored in zip(raw, stored):  # within an image the delivered map ranks as the raw std
+        half = half_width(params, one_stored, 0.9)
+        assert spearmanr(one_raw.ravel(), half.ravel()).statistic == pytest.approx(1.0, abs=1e-12)
+    # export --interval writes exactly these half-widths
+    from nanoct.cli import run as cli
+
+    out = str(tmp_path / "hw.npy")
+    assert cli(["export", str(path), "--name", name, "--out", out, "--split", "test", "--interval", "0.9"]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "hw.npy"), half_width(params, stored, 0.9), rtol=1e-6)
+    assert cli(["export", str(path), "--name", "raw", "--out", str(tmp_path / "x.npy"), "--interval", "0.9"]) == 2
+    ood = store.reconstruction_note(name, "ood")
+    assert set(ood["p_values"]) == {str(int(i)) for i in test} and store.reconstruction_note("raw", "ood") is None
     with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
         predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")
-    predict(path, run, progress=False, reconstruct_kwargs=M, name="raw", overwrite=True)
-    np.testing.assert_array_equal(store.read_uncertainty("raw", test), store.read_uncertainty(name, test))
+    with pytest.raises(NanoctError, match="level 0.5"):
+        half_width(params, stored, 0.5)
+    with pytest.raises(NanoctError, match="too small to guarantee"):
+        half_width(params, stored, 0.9, guaranteed=True)
+    with pytest.raises(NanoctError, match="no interval calibration"):
+        half_width(store.reconstruction_params("raw"), stored, 0.9)
 
 
 @pytest.mark.slow

@@ -22,7 +22,8 @@ from ..io.provenance import environment_info
 from ..io.store import DataStore
 from ..names import parse_name, setting_key
 from .conclusions import format_conclusions
-from .metrics import EDGE_SIGMA, edge_std, raw_std, summarize, support_mask, uncertainty_summary
+from .conformal import half_width_of
+from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
 
 __all__ = [
     "evaluate_store",
@@ -31,31 +32,10 @@ __all__ = [
     "format_uncertainty_table",
     "mixing_matrices",
     "per_image_values",
-    "read_std",
     "store_setting",
     "uncertainty_scores",
     "write_report_tables",
 ]
-
-
-def read_std(
-    store: DataStore, name: str, indices: np.ndarray, recos: np.ndarray | None = None
-) -> tuple[np.ndarray, dict[str, Any]]:
-    """Raw (uncalibrated) std of reconstruction ``name`` and the calibration stored with it.
-
-    :func:`nanoct.learn.predict.predict` stores the calibrated std (the raw std through the
-    map ``std_map`` of each pixel's predicted value, strictly increasing in the std,
-    :func:`nanoct.evaluation.metrics.apply_std_map`) and records ``{"std_map", "scale", "edge_scale",
-    "edge_sigma", ...}`` under ``calibration`` in the parameters of the result; the raw std is
-    recovered by inverting the map (:func:`nanoct.evaluation.metrics.invert_std_map`, with the stored
-    reconstruction as the values). A result calibrated by the one factor
-    only (no ``std_map`` recorded) stores ``scale * raw``: raw = stored / scale. Without a calibration
-    the stored std is the raw one and the returned dict is empty. ``recos``: the reconstructions
-    ``name`` at ``indices`` if the caller has read them already (else they are read).
-    """
-    cal = dict(store.reconstruction_params(name).get("calibration") or {})
-    recos = store.read_reconstruction(name, indices) if recos is None else recos
-    return raw_std(store.read_uncertainty(name, indices), cal, recos), cal
 
 
 def uncertainty_scores(
@@ -70,38 +50,49 @@ def uncertainty_scores(
     Parameters
     ----------
     stds, recos, gts : array (n, H, W)
-        Raw std, reconstructions (the network's mean) and ground truths.
+        The stored std (``uncertainty/<name>``), reconstructions (the network's mean) and ground truths.
     calibration : dict, optional
-        ``std_map`` and ``scale`` of the std and ``edge_scale`` / ``edge_sigma`` of the edge
-        baseline, fitted on validation data (:mod:`nanoct.learn.calibration`); without them the
-        scaled and calibrated coverages are None. The edge baseline is calibrated by its one
-        factor only.
+        The interval calibration stored with the prediction (:func:`nanoct.learn.calibration.fit_intervals`):
+        ``levels`` (each level's width ``map``, ``multiplier``, ``guaranteed_coverage``,
+        ``rcps_multiplier``: half-width :func:`nanoct.evaluation.conformal.half_width_of`), ``delta``,
+        ``edge_sigma`` and ``edge_multipliers``; without it no intervals are scored.
     support : bool array (n, H, W), optional
         The object's support (default :func:`nanoct.evaluation.metrics.support_mask` of ``gts``).
 
     Returns
     -------
     dict
-        ``std_error_corr`` (all pixels), ``uncertainty`` = {``all``, ``support``} and
-        ``edge_baseline`` = {``sigma``, ``scale``, ``all``, ``support``}, each region a
-        :func:`nanoct.evaluation.metrics.uncertainty_summary`.
+        ``std_error_corr`` (all pixels), ``uncertainty`` = {``all``, ``support``} (the std's
+        :func:`nanoct.evaluation.metrics.uncertainty_summary`, with the partial correlation given the
+        edge baseline), ``edge_baseline`` = {``sigma``, ``all``, ``support``} and ``guarantee`` =
+        {``delta``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``}}} (the
+        validation split's, empty without a calibration).
     """
     cal = calibration or {}
     support = support_mask(gts) if support is None else support
     sigma = float(cal.get("edge_sigma", EDGE_SIGMA))
     edges = edge_std(recos, sigma)
+    levels = cal.get("levels") or {}
 
-    def both(std: np.ndarray, scale: float | None, std_map: dict[str, Any] | None = None) -> dict[str, Any]:
+    def both(std: np.ndarray, entries: dict[str, dict[str, Any]], edge: np.ndarray | None) -> dict[str, Any]:
+        half = {k: half_width_of(std, v) for k, v in entries.items()}
         return {
-            "all": uncertainty_summary(std, recos, gts, scale=scale, std_map=std_map),
-            "support": uncertainty_summary(std, recos, gts, scale=scale, std_map=std_map, mask=support),
+            region: uncertainty_summary(std, recos, gts, half_widths=half, baseline=edge, mask=mask)
+            for region, mask in (("all", None), ("support", support))
         }
 
-    own = both(stds, cal.get("scale"), cal.get("std_map"))
+    own = both(stds, levels, edges)
+    edge_entries = {k: {"multiplier": q} for k, q in (cal.get("edge_multipliers") or {}).items()}
+    guarantee = {
+        k: {"multiplier": v["multiplier"], "guaranteed_coverage": v["guaranteed_coverage"]}
+        | {"rcps_multiplier": v["rcps_multiplier"]}
+        for k, v in levels.items()
+    }
     return {
         "std_error_corr": own["all"]["std_error_corr"],
         "uncertainty": own,
-        "edge_baseline": {"sigma": sigma, "scale": cal.get("edge_scale"), **both(edges, cal.get("edge_scale"))},
+        "edge_baseline": {"sigma": sigma, **both(edges, edge_entries, None)},
+        "guarantee": {"delta": cal.get("delta"), "levels": guarantee},
     }
 
 
@@ -131,7 +122,9 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
 
     ``names`` gives the reconstructions and their order (default: all present, sorted);
     those that do not cover the whole split are left out. Reconstructions with a pixel-wise
-    std also get :func:`uncertainty_scores` (the std's own scores and the edge baseline's).
+    std also get :func:`uncertainty_scores` of the stored std (the std's own scores and the edge
+    baseline's) and, where predict checked them, ``ood``: the split's samples it flagged as out
+    of distribution (``flagged``, ``fraction_flagged``, ``alpha``).
 
     Raises
     ------
@@ -153,8 +146,17 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
         recos = store.read_reconstruction(name, idx)
         results[name] = summarize(recos, gts)
         if store.has_uncertainty(name):
-            raw, cal = read_std(store, name, idx, recos)
-            results[name].update(uncertainty_scores(raw, recos, gts, cal, support))
+            cal = store.reconstruction_params(name).get("calibration")
+            stds = store.read_uncertainty(name, idx)
+            results[name].update(uncertainty_scores(stds, recos, gts, cal, support))
+            ood = store.reconstruction_note(name, "ood")
+            if ood is not None:
+                flagged = set(ood["flagged"])
+                results[name]["ood"] = {
+                    "alpha": ood["alpha"],
+                    "flagged": sorted(int(i) for i in idx if int(i) in flagged),
+                    "fraction_flagged": float(np.mean([int(i) in flagged for i in idx])),
+                }
     return results
 
 
@@ -193,56 +195,82 @@ def format_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _percent(cov: dict[str, float] | None) -> str:
-    return "-" if cov is None else " / ".join(f"{cov[k] * 100:.0f}" for k in ("1", "2", "3"))
-
-
 def _num(x: float | None, fmt: str = ".3f") -> str:
     return "-" if x is None or x != x else format(x, fmt)
 
 
-def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = "") -> str:
-    """Markdown table of the uncertainty scores: two rows (all pixels, support) per reconstruction with a std.
+def _pct(x: float | None) -> str:
+    return "-" if x is None or x != x else f"{100 * x:.1f}"
 
-    Columns: std/error correlation; coverage within 1/2/3 std side by side for the raw std, the
-    one-factor std (with its factor s) and the calibrated std (the map predict applied); AUSE
-    next to the random order's; the same for the edge baseline (coverage after its validation
-    scaling). Empty string when no result has a std.
+
+def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = "", level: str = "0.9") -> str:
+    """Markdown tables of the uncertainty scores: two rows (all pixels, support) per reconstruction with a std.
+
+    The first table scores the std's ranking next to the edge baseline's (Pearson and Spearman
+    correlation with |error|, partial correlation given the edge baseline, AUSE / random); the
+    second the calibrated intervals of each level (coverage, the validation guarantee, mean
+    half-width, the smallest and largest coverage of the width quintiles, spread of per-image
+    coverage); the edge baseline's coverage at ``level`` for comparison. Empty string when no
+    result has a std.
     """
     names = [n for n, r in results.items() if "uncertainty" in r]
     if not names:
         return ""
     lines = [f"### {title}", ""] if title else []
     lines += [
-        "| reconstruction | pixels | std/error corr | within 1/2/3 std, raw [%] | one factor [%] | factor s "
-        "| calibrated (map) [%] | AUSE / random (ratio) | edge: corr | edge: within 1/2/3 [%] "
-        "| edge: AUSE / random (ratio) |",
-        "|---" * 11 + "|",
+        "| reconstruction | pixels | corr | Spearman | partial corr. given edge | AUSE / random (ratio) "
+        "| edge: corr | edge: Spearman | edge: AUSE / random (ratio) | OOD flagged |",
+        "|---" * 10 + "|",
     ]
     for name in names:
         r, edge = results[name]["uncertainty"], results[name]["edge_baseline"]
+        ood = results[name].get("ood")
+        flagged = "-" if ood is None else f"{len(ood['flagged'])} ({_pct(ood['fraction_flagged'])} %)"
         for region in ("all", "support"):
             u, e = r[region], edge[region]
             lines.append(
-                f"| {name} | {region} | {_num(u['std_error_corr'])} | {_percent(u['coverage']['raw'])} "
-                f"| {_percent(u['coverage'].get('scaled'))} | {_num(u['scale'], '.3g')} "
-                f"| {_percent(u['coverage']['calibrated'])} "
+                f"| {name} | {region} | {_num(u['std_error_corr'])} | {_num(u['std_error_spearman'])} "
+                f"| {_num(u['partial_corr_given_baseline'])} "
                 f"| {_num(u['ause'])} / {_num(u['ause_random'])} ({_num(u['ause_ratio'], '.2f')}) "
-                f"| {_num(e['std_error_corr'])} | {_percent(e['coverage']['calibrated'])} "
-                f"| {_num(e['ause'])} / {_num(e['ause_random'])} ({_num(e['ause_ratio'], '.2f')}) |"
+                f"| {_num(e['std_error_corr'])} | {_num(e['std_error_spearman'])} "
+                f"| {_num(e['ause'])} / {_num(e['ause_random'])} ({_num(e['ause_ratio'], '.2f')}) | {flagged} |"
             )
+    lines += [
+        "",
+        "| reconstruction | pixels | level | coverage [%] | guaranteed (val.) [%] | mean half-width | width/error corr "
+        "| width quintiles: min / max coverage [%] | per image: min / max [%] (std) "
+        f"| edge at {level}: coverage [%] | edge: quintiles min / max [%] |",
+        "|---" * 11 + "|",
+    ]
+    for name in names:
+        r, edge, g = results[name]["uncertainty"], results[name]["edge_baseline"], results[name]["guarantee"]
+        for region in ("all", "support"):
+            e = edge[region]["intervals"].get(level)
+            e_cov = "-" if e is None else _pct(e["coverage"])
+            e_q = "-" if e is None else f"{_pct(min(e['coverage_by_width']))} / {_pct(max(e['coverage_by_width']))}"
+            for key, iv in r[region]["intervals"].items():
+                gc = g["levels"].get(key, {}).get("guaranteed_coverage")
+                q, im = iv["coverage_by_width"], iv["image_coverage"]
+                lines.append(
+                    f"| {name} | {region} | {key} | {_pct(iv['coverage'])} | {_pct(gc) if region == 'all' else ''} "
+                    f"| {iv['mean_half_width']:.3g} | {_num(iv['width_error_corr'])} | {_pct(min(q))} / {_pct(max(q))} "
+                    f"| {_pct(im['min'])} / {_pct(im['max'])} ({_pct(im['std'])}) "
+                    f"| {e_cov if key == level else ''} | {e_q if key == level else ''} |"
+                )
+    delta = next((results[n]["guarantee"]["delta"] for n in names if results[n]["guarantee"]["delta"]), None)
     sigma = results[names[0]]["edge_baseline"]["sigma"]
     lines += [
         "",
-        "A calibrated Gaussian std has 68 / 95 / 100 % (68.3 / 95.4 / 99.7) of the pixels within 1 / 2 / 3 std. "
-        "One factor = raw std times s; calibrated = the raw std through the increasing map from raw to "
-        "calibrated std that predict applies (fitted per bin of the raw std at 1, 2 and 3 std); both fitted "
-        "on the validation split. AUSE: area between the sparsification "
-        "curve (mean absolute error of the pixels left after removing those of largest std) and the oracle's, "
-        "normalised by the MAE of all pixels; random = the area of removing pixels in random order; ratio < 0.5 "
-        f"is 'below random by >= 50 %'. Edge: Gaussian(sigma = {sigma:g} px)-smoothed Sobel magnitude of the "
-        "mean, scaled on the validation split. Support: ground truth > 0 dilated by 2 px. Conventions: "
-        "docs/uncertainty.md.",
+        "All scores are computed on the stored std (`uncertainty/<name>`) and the intervals mean +- multiplier x "
+        "g(stored std), g the level's quantile of |error| given the std (strictly increasing) and the multiplier "
+        "of each level by split conformal prediction, both fitted on the validation split. "
+        f"Guaranteed: the per-image coverage that holds with probability {1 - (delta or 0.1):.0%} "
+        "(Hoeffding-Bentkus bound over the validation images). Partial corr.: Pearson correlation of the std "
+        "with |error| given the edge baseline. AUSE: area between the sparsification curve (mean absolute "
+        "error of the pixels left after removing those of largest std) and the oracle's, normalised by the MAE "
+        "of all pixels; random = the area of removing pixels in random order. Edge: Gaussian(sigma = "
+        f"{sigma:g} px)-smoothed Sobel magnitude of the mean, its multipliers fitted the same way. Support: "
+        "ground truth > 0 dilated by 2 px. Conventions: docs/uncertainty.md.",
     ]
     return "\n".join(lines) + "\n"
 

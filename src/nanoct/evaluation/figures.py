@@ -12,11 +12,14 @@ import numpy as np
 
 from ..io.fileio import atomic_write_bytes
 from ..io.store import DataStore
+
+# the figures read predictions, whose intervals the calibration defines
+from ..learn.calibration import half_width  # noqa: E402
 from ..names import parse_name, prediction_name
 from ..recon.fbp import fbp
 from ..sim.motion import plot_motion
-from .evaluate import format_uncertainty_table, read_std
-from .metrics import calibrated_std, reliability
+from .evaluate import format_uncertainty_table
+from .metrics import reliability
 
 __all__ = [
     "RELIABILITY_LEVELS",
@@ -139,10 +142,10 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
     """Figure like the paper's uncertainty figures: per (model, sample) the input, mean, absolute error and std.
 
     One row per (name, sample). The input is ``reconstructions/<input>`` of the name
-    (:func:`nanoct.names.parse_name`; an empty panel if absent); the std is the stored one
-    (calibrated where predict calibrated it, by the map or, for a result without a ``std_map``, by
-    a factor, said in the title). Error and std share a
-    colour scale per row so they can be compared directly.
+    (:func:`nanoct.names.parse_name`; an empty panel if absent); the last panel is the half-width
+    of the calibrated 90 % interval (:func:`nanoct.learn.calibration.half_width` of the stored
+    std; the stored std itself where the result has no calibration). Error and
+    half-width share a colour scale per row so they can be compared directly.
     """
     from matplotlib.figure import Figure
 
@@ -155,7 +158,11 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         input_name = str(store.reconstruction_params(name).get("input") or parse_name(name)[0])
         reco = store.read_reconstruction(name, [index])[0]
         std = store.read_uncertainty(name, [index])[0]
-        cal = store.reconstruction_params(name).get("calibration") or {}
+        params = store.reconstruction_params(name)
+        levels = (params.get("calibration") or {}).get("levels") or {}
+        level = "0.9" if "0.9" in levels else next(iter(levels), None)
+        if level is not None:
+            std = half_width(params, std, float(level))
         err = np.abs(reco - gt)
         top = float(max(err.max(), std.max())) or 1.0
         if input_name in present and input_name != name:
@@ -166,14 +173,8 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         ax_row[2].imshow(err, cmap="magma", vmin=0, vmax=top)
         ax_row[2].set_title("|mean - gt|", fontsize=9)
         im = ax_row[3].imshow(std, cmap="magma", vmin=0, vmax=top)
-        how = (
-            " (calibrated, map)"
-            if cal.get("std_map")
-            else f" (calibrated, s = {cal['scale']:.3g})"
-            if cal.get("scale")
-            else ""
-        )
-        ax_row[3].set_title("std" + how, fontsize=9)
+        label = "std" if level is None else f"{float(level):.0%} interval half-width"
+        ax_row[3].set_title(label, fontsize=9)
         fig.colorbar(im, ax=ax_row[3], shrink=0.8)
         for ax in ax_row:
             ax.set_xticks([])
@@ -188,33 +189,33 @@ def reliability_diagram(
     out: str | os.PathLike[str],
     levels: np.ndarray = RELIABILITY_LEVELS,
 ) -> Path:
-    """Reliability diagram: observed vs nominal coverage of central Gaussian intervals, raw and calibrated.
+    """Reliability diagram: observed vs nominal coverage, of the stored std read as a Gaussian and of the intervals.
 
-    One column per panel (e.g. per model), one line per reconstruction name; the top row uses
-    the raw std (:func:`nanoct.evaluation.evaluate.read_std`), the middle row the raw std times the one
-    factor s, the bottom row the calibrated std (the map predict applied, or the factor for a
-    result calibrated without a map).
-    Pixels of all ``indices`` are pooled; the interval of level p is ``|err| <= k_p std`` with
-    ``k_p`` the two-sided Gaussian quantile (:func:`nanoct.evaluation.metrics.reliability`). A calibrated
-    Gaussian std lies on the diagonal; above it the std is too wide, below too narrow.
+    One column per panel (e.g. per model), one line per reconstruction name. Top row: the stored
+    std read as a Gaussian std (interval of level p ``|err| <= k_p std``, ``k_p`` the two-sided
+    Gaussian quantile, :func:`nanoct.evaluation.metrics.reliability`); bottom row: the calibrated intervals
+    (:func:`nanoct.learn.calibration.half_width`) at their levels, with the coverage guaranteed on the validation
+    split (open markers). Pixels of all ``indices`` are pooled. On the diagonal a map is
+    calibrated; above it too wide, below too narrow.
     """
     from matplotlib.figure import Figure
 
     gts = store.read_phantoms(indices).astype(np.float64)
-    kinds = ("raw std", "one factor s", "calibrated std")
-    fig = Figure(figsize=(3.2 * len(panels), 9.0), layout="constrained")
+    kinds = ("stored std as a Gaussian std", "calibrated intervals (open: guaranteed)")
+    fig = Figure(figsize=(3.2 * len(panels), 6.2), layout="constrained")
     axes = fig.subplots(len(kinds), len(panels), squeeze=False, sharex=True, sharey=True)
     for col, (title, names) in enumerate(panels.items()):
         for name in names:
-            reco = store.read_reconstruction(name, indices)
-            err = reco - gts
-            raw, cal = read_std(store, name, indices, reco)
-            axes[0, col].plot(levels, reliability(err, raw, levels), marker=".", label=name)
-            if cal.get("scale"):
-                axes[1, col].plot(levels, reliability(err, raw * cal["scale"], levels), marker=".", label=name)
-            calibrated = calibrated_std(raw, cal, reco)
-            if calibrated is not None:
-                axes[2, col].plot(levels, reliability(err, calibrated, levels), marker=".", label=name)
+            err = np.abs(store.read_reconstruction(name, indices) - gts)
+            std = store.read_uncertainty(name, indices).astype(np.float64)
+            line = axes[0, col].plot(levels, reliability(err, std, levels), marker=".", label=name)[0]
+            params = store.reconstruction_params(name)
+            cal = (params.get("calibration") or {}).get("levels") or {}
+            nominal = [float(k) for k in cal]
+            observed = [float(np.mean(err <= half_width(params, std, float(k)))) for k in cal]
+            axes[1, col].plot(nominal, observed, marker="o", color=line.get_color(), label=name)
+            guaranteed = [v["guaranteed_coverage"] for v in cal.values()]
+            axes[1, col].plot(nominal, guaranteed, ls="none", marker="o", mfc="none", color=line.get_color())
         for row, kind in enumerate(kinds):
             ax = axes[row, col]
             ax.plot([0, 1], [0, 1], color="0.5", ls="--", lw=1)
@@ -296,12 +297,12 @@ def uncertainty_report(
     if not names:
         return ""
     idx = store.indices(split)
-    text = ["## Uncertainty", "", format_uncertainty_table(results, f"Pixel-wise std, split '{split}'")]
+    text = ["## Uncertainty", "", format_uncertainty_table(results, f"Pixel-wise std and intervals, split '{split}'")]
     for m, ns in names.items():
         uncertainty_maps(store, ns, [int(idx[0])], report / f"uncertainty_{m}.png")
-        text.append(f"### {m}: input, mean, |error|, std\n\n![{m}](uncertainty_{m}.png)\n")
+        text.append(f"### {m}: input, mean, |error|, 90 % half-width\n\n![{m}](uncertainty_{m}.png)\n")
     reliability_diagram(store, names, idx, report / "reliability.png")
-    text.append("### Reliability diagram (raw, one-factor and calibrated std)\n\n![reliability](reliability.png)\n")
+    text.append("### Reliability diagram (stored std, calibrated intervals)\n\n![reliability](reliability.png)\n")
     runs = {m: {i: Path(runs_dir) / f"{m}-{i}" for i in inputs} for m in names}
     training_curves(runs, report / "training_curves.png", column="val_nll_bpd")
     text.append("### Validation NLL per epoch\n\n![training curves](training_curves.png)\n")

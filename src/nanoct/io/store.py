@@ -449,6 +449,14 @@ class DataStore:
         """Parameters stored with reconstruction ``name``."""
         return self.recons.params(name)
 
+    def reconstruction_note(self, name: str, key: str) -> Any:
+        """A note recorded with reconstruction ``name`` (None if absent)."""
+        return self.recons.note(name, key)
+
+    def set_reconstruction_note(self, name: str, key: str, value: Any) -> None:
+        """Record a JSON value under ``key`` with reconstruction ``name``."""
+        self.recons.set_note(name, key, value)
+
     # ------------------------------------------------------------------ summary
     def verify(self) -> dict[str, list[int]]:
         """Read every written sample and reconstruction; ``{array: damaged indices}`` for those with damage.

@@ -241,6 +241,14 @@ class ReconstructionArrays:
         """Record JSON-able facts about the motion of ``name`` (one attribute)."""
         self._group[f"reconstructions/{name}"].attrs["motion_info"] = json.loads(json.dumps(info))
 
+    def note(self, name: str, key: str) -> Any:
+        """A note recorded with reconstruction ``name`` (:meth:`set_note`; None if absent)."""
+        return self._group[f"reconstructions/{name}"].attrs.get(f"note_{key}")
+
+    def set_note(self, name: str, key: str, value: Any) -> None:
+        """Record a JSON value under ``key`` with reconstruction ``name`` (e.g. predict's out-of-distribution flags)."""
+        self._group[f"reconstructions/{name}"].attrs[f"note_{key}"] = json.loads(json.dumps(value))
+
     def params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
         return dict(self._group[f"reconstructions/{name}"].attrs.get("params", {}))

@@ -1,22 +1,26 @@
-"""Calibration of a sampling network's std on the validation split, stored with its run.
+"""Interval calibration of a sampling network's std on the validation split, stored with its run.
 
-The std of a conditional invertible network (over M latent samples) is rarely calibrated: far
-more (or fewer) than 68 % of the pixels fall within one std of the mean. Per run and checkpoint,
-on the validation split of the data set and input the network was trained on (the test split is
-never read), two calibrations are fitted: a map from raw to calibrated std, strictly increasing
-in the std, for each quartile of the predicted value (:func:`nanoct.evaluation.metrics.fit_value_std_map`,
-fitted bin by bin of the raw std at 1, 2 and 3 std), which is the one applied, and, for
-comparison, one factor ``s`` making ``s * std`` cover 68.27 % of the validation pixels
-(temperature scaling). On the same validation outputs the factor of the edge baseline
-(:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) is fitted, so that its coverage can be
-compared at equal footing.
+The std of a conditional invertible network (over M latent samples) ranks the pixels by how
+uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
+split of the data set and input the network was trained on (the test split is never read),
+per interval level a strictly increasing width map of the std and a multiplier are fitted
+(:func:`fit_intervals`): the interval of level ``p`` is ``mean +- multiplier_p * g_p(std)``,
+``g_p`` the ``p`` quantile of |error| given the std (monotone, binned in the std:
+:func:`nanoct.evaluation.conformal.fit_width_map`), the multiplier by split-conformal prediction,
+stated with the coverage that holds with probability ``1 - delta`` (Hoeffding-Bentkus,
+risk-controlling prediction sets; :mod:`nanoct.evaluation.conformal`). The half-width is
+strictly increasing in the std, so it keeps the network's ranking of the pixels exactly. On
+the same validation outputs the multipliers of the edge baseline
+(:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
+validation images' std level is kept for the out-of-distribution check of
+:func:`nanoct.learn.predict.predict`.
 
 The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
 An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
-input and sampling arguments (M); otherwise it is fitted again. Validation outputs are made as
-:func:`nanoct.learn.predict.predict` makes them: one image at a time, latent samples seeded
-with the sample index, so the fit sees exactly the std that ``predict --split val`` would store.
-Conventions and the metrics: ``docs/uncertainty.md``.
+input, sampling arguments (M), levels and delta; otherwise it is fitted again. Validation
+outputs are made as :func:`nanoct.learn.predict.predict` makes them: one image at a time,
+latent samples seeded with the sample index, so the fit sees exactly the std that
+``predict --split val`` stores. Conventions and the metrics: ``docs/uncertainty.md``.
 """
 
 from __future__ import annotations
@@ -32,15 +36,17 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError
-from ..evaluation.metrics import (
-    EDGE_SIGMA,
-    GAUSSIAN_COVERAGE,
-    apply_std_map,
-    coverage,
-    edge_std,
-    fit_std_scale,
-    fit_value_std_map,
+from ..evaluation.conformal import (
+    DEFAULT_DELTA,
+    DEFAULT_LEVELS,
+    conformal_multiplier,
+    fit_width_map,
+    guaranteed_coverage,
+    half_width_of,
+    level_key,
+    rcps_multiplier,
 )
+from ..evaluation.metrics import EDGE_SIGMA, edge_std
 from ..io.fileio import atomic_write_text
 from ..io.store import DataStore
 from .base import PostProcessor
@@ -53,16 +59,21 @@ __all__ = [
     "CALIBRATION_FILE",
     "CALIBRATION_FORMAT",
     "Inference",
+    "OOD_ALPHA",
     "calibrate",
-    "fit_scales",
+    "fit_intervals",
+    "half_width",
+    "image_statistic",
     "load_calibration",
+    "ood_p_values",
     "sample_outputs",
 ]
 
 CALIBRATION_FILE = "calibration.json"
-#: Version of a calibration entry; entries of another version are fitted again (2: the std map;
-#: 3: one std map per bin of the predicted value).
-CALIBRATION_FORMAT = 3
+#: Version of a calibration entry; entries of another version are fitted again.
+CALIBRATION_FORMAT = 5
+#: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
+OOD_ALPHA = 0.05
 
 
 def _sha256(path: Path) -> str:
@@ -82,29 +93,20 @@ def _n_samples(model_name: str, kwargs: dict[str, Any]) -> int | None:
 
 
 class Inference:
-    """A model on its device (channels-last on CPU), called on a batch: (mean, calibrated std or None) as numpy.
+    """A model on its device (channels-last on CPU), called on a batch: (mean, raw std or None) as numpy.
 
     A sampling model is called one image at a time with ``seed`` = the sample's index, so a
-    prediction does not depend on batching or resumption; its std goes through ``std_map``
-    (:func:`nanoct.evaluation.metrics.apply_std_map` with the mean as the predicted values; None keeps the
-    raw std).
-    :func:`nanoct.learn.predict.predict` and :func:`sample_outputs` both use it, so the calibration
-    sees exactly the std that predict stores.
+    prediction does not depend on batching or resumption. :func:`nanoct.learn.predict.predict`
+    and :func:`sample_outputs` both use it, so the calibration sees exactly the std that predict
+    stores.
     """
 
-    def __init__(
-        self,
-        model: Any,
-        kwargs: dict[str, Any],
-        sampling: bool,
-        std_map: dict[str, Any] | None,
-        device: str | torch.device | None,
-    ) -> None:
+    def __init__(self, model: Any, kwargs: dict[str, Any], sampling: bool, device: str | torch.device | None) -> None:
         self.dev = resolve_device(device)
         self.channels_last = self.dev.type == "cpu"
         model = model.to(self.dev, memory_format=torch.channels_last) if self.channels_last else model.to(self.dev)
         model.eval()
-        self.model, self.kwargs, self.sampling, self.std_map = model, kwargs, sampling, std_map
+        self.model, self.kwargs, self.sampling = model, kwargs, sampling
 
     def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
         x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
@@ -115,13 +117,11 @@ class Inference:
             mean, std = self.model.reconstruct(x, **call)
         mean_np = mean.float().cpu().numpy()[:, 0]
         std_np = None if std is None else std.float().cpu().numpy()[:, 0]
-        if std_np is not None and self.std_map is not None:
-            if not (np.isfinite(std_np).all() and np.isfinite(mean_np).all()):
-                raise NanoctError(
-                    f"the {self.model.name} network gave a non-finite mean or std for sample {first_index}; "
-                    "its checkpoint is damaged or training diverged: train it again"
-                )
-            std_np = apply_std_map(std_np, self.std_map, mean_np).astype(np.float32)
+        if std_np is not None and not (np.isfinite(std_np).all() and np.isfinite(mean_np).all()):
+            raise NanoctError(
+                f"the {self.model.name} network gave a non-finite mean or std for sample {first_index}; "
+                "its checkpoint is damaged or training diverged: train it again"
+            )
         return mean_np, std_np
 
 
@@ -145,7 +145,7 @@ def sample_outputs(
     """
     from tqdm.auto import tqdm
 
-    infer = Inference(model, dict(reconstruct_kwargs or {}), True, None, device)
+    infer = Inference(model, dict(reconstruct_kwargs or {}), True, device)
     n = store.geometry.n
     means, stds = np.empty((len(indices), n, n), np.float32), np.empty((len(indices), n, n), np.float32)
     for j, i in enumerate(tqdm(indices, desc="calibrate", unit="img", disable=not progress)):
@@ -156,47 +156,122 @@ def sample_outputs(
     return means, stds
 
 
-def fit_scales(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, edge_sigma: float = EDGE_SIGMA) -> dict[str, Any]:
-    """Fit the std's calibration map, its one factor and the edge baseline's factor on validation outputs.
+def image_statistic(stds: np.ndarray) -> np.ndarray:
+    """The out-of-distribution statistic of each image: its mean raw std (the network's std level)."""
+    return np.asarray(stds, np.float64).reshape(len(stds), -1).mean(axis=1)
 
-    The map is :func:`nanoct.evaluation.metrics.fit_value_std_map` (coverage at 1, 2 and 3 std, bin by bin
-    of the raw std, within each quartile of the mean); each factor is
-    :func:`nanoct.evaluation.metrics.fit_std_scale` at the Gaussian 1-std level (68.27 %). All pixels of
-    all images are pooled.
+
+def ood_p_values(values: np.ndarray, reference: list[float] | np.ndarray) -> np.ndarray:
+    """Conformal p-values of images' statistics against the validation images' (larger = more unusual).
+
+    ``p = (1 + #{reference >= value}) / (n + 1)``: for an image exchangeable with the n validation
+    images, ``P(p <= a) <= a``, so flagging ``p <= a`` wrongly flags at most a fraction ``a`` of
+    in-distribution images.
+    """
+    ref = np.sort(np.asarray(reference, np.float64))
+    above = ref.size - np.searchsorted(ref, np.asarray(values, np.float64), side="left")
+    return (1.0 + above) / (ref.size + 1.0)
+
+
+def fit_intervals(
+    means: np.ndarray,
+    stds: np.ndarray,
+    gts: np.ndarray,
+    levels: tuple[float, ...] = DEFAULT_LEVELS,
+    delta: float = DEFAULT_DELTA,
+    edge_sigma: float = EDGE_SIGMA,
+) -> dict[str, Any]:
+    """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
+
+    For each level: the width map ``g`` of the std (:func:`nanoct.evaluation.conformal.fit_width_map`,
+    the level's quantile of |error| in 20 bins of the std, strictly increasing), the
+    split-conformal multiplier of ``g(std)``
+    (:func:`nanoct.evaluation.conformal.conformal_multiplier`, all pixels of all images pooled), the
+    coverage it keeps with probability ``1 - delta`` (:func:`~nanoct.evaluation.conformal.guaranteed_coverage`,
+    Hoeffding-Bentkus over the images), the risk-controlling multiplier
+    (:func:`~nanoct.evaluation.conformal.rcps_multiplier`; None where the images are too few for any
+    guarantee at that level), and the validation coverage; the same conformal multiplier for the
+    edge baseline (:func:`nanoct.evaluation.metrics.edge_std` of the mean). Also the validation
+    images' out-of-distribution statistic (:func:`image_statistic`).
 
     Returns
     -------
     dict
-        ``std_map`` (the knots, applied by predict), ``level``, ``scale`` (the one factor), and
-        the validation coverages at 1/2/3 std ``coverage_raw``, ``coverage_scaled`` (one factor)
-        and ``coverage_calibrated`` (map) of the network's std; ``edge_sigma``, ``edge_scale``,
-        ``edge_coverage`` (after scaling).
+        ``delta``, ``levels`` = {level key: {``map``, ``multiplier``, ``guaranteed_coverage``,
+        ``rcps_multiplier``, ``val_coverage``}}, ``edge_sigma``, ``edge_multipliers`` =
+        {level key: multiplier}, ``ood`` = {``statistic``: "mean_std", ``alpha``, ``val``: the
+        validation images' values, sorted}.
 
     Raises
     ------
     NanoctError
-        If no positive finite factor or map exists (e.g. a std that is zero where the error is not).
+        If no positive finite multiplier exists (e.g. a std that is zero where the error is not).
     """
     err = np.abs(np.asarray(means, np.float64) - np.asarray(gts, np.float64))
     stds = np.asarray(stds, np.float64)
     edges = edge_std(means, edge_sigma)
-    level = GAUSSIAN_COVERAGE["1"]
+    fitted: dict[str, Any] = {}
+    edge_fit: dict[str, float] = {}
     try:
-        scale, edge_scale = fit_std_scale(err, stds, level), fit_std_scale(err, edges, level)
-        std_map = fit_value_std_map(err, stds, means)
+        for level in levels:
+            key = level_key(level)
+            width_map = fit_width_map(err, stds, level)
+            scaled = half_width_of(stds, {"map": width_map, "multiplier": 1.0})
+            q = conformal_multiplier(err, scaled, level)
+            try:
+                rcps: float | None = rcps_multiplier(err, scaled, level, delta)
+            except ValueError:
+                rcps = None
+            fitted[key] = {
+                "map": width_map,
+                "multiplier": q,
+                "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta),
+                "rcps_multiplier": rcps,
+                "val_coverage": float(np.mean(err <= q * scaled)),
+            }
+            edge_fit[key] = conformal_multiplier(err, edges, level)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
-        "std_map": std_map,
-        "level": level,
-        "scale": scale,
-        "coverage_raw": coverage(err, stds),
-        "coverage_scaled": coverage(err, scale * stds),
-        "coverage_calibrated": coverage(err, apply_std_map(stds, std_map, means)),
+        "delta": float(delta),
+        "levels": fitted,
         "edge_sigma": float(edge_sigma),
-        "edge_scale": edge_scale,
-        "edge_coverage": coverage(err, edge_scale * edges),
+        "edge_multipliers": edge_fit,
+        "ood": {"statistic": "mean_std", "alpha": OOD_ALPHA, "val": sorted(image_statistic(stds).tolist())},
     }
+
+
+def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False) -> np.ndarray:
+    """The half-width of the interval of ``level`` of a prediction: ``multiplier * g(std)`` (float64).
+
+    ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
+    std. ``guaranteed`` takes the risk-controlling multiplier (coverage guaranteed with
+    probability ``1 - delta``) instead of the split-conformal one.
+
+    Raises
+    ------
+    NanoctError
+        If the prediction has no calibration, was not calibrated at ``level``, or (``guaranteed``)
+        the validation split was too small for a guarantee at that level.
+    """
+    cal = params.get("calibration") or {}
+    levels = cal.get("levels")
+    if not levels:
+        raise NanoctError("this prediction has no interval calibration; predict it again without --no-calibrate")
+    key = level_key(level)
+    if key not in levels:
+        raise NanoctError(
+            f"no interval of level {key} was calibrated (levels: {', '.join(levels)}); predict again with "
+            f"--levels including {key}"
+        )
+    which = "rcps_multiplier" if guaranteed else "multiplier"
+    if levels[key][which] is None:
+        raise NanoctError(
+            f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
+            f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
+            "leave out --guaranteed or choose a lower level"
+        )
+    return half_width_of(std, levels[key], which)
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
@@ -218,6 +293,8 @@ def calibrate(
     device: str | torch.device | None = None,
     progress: bool = False,
     refit: bool = False,
+    levels: tuple[float, ...] = DEFAULT_LEVELS,
+    delta: float = DEFAULT_DELTA,
 ) -> dict[str, Any]:
     """The calibration of a run's checkpoint: reused from ``calibration.json`` if valid, else fitted and stored.
 
@@ -235,19 +312,23 @@ def calibrate(
         As for :func:`nanoct.learn.predict.predict`.
     refit : bool
         Fit again even if a valid entry exists.
+    levels : tuple of float
+        Interval levels (nominal coverage, each in (0, 1)); part of the validity key.
+    delta : float
+        The guarantee's failure probability; part of the validity key.
 
     Returns
     -------
     dict
         The entry: what it was fitted for (``format``, ``checkpoint``, ``checkpoint_sha256``,
         ``epoch``, ``store``, ``input``, ``reconstruct``, ``n_samples``, ``split`` = "val",
-        ``n_images``) and :func:`fit_scales`'s result.
+        ``n_images``) and :func:`fit_intervals`'s result.
 
     Raises
     ------
     NanoctError
         A missing or bad checkpoint, a network without std, an empty validation split or an
-        incomplete input, or validation outputs that admit no factor or map.
+        incomplete input, levels outside (0, 1), or validation outputs that admit no multiplier.
     """
     store = store if isinstance(store, DataStore) else DataStore.open(store)
     run = Path(run_dir)
@@ -260,7 +341,11 @@ def calibrate(
         "store": str(store.path.resolve()),
         "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
         "split": "val",
+        "level_keys": [level_key(v) for v in levels],
+        "delta": float(delta),
     }
+    if not 0 < delta < 1:
+        raise NanoctError(f"delta {delta} must lie strictly between 0 and 1 (e.g. 0.1)")
     old = entries.get(checkpoint)
     if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
         return old  # the same checkpoint file (so the same model, input and epoch), data set and M
@@ -287,7 +372,9 @@ def calibrate(
     check_input(store, key["input"], val, "val")
     model = model_from_checkpoint(ckpt, ckpt_path)
     means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
-    entry = key | {"n_images": int(val.size)} | fit_scales(means, stds, store.read_phantoms(val))
+    entry = (
+        key | {"n_images": int(val.size)} | fit_intervals(means, stds, store.read_phantoms(val), tuple(levels), delta)
+    )
     entries[checkpoint] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry

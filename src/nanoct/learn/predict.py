@@ -5,8 +5,11 @@ network was trained on, and to ``reconstructions/<input>+<model>@<train_input>``
 network trained on one method is applied to another (the paper's input-mixing tables).
 Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
 latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
-not depend on batching or on interruptions; their std is stored calibrated, through the map
-from raw to calibrated std fitted on the validation split (:mod:`nanoct.learn.calibration`).
+not depend on batching or on interruptions. The stored std is the network's own (raw) std;
+the calibration fitted on the validation split (:mod:`nanoct.learn.calibration`: one multiplier
+per interval level) is stored with the parameters, so the interval of level p is
+``mean +- multiplier_p * stored std``, and images whose std level is unlike the validation
+split's are flagged (a warning, and the note ``ood`` of the result).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -24,17 +28,22 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError, StoreError
+from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS
 from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..names import prediction_name
-from .calibration import Inference
+from .calibration import Inference, image_statistic, ood_p_values
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
 
-__all__ = ["predict"]
+__all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
+
+
+class OutOfDistributionWarning(UserWarning):
+    """Some predicted images look unlike the validation split the intervals were calibrated on."""
 
 
 def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any]:
@@ -88,6 +97,8 @@ def predict(
     name: str | None = None,
     reconstruct_kwargs: dict[str, Any] | None = None,
     calibrate: bool = True,
+    levels: tuple[float, ...] = DEFAULT_LEVELS,
+    delta: float = DEFAULT_DELTA,
 ) -> str:
     """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
 
@@ -117,12 +128,12 @@ def predict(
         Passed to the model's ``reconstruct`` (e.g. the number of samples of a CiNN); stored
         with the result.
     calibrate : bool
-        For networks with a std: store the calibrated std, the raw std through the map of the
-        run's calibration on the validation split (:func:`nanoct.learn.calibration.calibrate`,
-        fitted first if the run has none for this checkpoint and these sampling arguments;
-        :func:`nanoct.evaluation.metrics.apply_std_map`), and record the calibration under ``calibration``
-        in the stored parameters (raw std = :func:`nanoct.evaluation.metrics.invert_std_map` of the stored
-        one). False stores the raw std.
+        For networks with a std: fit (or reuse) the run's interval calibration on the validation
+        split (:func:`nanoct.learn.calibration.calibrate`) and record it under ``calibration`` in
+        the stored parameters; after predicting, check each image of ``split`` for being out of
+        distribution (:func:`ood_check`). The stored std is the raw std either way.
+    levels, delta
+        Interval levels and the guarantee's failure probability of the calibration.
 
     Returns
     -------
@@ -175,10 +186,9 @@ def predict(
         "train_input": train_input,
         "reconstruct": kwargs,
     }
-    std_map = None
     if sampling and calibrate:
-        cal = calibrate_run(store, run, checkpoint, reconstruct_kwargs=kwargs, device=device, progress=progress)
-        params["calibration"], std_map = cal, cal["std_map"]
+        fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
+        params["calibration"] = calibrate_run(store, run, checkpoint, delta=delta, **fit)
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
         params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
@@ -192,9 +202,46 @@ def predict(
         todo = indices[~store.reconstruction_done(out, indices)]
         if todo.size:
             model = model_from_checkpoint(ckpt, ckpt_path)
-            infer = Inference(model, kwargs, sampling, std_map, device)
+            infer = Inference(model, kwargs, sampling, device)
             _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
+        if "calibration" in params:
+            ood_check(store, out, indices)
     return out
+
+
+def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any]:
+    """Flag the images of a calibrated prediction whose std level is unlike the validation split's.
+
+    The statistic of each image (:func:`nanoct.learn.calibration.image_statistic`, its mean std) gets a
+    conformal p-value against the validation images' (:func:`nanoct.learn.calibration.ood_p_values`);
+    ``p <= alpha`` (the calibration's ``ood.alpha``) flags it, which wrongly flags at most a
+    fraction alpha of in-distribution images. The record (merged with earlier ones of other
+    samples) is stored as the note ``ood`` of ``name`` and a :class:`OutOfDistributionWarning`
+    names the flagged samples: their intervals may not hold their level.
+
+    Returns
+    -------
+    dict
+        ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices).
+    """
+    ood = store.reconstruction_params(name)["calibration"]["ood"]
+    stds = store.read_uncertainty(name, indices)
+    p = ood_p_values(image_statistic(stds), ood["val"])
+    old = store.reconstruction_note(name, "ood") or {}
+    p_values = {**old.get("p_values", {}), **{str(int(i)): float(v) for i, v in zip(indices, p)}}
+    flagged = sorted(int(i) for i, v in p_values.items() if v <= ood["alpha"])
+    record = {"statistic": ood["statistic"], "alpha": ood["alpha"], "p_values": p_values, "flagged": flagged}
+    store.set_reconstruction_note(name, "ood", record)
+    new = [int(i) for i, v in zip(indices, p) if v <= ood["alpha"]]
+    if new:
+        warnings.warn(
+            f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution (std level "
+            f"above the validation split's, p <= {ood['alpha']}): samples {new[:10]}{' ...' if len(new) > 10 else ''}; "
+            "their intervals may not hold their stated level",
+            OutOfDistributionWarning,
+            stacklevel=2,
+        )
+    return record
 
 
 def _write_outputs(
