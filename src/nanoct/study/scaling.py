@@ -20,9 +20,8 @@ import json
 import math
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -45,7 +44,6 @@ __all__ = [
     "plan_scaling",
     "run_scaling",
     "scaling_units",
-    "toy_study",
 ]
 
 _RECONS = {"fbp": ("fbp", {}), "dremel": ("dremel", {}), "resesop": ("resesop", {"eta_scale": 1.0})}
@@ -429,9 +427,3 @@ def format_scaling_plan(plan: dict, study: ScalingStudy) -> str:
 
 def _duration(seconds: float) -> str:
     return f"{seconds:,.0f} s" + (f" ({seconds / 3600:.2f} h)" if seconds >= 600 else "")
-
-
-def toy_study(**changes: Any) -> ScalingStudy:
-    """A minute-sized study of the same shape (tests, smoke runs): 8/16/32 images, few steps."""
-    base = ScalingStudy(sizes=(8, 16, 32), seeds=(3, 2, 2), steps=4, long_factor=2, n_val=4, n_test=4)
-    return replace(base, **changes)
