@@ -522,6 +522,9 @@ def scaling(
     steps: int = typer.Option(640, "--steps", help="Optimiser steps of every run (the same at every size)."),
     sizes: str = typer.Option("160,640,2560", "--sizes", help="Comma-separated training-set sizes."),
     seeds: str = typer.Option("3,2,2", "--seeds", help="Training seeds at each size (comma-separated)."),
+    only: str | None = typer.Option(
+        None, "--only", help="Run only the units whose run name matches this shell pattern (e.g. 'unet-dremel-*')."
+    ),
     workers: int = WORKERS,
     quiet: bool = QUIET,
 ) -> None:
@@ -544,7 +547,7 @@ def scaling(
     if plan:
         typer.echo(format_scaling_plan(plan_scaling(study, out), study))
         return
-    report = run_scaling(out, study, workers=workers, progress=not quiet)
+    report = run_scaling(out, study, only=only, workers=workers, progress=not quiet)
     typer.echo(report.read_text())
     typer.echo(f"report: {report}", err=True)
 

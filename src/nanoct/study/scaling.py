@@ -16,6 +16,7 @@ reports curves (:mod:`nanoct.study.scaling_report`).
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import math
 import tempfile
@@ -228,14 +229,23 @@ def _record_seconds(path: Path, key: str, seconds: float) -> None:
     atomic_write_text(path, json.dumps(times, indent=2, sort_keys=True))
 
 
-def run_scaling(out: str | Path, study: ScalingStudy | None = None, *, workers: int = 2, progress: bool = True) -> Path:
+def run_scaling(
+    out: str | Path,
+    study: ScalingStudy | None = None,
+    *,
+    only: str | None = None,
+    workers: int = 2,
+    progress: bool = True,
+) -> Path:
     """Run (or continue) the study in ``out`` and write its report; returns the Markdown report's path.
 
     Stages: the data set (``out/data``), the first reconstructions of every sample, then the units
     of :func:`scaling_units` one after another (``out/runs/<unit>``), each trained and then
     predicted on the test split, then the report (:func:`nanoct.study.scaling_report.write_scaling_report`).
     The wall time of every stage and unit is added to ``out/seconds.json``. The study's definition
-    is written to ``out/study.json``; a directory of another definition is refused.
+    is written to ``out/study.json``; a directory of another definition is refused. ``only``: a
+    shell pattern of unit run names (``unet-dremel-*``) to run in this sitting; the others are
+    left for a later one (the report marks the points it lacks as partial).
 
     Raises
     ------
@@ -270,7 +280,7 @@ def run_scaling(out: str | Path, study: ScalingStudy | None = None, *, workers: 
             progress=progress,
         )
         _record_seconds(seconds, f"reconstruction/{name}", time.perf_counter() - t0)
-    units = scaling_units(study)
+    units = [u for u in scaling_units(study) if only is None or fnmatch.fnmatchcase(u.run, only)]
     for unit in tqdm(units, desc="scaling units", unit="unit", disable=not progress):
         if _unit_done(store, unit):
             continue
