@@ -78,6 +78,16 @@ def test_plan_adds_the_measured_costs():
     assert plan["total"] == pytest.approx(sum(r["seconds"] for r in plan["rows"]))
 
 
+def test_plan_prices_remaining_units_by_finished_ones(tmp_path):
+    study = ScalingStudy(sizes=(16, 32), seeds=(1, 1), steps=4, long_seeds=0, n_val=2, n_test=3, models=("unet",))
+    costs = {"generate": 0.5, "recon/fbp": 0.1, "recon/dremel": 1.0, "recon/resesop": 0.2}
+    costs |= {"step/unet": 2.0, "forward/unet": 0.01}
+    (tmp_path / "seconds.json").write_text(json.dumps({"unit/unet-fbp-n16x4": 40.0, "data": 3.0}))
+    plan = plan_scaling(study, tmp_path, costs)
+    assert plan["unit_step"] == {"unet": 10.0}
+    assert next(r for r in plan["rows"] if r["stage"] == "units at 4 steps")["seconds"] == pytest.approx(6 * 4 * 10.0)
+
+
 @pytest.mark.slow
 def test_toy_study_runs_resumes_and_reports(tmp_path, monkeypatch):
     out = tmp_path / "scaling"

@@ -367,14 +367,26 @@ def plan_scaling(study: ScalingStudy, out: str | Path | None = None, costs: dict
     ``costs``: :func:`measure_costs`'s figures (measured when not given). Training units cost
     ``steps`` steps plus one validation pass per epoch; predictions cost the forward passes over
     the test split (the invertible network: ``n_samples`` latent samples over test and
-    validation, the calibration). Checkpoint writes are not counted.
+    validation, the calibration). Checkpoint writes are not counted. Where ``out`` already holds
+    finished units of a network, their measured wall time per step (``seconds.json``: training,
+    validation, checkpoints and prediction) prices that network's remaining units instead.
 
     Returns
     -------
     dict
-        ``rows`` (stage, jobs, done, seconds still to spend), ``total`` seconds, ``costs``.
+        ``rows`` (stage, jobs, done, seconds still to spend), ``total`` seconds, ``costs`` and
+        ``unit_step`` (per network: measured seconds per step of finished units, if any).
     """
     costs = measure_costs(study) if costs is None else costs
+    measured = {}
+    if out is not None and (Path(out) / "seconds.json").exists():
+        measured = json.loads((Path(out) / "seconds.json").read_text())
+    unit_step = {}
+    for m in study.models:
+        finished = [u for u in scaling_units(study) if u.model == m and f"unit/{u.run}" in measured]
+        per_step = [measured[f"unit/{u.run}"] / u.steps for u in finished]
+        if per_step:
+            unit_step[m] = float(np.mean(per_step))
     store = None
     if out is not None and (Path(out) / "data").exists():
         try:
@@ -397,13 +409,17 @@ def plan_scaling(study: ScalingStudy, out: str | Path | None = None, costs: dict
         left = [u for u in chosen if store is None or not _unit_done(store, u)]
         sec = 0.0
         for u in left:
+            if u.model in unit_step:
+                sec += u.steps * unit_step[u.model]
+                continue
             fwd = costs[f"forward/{u.model}"]
             val = u.epochs(model_spec(u.model).batch_size) * study.n_val * fwd
             inn = model_class(u.model).has_uncertainty
             pred = (study.n_test + study.n_val) * study.base.n_samples * fwd if inn else study.n_test * fwd
             sec += u.steps * costs[f"step/{u.model}"] + val + pred
         rows.append(_PlanRow(label, len(chosen), len(chosen) - len(left), sec))
-    return {"rows": [asdict(r) for r in rows], "total": sum(r.seconds for r in rows), "costs": costs}
+    total = sum(r.seconds for r in rows)
+    return {"rows": [asdict(r) for r in rows], "total": total, "costs": costs, "unit_step": unit_step}
 
 
 def format_scaling_plan(plan: dict, study: ScalingStudy) -> str:
@@ -431,6 +447,11 @@ def format_scaling_plan(plan: dict, study: ScalingStudy) -> str:
         + "; per image forward (invertible: per latent sample): "
         + ", ".join(f"{m} {c[f'forward/{m}'] * 1000:.1f} ms" for m in study.models)
     )
+    if plan.get("unit_step"):
+        lines.append(
+            "- remaining units priced by the finished ones (wall seconds per step, all included): "
+            + ", ".join(f"{m} {v:.3f} s" for m, v in plan["unit_step"].items())
+        )
     lines.append("- a loaded or shared machine takes longer; checkpoint writes are not counted")
     return "\n".join(lines) + "\n"
 
