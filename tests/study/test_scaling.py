@@ -126,6 +126,7 @@ def test_toy_study_runs_resumes_and_reports(tmp_path, monkeypatch):
     assert any(c["claim"] == "unet_largest_gain" for c in first["checks"])
     text = report.read_text()
     assert "complete" in text and "| FBP + UNet | PSNR gain dB |" in text and "![PSNR gain" in text
+    assert "| Dremel + CiUNetRes |" in text and "(epoch " in text  # the training diagnostics
     assert (out / "scaling.png").read_bytes()[:4] == b"\x89PNG"
     # a rerun trains nothing; another definition in the same folder is refused
     t = time.perf_counter()

@@ -95,6 +95,47 @@ def _summary(study: ScalingStudy, scores: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _log_summary(path: Path) -> tuple[float, float, int, int]:
+    """(last train loss, best validation loss, its epoch, epochs) of a run's log."""
+    import csv
+
+    with open(path) as f:
+        log = list(csv.DictReader(f))
+    best = min(log, key=lambda r: float(r["val_loss"]))
+    return float(log[-1]["train_loss"]), float(best["val_loss"]), int(best["epoch"]), len(log)
+
+
+def _diagnostics(out: Path, study: ScalingStudy, scores: dict[str, Any]) -> list[str]:
+    """Per point and row: last epoch's train loss, best validation loss and its epoch, mean over measured seeds.
+
+    A train loss far below the validation loss points to too little data (over-fitting), both
+    close and high to too little training or capacity.
+    """
+    points = scaling_points(study)
+    head = " | ".join(f"{k:,} img, {steps} steps" for k, steps in points)
+    lines = [
+        f"| row | {head} |",
+        "|---|" + "---|" * len(points),
+    ]
+    units = scaling_units(study)
+    for model in study.models:
+        for i in study.inputs:
+            cells = []
+            for k, steps in points:
+                rows = [
+                    _log_summary(out / "runs" / u.run / "log.csv")
+                    for u in units
+                    if (u.model, u.input, u.n_train, u.steps) == (model, i, k, steps) and u.name in scores
+                ]
+                if rows:
+                    t, v, e, n = (float(np.mean([r[j] for r in rows])) for j in range(4))
+                    cells.append(f"{t:.4g} / {v:.4g} (epoch {e:.0f} of {n:.0f})")
+                else:
+                    cells.append("–")
+            lines.append(f"| {_NAMES[i]} + {_NAMES[model]} | {' | '.join(cells)} |")
+    return lines
+
+
 def _fmt(values: list[float], digits: int) -> str:
     if not values:
         return "–"
@@ -218,6 +259,14 @@ def write_scaling_report(out: str | Path, study: ScalingStudy) -> Path:
         *_check_table(summary),
         "",
         "![PSNR gain against training-set size](scaling.png)",
+        "",
+        "## Training: last epoch's train loss / best validation loss (its epoch of the run's epochs)",
+        "",
+        "Mean over the measured seeds; UNet: MSE, CiUNetRes: NLL in bits per pixel. A train loss far below the "
+        "validation loss means too little data for the network (over-fitting); both close and high, too little "
+        "training or capacity.",
+        "",
+        *_diagnostics(out, study, scores),
         "",
         "Measured wall time (s, summed over sittings): "
         + ", ".join(f"{k} {v:.0f}" for k, v in sorted(seconds.items()) if not k.startswith("unit/"))
