@@ -106,6 +106,7 @@ def test_toy_study_runs_resumes_and_reports(tmp_path, monkeypatch):
         run_scaling(out, TOY, workers=0, progress=False)
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
     assert calls == units[:3]
+    assert f"unit/{units[3].run}" in json.loads((out / "seconds.json").read_text())  # interrupted: timed too
     monkeypatch.setattr(scaling_module, "_run_unit", real)
     report = run_scaling(out, TOY, workers=0, progress=False)
     # the three finished units were skipped, the rest ran

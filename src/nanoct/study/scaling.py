@@ -21,6 +21,8 @@ import json
 import math
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -222,11 +224,17 @@ def _data(out: Path, study: ScalingStudy, workers: int, progress: bool) -> DataS
     return store
 
 
-def _record_seconds(path: Path, key: str, seconds: float) -> None:
-    """Add ``seconds`` to ``key`` in the JSON file of measured wall times (kept across sittings)."""
-    times = json.loads(path.read_text()) if path.exists() else {}
-    times[key] = times.get(key, 0.0) + seconds
-    atomic_write_text(path, json.dumps(times, indent=2, sort_keys=True))
+@contextmanager
+def _timed(path: Path, key: str) -> Iterator[None]:
+    """Add the wall time of the block to ``key`` in the JSON file of measured times, also when the
+    block is interrupted (the times of a stage add up over sittings)."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        times = json.loads(path.read_text()) if path.exists() else {}
+        times[key] = times.get(key, 0.0) + time.perf_counter() - t0
+        atomic_write_text(path, json.dumps(times, indent=2, sort_keys=True))
 
 
 def run_scaling(
@@ -242,8 +250,9 @@ def run_scaling(
     Stages: the data set (``out/data``), the first reconstructions of every sample, then the units
     of :func:`scaling_units` one after another (``out/runs/<unit>``), each trained and then
     predicted on the test split, then the report (:func:`nanoct.study.scaling_report.write_scaling_report`).
-    The wall time of every stage and unit is added to ``out/seconds.json``. The study's definition
-    is written to ``out/study.json``; a directory of another definition is refused. ``only``: a
+    The wall time of every stage and unit is added to ``out/seconds.json`` (an interrupted one's
+    too). The study's definition is written to ``out/study.json``; a directory of another
+    definition is refused. ``only``: a
     shell pattern of unit run names (``unet-dremel-*``) to run in this sitting; the others are
     left for a later one (the report marks the points it lacks as partial).
 
@@ -265,28 +274,25 @@ def run_scaling(
         raise NanoctError(f"{out} holds a scaling study of another definition ({stored}); choose another --out")
     atomic_write_text(stored, json.dumps(definition, indent=2))
     seconds = out / "seconds.json"
-    t0 = time.perf_counter()
-    store = _data(out, study, workers, progress)
-    _record_seconds(seconds, "data", time.perf_counter() - t0)
+    with _timed(seconds, "data"):
+        store = _data(out, study, workers, progress)
     for name in study.inputs:
-        t0 = time.perf_counter()
         method, params = _RECONS[name]
-        reconstruct_dataset(
-            out / "data",
-            method,
-            params=params,
-            name=reconstruction_name(method, params),
-            workers=workers,
-            progress=progress,
-        )
-        _record_seconds(seconds, f"reconstruction/{name}", time.perf_counter() - t0)
+        with _timed(seconds, f"reconstruction/{name}"):
+            reconstruct_dataset(
+                out / "data",
+                method,
+                params=params,
+                name=reconstruction_name(method, params),
+                workers=workers,
+                progress=progress,
+            )
     units = [u for u in scaling_units(study) if only is None or fnmatch.fnmatchcase(u.run, only)]
     for unit in tqdm(units, desc="scaling units", unit="unit", disable=not progress):
         if _unit_done(store, unit):
             continue
-        t0 = time.perf_counter()
-        _run_unit(out / "data", out / "runs", study, unit, progress=False)
-        _record_seconds(seconds, f"unit/{unit.run}", time.perf_counter() - t0)
+        with _timed(seconds, f"unit/{unit.run}"):
+            _run_unit(out / "data", out / "runs", study, unit, progress=False)
     return write_scaling_report(out, study)
 
 
@@ -378,21 +384,25 @@ def plan_scaling(study: ScalingStudy, out: str | Path | None = None, costs: dict
         ``unit_step`` (per network: measured seconds per step of finished units, if any).
     """
     costs = measure_costs(study) if costs is None else costs
-    measured = {}
-    if out is not None and (Path(out) / "seconds.json").exists():
-        measured = json.loads((Path(out) / "seconds.json").read_text())
-    unit_step = {}
-    for m in study.models:
-        finished = [u for u in scaling_units(study) if u.model == m and f"unit/{u.run}" in measured]
-        per_step = [measured[f"unit/{u.run}"] / u.steps for u in finished]
-        if per_step:
-            unit_step[m] = float(np.mean(per_step))
     store = None
     if out is not None and (Path(out) / "data").exists():
         try:
             store = DataStore.open(Path(out) / "data")
         except Exception:  # noqa: BLE001 - an unreadable store is planned as missing
             store = None
+    measured = {}
+    if out is not None and (Path(out) / "seconds.json").exists():
+        measured = json.loads((Path(out) / "seconds.json").read_text())
+    unit_step = {}
+    for m in study.models:
+        finished = [
+            u
+            for u in scaling_units(study)
+            if u.model == m and f"unit/{u.run}" in measured and (store is None or _unit_done(store, u))
+        ]
+        per_step = [measured[f"unit/{u.run}"] / u.steps for u in finished]
+        if per_step:
+            unit_step[m] = float(np.mean(per_step))
     done_samples = int(store.done.sum()) if store is not None else 0
     rows = [_PlanRow("data", study.n, done_samples, (study.n - done_samples) * costs["generate"])]
     for name in study.inputs:
