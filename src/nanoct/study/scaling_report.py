@@ -216,7 +216,8 @@ def _figure(summary: dict[str, Any], study: ScalingStudy, path: Path) -> None:
         ax.set_xlabel(f"training images ({study.steps} steps; star: {study.long_factor}x steps)")
         ax.set_ylabel("PSNR gain over input [dB]")
         ax.set_title(f"{_NAMES.get(model, model)} (dotted: paper)")
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     with atomic_target(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
 
