@@ -7,7 +7,7 @@ import pytest
 
 from nanoct.cli import main
 
-COMMANDS = ["generate", "reconstruct", "train", "predict", "info", "show", "evaluate", "reproduce"]
+COMMANDS = ["generate", "reconstruct", "train", "predict", "info", "show", "evaluate", "reproduce", "scaling"]
 
 
 def run(monkeypatch, capsys, *args):

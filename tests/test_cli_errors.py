@@ -140,6 +140,9 @@ BAD_ARGS = {
     "predict other geometry": (["predict", "{w}/fan", "--run", "{w}/run", "--device", "cpu"], "geometry"),
     "reproduce n zero": (["reproduce", "--n", 0, "--out", "{w}/study", "--models", "none", "-q"], "--n 0"),
     "reproduce preset": (["reproduce", "-p", "huge-cone", "--out", "{w}/study", "-q"], "huge-cone"),
+    "scaling sizes": (["scaling", "--sizes", "160,x", "--out", "{w}/scaling", "-q"], "--sizes"),
+    "scaling seeds": (["scaling", "--seeds", "3,2", "--out", "{w}/scaling", "-q"], "same length"),
+    "scaling steps": (["scaling", "--steps", 0, "--out", "{w}/scaling", "-q"], "steps 0"),
 }
 
 

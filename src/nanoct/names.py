@@ -10,6 +10,8 @@ built from their input's. The grammar::
     prediction       <input>+<model>[@<train input>][%seed<S>]
                      dremel+unet, fbp+cinn-res@resesop (trained on resesop, applied to fbp),
                      resesop+unet%seed1 (training seed 1; seed 0 has no suffix)
+    scaling run      <input>+<model>%n<K>x<steps>[%seed<S>]
+                     dremel+unet%n640x640%seed1 (data-scaling study: first K training images)
     setting          parallel | fan | unperturbed  (the paper's tables: geometry kind and motion)
 
 The ``_est-...`` and ``_eta<scale>`` parts belong to methods that use the model error eta
@@ -37,6 +39,7 @@ __all__ = [
     "prediction_name",
     "reconstruct_command",
     "reconstruction_name",
+    "scaling_name",
     "seed_name",
     "setting_key",
     "stack_name",
@@ -96,6 +99,12 @@ def prediction_name(input_name: str, model_name: str, train_input: str | None = 
     if train_input is not None and train_input != input_name:
         name += f"@{train_input}"
     return seed_name(name, seed)
+
+
+def scaling_name(input_name: str, model_name: str, n_train: int, steps: int, seed: int = 0) -> str:
+    """Store name of a data-scaling study's prediction: ``<input>+<model>%n<K>x<steps>`` (network
+    trained on the first K training images for ``steps`` optimiser steps), ``%seed<S>`` for seed S > 0."""
+    return seed_name(f"{prediction_name(input_name, model_name)}%n{n_train}x{steps}", seed)
 
 
 def seed_name(name: str, seed: int) -> str:

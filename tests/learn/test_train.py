@@ -72,6 +72,25 @@ def test_dataset_errors(store, tmp_path):
         ReconDataset(no_val, "fbp", "val")
 
 
+def test_dataset_limit_takes_the_first_samples_of_the_split(store):
+    whole = ReconDataset(store, "fbp", "train")
+    first = ReconDataset(store, "fbp", "train", limit=4)
+    assert len(first) == 4 and list(first.indices) == list(whole.indices[:4])
+    assert torch.equal(first[3][0], whole[3][0])
+    for bad in (0, 7):
+        with pytest.raises(NanoctError, match=f"limit {bad} must be between 1 and the 6 samples of the train split"):
+            ReconDataset(store, "fbp", "train", limit=bad)
+
+
+def test_n_train_is_part_of_the_request(store, tmp_path):
+    run = tmp_path / "run"
+    train(store, run, TrainConfig("unet", "fbp", epochs=1, n_train=2, **FAST), progress=False)
+    config = json.loads((run / "config.json").read_text())
+    assert config["data"]["train"] == 2 and int(_log(run)[-1]["steps"]) == 1  # 2 images, batch 2: one step
+    with pytest.raises(NanoctError, match="other settings.*data"):
+        train(store, run, TrainConfig("unet", "fbp", epochs=2, n_train=4, **FAST), progress=False)
+
+
 @pytest.mark.slow
 def test_training_lowers_loss_and_writes_run(store, tmp_path):
     run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=8, lr=3e-3, **FAST))

@@ -65,16 +65,25 @@ class ReconDataset(Dataset):
     in_memory : bool, optional
         Load the whole split at construction (True), read per item (False), or decide by
         size (None, see the module docstring).
+    limit : int, optional
+        Use only the first ``limit`` samples of the split (in store order), so that the sets of
+        growing limits are nested.
 
     Raises
     ------
     NanoctError
-        If the store cannot be opened, the split is empty, or the input reconstruction is
-        missing or incomplete for the split.
+        If the store cannot be opened, the split is empty or smaller than ``limit``, or the
+        input reconstruction is missing or incomplete for the samples used.
     """
 
     def __init__(
-        self, store_path: str | os.PathLike[str], input_name: str, split: str, *, in_memory: bool | None = None
+        self,
+        store_path: str | os.PathLike[str],
+        input_name: str,
+        split: str,
+        *,
+        in_memory: bool | None = None,
+        limit: int | None = None,
     ) -> None:
         if split != "all" and split not in SPLITS:
             raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
@@ -89,6 +98,13 @@ class ReconDataset(Dataset):
                 f"the {split} split of {store.path} is empty; generate the data set with more samples "
                 "or other split fractions"
             )
+        if limit is not None:
+            if not 1 <= limit <= self.indices.size:
+                raise NanoctError(
+                    f"limit {limit} must be between 1 and the {self.indices.size} samples of the {split} split "
+                    f"of {store.path}; generate more samples or ask for fewer"
+                )
+            self.indices = self.indices[:limit]
         if not store.done[self.indices].all():
             raise NanoctError(f"{store.path} is not completely generated; run 'nanoct generate' again to finish it")
         check_input(store, input_name, self.indices, split)

@@ -192,7 +192,11 @@ class TrainConfig:
         bfloat16 (AVX512-BF16 / AMX) or a recent GPU; slower where bfloat16 is emulated.
     max_steps : int, optional
         Stop after this many optimizer steps in total (the epoch in progress is then
-        validated and checkpointed as finished); for smoke tests.
+        validated and checkpointed as finished); for smoke tests and fixed-step budgets.
+    n_train : int, optional
+        Train on the first ``n_train`` samples of the train split only (nested subsets for
+        data-scaling studies; default: the whole split). Recorded in ``config.json``
+        (``data.train``), so a run of another size is not resumed from it.
     device : str, optional
         Default: CUDA when available, else CPU.
     num_workers : int
@@ -214,6 +218,7 @@ class TrainConfig:
     clip_grad: float | None = None
     precision: str = "fp32"
     max_steps: int | None = None
+    n_train: int | None = None
     device: str | torch.device | None = None
     num_workers: int = 0
     in_memory: bool | None = None
@@ -296,6 +301,7 @@ def train(
         precision=c.precision,
         progress=progress and main_rank,
         max_steps=c.max_steps,
+        n_train=c.n_train,
         model_kwargs=dict(c.model_kwargs or {}),
         clip=clip,
         sched=sched,
@@ -348,6 +354,7 @@ class _Settings:
     precision: str
     progress: bool
     max_steps: int | None
+    n_train: int | None
     model_kwargs: dict[str, Any]
     clip: float | None
     sched: str
@@ -629,7 +636,7 @@ def _run(s: _Settings) -> Path:
     """Train from the start or from the last checkpoint to ``s.epochs`` (or ``s.max_steps``)."""
     from tqdm.auto import tqdm
 
-    train_ds = ReconDataset(s.store_path, s.input_name, "train", in_memory=s.in_memory)
+    train_ds = ReconDataset(s.store_path, s.input_name, "train", in_memory=s.in_memory, limit=s.n_train)
     val_ds = ReconDataset(s.store_path, s.input_name, "val", in_memory=s.in_memory)
     state, resumed = _start(s, train_ds, val_ds)
     if state.done(s):
