@@ -211,6 +211,52 @@ def _project_view(indptr, indices, data, x, base, n_det, p):  # pragma: no cover
         p[l] = row_dot(indices, data, x, indptr[r], indptr[r + 1])
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _shifted_step(p, y, ybase, rowsum, rbase, n_det, d, z, g):  # pragma: no cover - compiled
+    """Shift the view's projection ``p`` by ``d`` detector pixels into ``z`` and form the Kaczmarz
+    update of each detector bin in ``g`` (residual over the shifted row sums, pulled back through
+    the interpolation; ``y``/``rowsum`` read from ``ybase``/``rbase``); returns ``||z - y_k||^2``."""
+    res2 = 0.0
+    for l in range(n_det):
+        g[l] = 0.0
+    for l in range(n_det):
+        i0, w0, w1 = _interp_weights(l + d)
+        zz = 0.0
+        rs = 0.0
+        if 0 <= i0 < n_det:
+            zz += w0 * p[i0]
+            rs += w0 * rowsum[rbase + i0]
+        if 0 <= i0 + 1 < n_det:
+            zz += w1 * p[i0 + 1]
+            rs += w1 * rowsum[rbase + i0 + 1]
+        z[l] = zz
+        e = zz - y[ybase + l]
+        res2 += e * e
+        if rs > 1e-6:
+            e = e / rs
+            if 0 <= i0 < n_det:
+                g[i0] += w0 * e
+            if 0 <= i0 + 1 < n_det:
+                g[i0 + 1] += w1 * e
+    return res2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _shifted_sq(p, y, ybase, n_det, d):  # pragma: no cover - compiled
+    """``||S_d p - y_k||^2``: the view's projection ``p`` shifted by ``d`` detector pixels against ``y``."""
+    tot = 0.0
+    for l in range(n_det):
+        i0, w0, w1 = _interp_weights(l + d)
+        zz = 0.0
+        if 0 <= i0 < n_det:
+            zz += w0 * p[i0]
+        if 0 <= i0 + 1 < n_det:
+            zz += w1 * p[i0 + 1]
+        e = zz - y[ybase + l]
+        tot += e * e
+    return tot
+
+
 @numba.njit(cache=True, nogil=True)
 def _view_step(
     indptr, indices, data, rowsum, inv_col, y, x, k, n_det, d, omega, nonneg, p, z, g
@@ -223,28 +269,7 @@ def _view_step(
     """
     base = k * n_det
     _project_view(indptr, indices, data, x, base, n_det, p)
-    res2 = 0.0
-    for l in range(n_det):
-        g[l] = 0.0
-    for l in range(n_det):
-        i0, w0, w1 = _interp_weights(l + d)
-        zz = 0.0
-        rs = 0.0
-        if 0 <= i0 < n_det:
-            zz += w0 * p[i0]
-            rs += w0 * rowsum[base + i0]
-        if 0 <= i0 + 1 < n_det:
-            zz += w1 * p[i0 + 1]
-            rs += w1 * rowsum[base + i0 + 1]
-        z[l] = zz
-        e = zz - y[base + l]
-        res2 += e * e
-        if rs > 1e-6:
-            e = e / rs
-            if 0 <= i0 < n_det:
-                g[i0] += w0 * e
-            if 0 <= i0 + 1 < n_det:
-                g[i0 + 1] += w1 * e
+    res2 = _shifted_step(p, y, base, rowsum, base, n_det, d, z, g)
     for l in range(n_det):
         if g[l] == 0.0:
             continue
@@ -380,15 +405,7 @@ def _shifted_residual(indptr, indices, data, y, x, n_det, dshift, p):  # pragma:
     for k in range(n_views):
         base = k * n_det
         _project_view(indptr, indices, data, x, base, n_det, p)
-        for l in range(n_det):
-            i0, w0, w1 = _interp_weights(l + dshift[k])
-            zz = 0.0
-            if 0 <= i0 < n_det:
-                zz += w0 * p[i0]
-            if 0 <= i0 + 1 < n_det:
-                zz += w1 * p[i0 + 1]
-            e = zz - y[base + l]
-            tot += e * e
+        tot += _shifted_sq(p, y, base, n_det, dshift[k])
     return math.sqrt(tot)
 
 
@@ -444,28 +461,7 @@ def _view_step_free(
         project_view(par, n, n_det, x, p, rowsum, block)
     else:
         project_view_serial(par, n, n_det, x, p, rowsum, block)
-    res2 = 0.0
-    for l in range(n_det):
-        g[l] = 0.0
-    for l in range(n_det):
-        i0, w0, w1 = _interp_weights(l + d)
-        zz = 0.0
-        rs = 0.0
-        if 0 <= i0 < n_det:
-            zz += w0 * p[i0]
-            rs += w0 * rowsum[i0]
-        if 0 <= i0 + 1 < n_det:
-            zz += w1 * p[i0 + 1]
-            rs += w1 * rowsum[i0 + 1]
-        z[l] = zz
-        e = zz - y[l]
-        res2 += e * e
-        if rs > 1e-6:
-            e = e / rs
-            if 0 <= i0 < n_det:
-                g[i0] += w0 * e
-            if 0 <= i0 + 1 < n_det:
-                g[i0 + 1] += w1 * e
+    res2 = _shifted_step(p, y, 0, rowsum, 0, n_det, d, z, g)
     for l in range(n_det):
         g[l] *= -omega
     if threads:
@@ -526,15 +522,7 @@ def _shifted_residual_free(params, n, y, x, n_det, dshift, p):  # pragma: no cov
         setup = ray_setup(params[k], n)
         for l in range(n_det):
             p[l] = ray_dot(x, n, setup, setup[6] + l * setup[7])[0]
-        for l in range(n_det):
-            i0, w0, w1 = _interp_weights(l + dshift[k])
-            zz = 0.0
-            if 0 <= i0 < n_det:
-                zz += w0 * p[i0]
-            if 0 <= i0 + 1 < n_det:
-                zz += w1 * p[i0 + 1]
-            e = zz - y[k * n_det + l]
-            tot += e * e
+        tot += _shifted_sq(p, y, k * n_det, n_det, dshift[k])
     return math.sqrt(tot)
 
 
