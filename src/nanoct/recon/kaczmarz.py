@@ -172,22 +172,33 @@ def kaczmarz(
     """
     p = KaczmarzParams.check(op, **params)
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
-    if isinstance(mat, ParallelRays):
-        return _kaczmarz_views(geometry, y, mat, x, p, callback)
-    norms = row_norms_squared(mat)
-    indices = unsigned_indices(mat)
+    n_det, omega = geometry.n_det, p["relaxation"]
+    if isinstance(mat, ParallelRays):  # rays traced on the fly
+
+        def sweep(views: np.ndarray) -> float:
+            return _kaczmarz_sweep_free(mat.params, geometry.n, y, x, views, n_det, omega)
+
+        def exact_residual() -> float:
+            return residual_norm_free(mat.params, geometry.n, n_det, y, x)
+
+    else:
+        norms = row_norms_squared(mat)
+        indices = unsigned_indices(mat)
+
+        def sweep(views: np.ndarray) -> float:
+            return _kaczmarz_sweep(mat.indptr, indices, mat.data, norms, y, x, views, n_det, omega)
+
+        def exact_residual() -> float:
+            return residual_norm(mat.indptr, indices, mat.data, y, x)
+
     rng = np.random.default_rng(p["seed"])
     residuals: list[float] = []
     stop = "max_iter"
     for it in range(p["n_iter"]):
-        views = view_order(geometry.n_angles, p["order"], rng)
-        run = _kaczmarz_sweep(mat.indptr, indices, mat.data, norms, y, x, views, geometry.n_det, p["relaxation"])
+        run = sweep(view_order(geometry.n_angles, p["order"], rng))
         if p["nonneg"]:
             clip_nonneg(x)
-        if p["residual"] == "exact":
-            residuals.append(float(residual_norm(mat.indptr, indices, mat.data, y, x)))
-        else:
-            residuals.append(math.sqrt(run))
+        residuals.append(float(exact_residual()) if p["residual"] == "exact" else math.sqrt(run))
         if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
             stop = "callback"
             break
@@ -210,30 +221,3 @@ def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no co
             run += res * res
             ray_add(x, n, setup, c0, omega * res / nr, x, False, False)
     return run
-
-
-def _kaczmarz_views(
-    geometry: Geometry,
-    y: np.ndarray,
-    rays: ParallelRays,
-    x: np.ndarray,
-    p: dict[str, Any],
-    callback: Callable[[int, np.ndarray, None], Any] | None,
-) -> ReconResult:
-    """:func:`kaczmarz` with the rays traced on the fly."""
-    rng = np.random.default_rng(p["seed"])
-    residuals: list[float] = []
-    stop = "max_iter"
-    for it in range(p["n_iter"]):
-        views = view_order(geometry.n_angles, p["order"], rng)
-        run = _kaczmarz_sweep_free(rays.params, geometry.n, y, x, views, geometry.n_det, p["relaxation"])
-        if p["nonneg"]:
-            clip_nonneg(x)
-        if p["residual"] == "exact":
-            residuals.append(float(residual_norm_free(rays.params, geometry.n, geometry.n_det, y, x)))
-        else:
-            residuals.append(math.sqrt(run))
-        if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
-            stop = "callback"
-            break
-    return ReconResult(x.reshape(geometry.image_shape), residuals, stop, None, {"method": "kaczmarz", **p})
