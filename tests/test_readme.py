@@ -23,7 +23,7 @@ INSTALL = (
     '.venv/bin/pip install -q -c constraints.txt -e ".[test]"'
 )
 #: Words that tell the project's history instead of its state (git log keeps the history).
-HISTORY = re.compile(r"\b(round (one|two|three|four|five|six|seven|eight|nine|ten|\d+)|issue \d+|session)\b", re.I)
+HISTORY = re.compile(r"\b(round (one|two|three|four|five|six|seven|eight|nine|ten|\d+)|issues? \d+|session)\b", re.I)
 
 
 def _example() -> str:
