@@ -298,7 +298,8 @@ def run_scaling(
 
 def measure_costs(study: ScalingStudy, samples: int = 4, steps: int = 3) -> dict[str, float]:
     """Measure on this machine, now: seconds per sample of generation and of each first
-    reconstruction (``samples`` samples in a temporary store), and seconds per training step
+    reconstruction (``samples`` samples in a temporary store, timed after a first pass that
+    compiles the kernels and builds the cached matrix), and seconds per training step
     (batch of the model's size, the study's precision) and per image forward pass of each network.
 
     Returns
@@ -325,8 +326,11 @@ def measure_costs(study: ScalingStudy, samples: int = 4, steps: int = 3) -> dict
         costs["generate"] = (time.perf_counter() - t0) / samples
         for name in study.inputs:
             method, params = _RECONS[name]
+            # a first pass compiles the kernels (numba) and builds the cached matrix: not per sample
+            kwargs = {"params": params, "workers": 0, "progress": False}
+            reconstruct_dataset(Path(tmp) / "d", method, name=f"warm-up-{name}", **kwargs)
             t0 = time.perf_counter()
-            reconstruct_dataset(Path(tmp) / "d", method, params=params, workers=0, progress=False)
+            reconstruct_dataset(Path(tmp) / "d", method, **kwargs)
             costs[f"recon/{name}"] = (time.perf_counter() - t0) / samples
     n = geometry.n
     for m in study.models:
