@@ -71,6 +71,11 @@ def test_max_shift_bounds_the_sinusoids():
 def test_config_round_trip_and_validation():
     cfg = SimulationConfig.for_geometry(get_preset("tiny-fan"), noise_std=0.1)
     assert SimulationConfig.from_dict(cfg.to_dict()) == cfg
+    assert "phantoms" not in cfg.to_dict()  # the paper's family keeps the stored description of its data sets
+    other = SimulationConfig(phantoms="ellipses")
+    assert SimulationConfig.from_dict(other.to_dict()) == other and other.to_dict()["phantoms"] == "ellipses"
+    with pytest.raises(ValueError, match="phantoms"):
+        SimulationConfig(phantoms="disks")
     with pytest.raises(ValueError, match="oversample"):
         SimulationConfig(oversample=0)
     with pytest.raises(ValueError, match="noise_std"):
