@@ -267,7 +267,7 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
         shown = ", ".join(f"{i} ({'+'.join(by[str(i)])})" for i in new[:10])
         warnings.warn(
             f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution ({reasons}; "
-            f"p <= {share:g} each): samples {shown}{' ...' if len(new) > 10 else ''}; "
+            f"p <= {share:g}{' each' if len(p_by) > 1 else ''}): samples {shown}{' ...' if len(new) > 10 else ''}; "
             "their intervals may not hold their stated level",
             OutOfDistributionWarning,
             stacklevel=2,
