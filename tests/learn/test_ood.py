@@ -53,6 +53,8 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
             with pytest.warns(OutOfDistributionWarning, match="look out of distribution"):
                 record = ood_check(store, name, everything)
         assert store.reconstruction_note(name, "ood") == record
+        assert record["statistic"] == "mean_std" and record["std"]["flagged"] == record["flagged"]
+        assert record["flagged_by"] == {str(i): ["std"] for i in record["flagged"]}
         flagged[name] = len(record["flagged"]) / store.n
         expected = ood_p_values(image_statistic(store.read_uncertainty(name, everything)), ood["val"])
         assert [record["p_values"][str(i)] for i in everything] == pytest.approx(expected)
