@@ -5,8 +5,7 @@ The centroid of every view of a parallel-beam sinogram, minus its least-squares 
 along the detector per view. Two features describe it (:func:`scan_features`):
 
 - ``jitter``: the view-to-view noise, ``1.4826 * MAD(second differences) / sqrt(6)`` (the std of
-  white noise; the second difference of smooth motion is small, so the damped sinusoids hardly
-  enter);
+  white noise; sinusoids of a few views per period add to it, slow ones hardly);
 - ``low``: the rest of the motion, ``sqrt(max(rms^2 - jitter^2, 0))`` (the damped sinusoids).
 
 Both scale with the motion amplitude. The score of a scan (:func:`scan_scores`) is the sum of
