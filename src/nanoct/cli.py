@@ -338,8 +338,9 @@ def predict(
     network's own; intervals mean +- multiplier x std^e, one multiplier per level, are fitted once
     on the validation split of the data it was trained on (split conformal, with the coverage
     guaranteed with probability 90 %) and stored with the result (export them with
-    'nanoct export --interval'). Images whose std level is above the validation split's are
-    reported as out of distribution (docs/uncertainty.md).
+    'nanoct export --interval'). Images whose std level is above the validation split's, or
+    whose sinogram shows more apparent motion than the training scans, are reported as out of
+    distribution (docs/uncertainty.md).
     """
     from .learn.predict import predict as predict_model
 
@@ -563,7 +564,7 @@ def shift_test(
     workers: int = WORKERS,
     quiet: bool = QUIET,
 ) -> None:
-    """Score a study's invertible networks on test sets they were not trained on (motion x0.5 / x1.5, noise, none).
+    """Score a study's invertible networks on shifted test sets (motion x0.5 / x1.5, noise, none, other phantoms).
 
     Coverage of the 90 % intervals, correlation of the std with the error and the share of
     images predict flags as out of distribution, per shifted set next to the study's own test

@@ -23,6 +23,7 @@ from nanoct.learn.calibration import (
 )
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 from nanoct.learn.predict import predict
+from nanoct.learn.scan_ood import scan_reference
 from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.sim.generate import generate_dataset
@@ -78,7 +79,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 5 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 6 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -104,6 +105,8 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
         assert 0 <= fit["guaranteed_coverage"] < fit["val_coverage"]  # three images: a weak guarantee
         assert fit["rcps_multiplier"] is None  # too few images for any guarantee at these levels
     assert entry["ood"]["val"] == pytest.approx(sorted(std.mean(axis=(1, 2))), rel=1e-5)
+    scan = scan_reference(store)  # the apparent motion of the train and validation sinograms
+    assert entry["ood"]["scan"] == scan and scan["n_samples"] == store.indices("train").size + val.size
     # a second call reuses the stored fit; other sampling arguments, levels or checkpoint file refit
     calls = []
     real = cal_mod.sample_outputs
@@ -159,7 +162,7 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert entry["format"] == 5 and params["calibration"] == entry
+    assert entry["format"] == 6 and params["calibration"] == entry
     assert "calibration" not in store.reconstruction_params("raw")
     raw, stored = store.read_uncertainty("raw", test), store.read_uncertainty(name, test)
     np.testing.assert_array_equal(stored, raw)
@@ -176,6 +179,7 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     assert cli(["export", str(path), "--name", "raw", "--out", str(tmp_path / "x.npy"), "--interval", "0.9"]) == 2
     ood = store.reconstruction_note(name, "ood")
     assert set(ood["p_values"]) == {str(int(i)) for i in test} and store.reconstruction_note("raw", "ood") is None
+    assert ood["statistic"] == "mean_std + scan_motion" and set(ood["scan"]["p_values"]) == set(ood["p_values"])
     with pytest.raises(NanoctError, match="std calibration"):  # a raw result is not silently mixed with calibrated
         predict(path, run, progress=False, reconstruct_kwargs=M, name="raw")
     with pytest.raises(NanoctError, match="level 0.5"):

@@ -1,13 +1,21 @@
-"""Out-of-distribution check of predict: conformal p-values of the std level against the validation split's."""
+"""Out-of-distribution check of predict: conformal p-values of the std level and of the scan's apparent motion."""
 
 from __future__ import annotations
+
+import warnings
+from functools import partial
 
 import numpy as np
 import pytest
 
+from nanoct.core.geometry import get_preset
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import image_statistic, ood_p_values
 from nanoct.learn.predict import OutOfDistributionWarning, ood_check
+from nanoct.learn.scan_ood import scan_features, scan_reference, scan_scores, store_scan_scores
+from nanoct.sim.generate import generate_dataset
+from nanoct.sim.simulate import SimulationConfig
+from nanoct.study.shift import shift_config
 
 
 def test_p_values_against_a_direct_count():
@@ -45,6 +53,8 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
             with pytest.warns(OutOfDistributionWarning, match="look out of distribution"):
                 record = ood_check(store, name, everything)
         assert store.reconstruction_note(name, "ood") == record
+        assert record["statistic"] == "mean_std" and record["std"]["flagged"] == record["flagged"]
+        assert record["flagged_by"] == {str(i): ["std"] for i in record["flagged"]}
         flagged[name] = len(record["flagged"]) / store.n
         expected = ood_p_values(image_statistic(store.read_uncertainty(name, everything)), ood["val"])
         assert [record["p_values"][str(i)] for i in everything] == pytest.approx(expected)
@@ -54,3 +64,110 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
     assert set(part["p_values"]) == {str(i) for i in everything}
     for name in flagged:
         store.delete_reconstruction(name)
+
+
+def _moved_profiles(shifts: np.ndarray, n_det: int = 91, width: float = 6.0) -> np.ndarray:
+    """A sinogram whose view k is a Gaussian profile centred at detector coordinate ``shifts[k]``."""
+    x = np.arange(n_det) - (n_det - 1) / 2
+    return np.exp(-((x[None, :] - shifts[:, None]) ** 2) / (2 * width**2))
+
+
+def test_scan_features_of_constructed_motion():
+    """Known jitter and a damped sinusoid along the detector; an object translation (a cos + b sin) is not motion."""
+    k = 400
+    phi = np.arange(k) * np.pi / k
+    rng = np.random.default_rng(11)
+    smooth = np.exp(-2 * np.arange(k) / k) * np.sin(2 * np.pi * 4 * np.arange(k) / k)
+    jitter = 0.2 * rng.standard_normal(k)
+    translation = 3.0 * np.cos(phi) - 2.0 * np.sin(phi) + 1.5
+    sinos = np.stack([_moved_profiles(smooth + jitter + translation), _moved_profiles(smooth + jitter)])
+    feats = scan_features(sinos, phi)
+    rest = smooth - np.linalg.lstsq(np.stack([np.ones(k), np.cos(phi), np.sin(phi)], 1), smooth, rcond=None)[0] @ [
+        np.ones(k),
+        np.cos(phi),
+        np.sin(phi),
+    ]
+    assert feats[0] == pytest.approx(feats[1], rel=1e-6)
+    assert feats[0, 1] == pytest.approx(0.2, rel=0.15)
+    assert feats[0, 0] == pytest.approx(np.sqrt(np.mean(rest**2)), rel=0.15)
+    # twice the motion: twice each feature, a score of log 4 against the first
+    double = scan_features(_moved_profiles(2 * (smooth + jitter))[None], phi)
+    assert double[0] == pytest.approx(2 * feats[1], rel=0.02)
+    assert scan_scores(double, feats[1]) == pytest.approx([np.log(4)], abs=0.04)
+    # a static scan: both features at their floor, far below any moving one
+    assert scan_features(_moved_profiles(np.zeros(k))[None], phi)[0] == pytest.approx([1e-6, 1e-6])
+
+
+@pytest.fixture(scope="module")
+def motion_stores(tmp_path_factory):
+    """tiny-parallel: a reference set (train + val), fresh in-distribution samples and motion x 1.5 samples."""
+    root = tmp_path_factory.mktemp("scan_ood")
+    geometry = get_preset("tiny-parallel")
+    base = SimulationConfig.for_geometry(geometry)
+    make = partial(generate_dataset, geometry=geometry, workers=0, progress=False)
+    return {
+        "reference": make(root / "ref", n=160, seed=21, config=base, split_fractions=(0.9, 0.1, 0.0)),
+        "same": make(root / "same", n=50, seed=22, config=base, split_fractions=(0.0, 0.0, 1.0)),
+        "x1.5": make(
+            root / "big", n=50, seed=23, config=shift_config("motion_x1.5", base, 1.0), split_fractions=(0.0, 0.0, 1.0)
+        ),
+    }
+
+
+def test_scan_features_scale_with_the_simulated_motion(motion_stores, tmp_path):
+    """The same samples simulated with motion x 1.5 (the same draws, scaled): every feature about x 1.5."""
+    store = motion_stores["same"]
+    big = generate_dataset(
+        tmp_path / "big",
+        store.geometry,
+        12,
+        seed=store.seed,
+        config=shift_config("motion_x1.5", SimulationConfig.from_dict(store.meta["simulation"]), 1.0),
+        split_fractions=(0.0, 0.0, 1.0),
+        workers=0,
+        progress=False,
+    )
+    first = np.arange(12)
+    np.testing.assert_allclose(
+        big.read_array("motion", first), 1.5 * store.read_array("motion", first), rtol=1e-5, atol=1e-6
+    )
+    angles = store.geometry.angles
+    ratio = scan_features(big.read_array("sinograms", first), angles) / scan_features(
+        store.read_array("sinograms", first), angles
+    )
+    assert np.median(ratio, axis=0) == pytest.approx([1.5, 1.5], rel=0.05)
+
+
+def test_ood_check_flags_more_motion_by_the_scan_statistic(motion_stores):
+    """Motion x 1.5 is flagged (>= 90 %) by the scan statistic, fresh in-distribution samples rarely (<= 10 %)."""
+    reference = scan_reference(motion_stores["reference"])
+    assert reference["n_samples"] == 160 and reference["statistic"] == "scan_motion"
+    rng = np.random.default_rng(9)
+    val_levels = rng.lognormal(np.log(0.05), 0.1, 20)
+    ood = {"statistic": "mean_std", "alpha": 0.05, "val": sorted(val_levels.tolist()), "scan": reference}
+    rates = {}
+    for key in ("same", "x1.5"):
+        store = DataStore.open(motion_stores[key].path, mode="r+")
+        name = "scan_check+fake"
+        store.prepare_reconstruction(name, {"calibration": {"ood": ood}}, uncertainty=True)
+        everything = np.arange(store.n)
+        for i in everything:  # std levels of the validation split's distribution: the std check flags nothing
+            std = np.full((store.geometry.n,) * 2, rng.lognormal(np.log(0.05), 0.1), np.float32)
+            store.write_reconstruction(name, int(i), np.zeros_like(std), std=std)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            record = ood_check(store, name, everything)
+        rates[key] = len(record["flagged"]) / store.n
+        scan_p = ood_p_values(store_scan_scores(store, everything, reference), reference["scores"])
+        assert [record["scan"]["p_values"][str(i)] for i in everything] == pytest.approx(scan_p)
+        std_p = [record["std"]["p_values"][str(i)] for i in everything]
+        assert [record["p_values"][str(i)] for i in everything] == pytest.approx(
+            np.minimum(1, 2 * np.minimum(std_p, scan_p))
+        )
+        assert record["statistic"] == "mean_std + scan_motion"
+        assert record["flagged"] == sorted(int(i) for i in record["flagged_by"])
+        assert all(v == ["scan"] for v in record["flagged_by"].values())
+        if record["flagged"]:
+            assert "sinogram" in str(caught[0].message) and caught[0].category is OutOfDistributionWarning
+        store.delete_reconstruction(name)
+    assert rates["x1.5"] >= 0.9 and rates["same"] <= 0.1

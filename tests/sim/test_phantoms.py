@@ -12,7 +12,9 @@ from nanoct.sim.phantoms import (
     PhantomSpec,
     Shape,
     downsample,
+    family_phantom,
     pixel_centers,
+    random_ellipse_phantom,
     random_phantom,
     random_phantom_spec,
     rasterize,
@@ -179,3 +181,31 @@ def test_bad_shape() -> None:
         Shape("ellipse", (0.0, 0.0), (1.0, 1.0), 0.0, 1.5)
     with pytest.raises(ValueError, match="half_axes="):
         Shape("ellipse", (0.0, 0.0), (0.0, 1.0), 0.0, 0.5)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_ellipse_family_is_a_head_inside_the_field_of_view(seed: int) -> None:
+    """Shepp-Logan-like: values in [0, 1], zero outside the allowed disc, a rim denser than the body's middle."""
+    n = 64
+    x = random_ellipse_phantom(rng(seed), n, oversample=2)
+    assert x.shape == (2 * n, 2 * n) and x.dtype == np.float32
+    assert x.min() >= 0.0 and x.max() <= 1.0
+    r1, r2 = pixel_centers(n, 2)
+    outside = np.hypot(r1, r2) > FOV_FRACTION * (n - 1) / 2
+    assert not x[outside].any() and np.count_nonzero(x) > 0.1 * x.size
+    assert x.max() >= 0.6  # the rim
+
+
+def test_ellipse_family_differs_from_the_training_generator() -> None:
+    """Same generator state, other family: other images; more distinct grey levels (overlapping additive ellipses)."""
+    for i in range(5):
+        a, b = random_phantom(rng(3, i), 64), random_ellipse_phantom(rng(3, i), 64)
+        assert a.tobytes() != b.tobytes()
+        assert len(np.unique(b)) > len(np.unique(a))
+    np.testing.assert_array_equal(
+        family_phantom("shapes", rng(4), 48, oversample=2), random_phantom(rng(4), 48, oversample=2)
+    )
+    np.testing.assert_array_equal(family_phantom("ellipses", rng(4), 48), random_ellipse_phantom(rng(4), 48))
+    assert random_ellipse_phantom(rng(4), 48).tobytes() == random_ellipse_phantom(rng(4), 48).tobytes()
+    with pytest.raises(ValueError, match="phantom family 'disks' is unknown"):
+        family_phantom("disks", rng(0), 48)

@@ -4,7 +4,7 @@ import pytest
 from nanoct.core.geometry import get_preset
 from nanoct.core.operators import RayTransform
 from nanoct.sim.motion import MotionParams
-from nanoct.sim.phantoms import downsample, random_phantom
+from nanoct.sim.phantoms import downsample, random_ellipse_phantom, random_phantom
 from nanoct.sim.simulate import SimulationConfig, model_error, sample_rngs, simulate_sample
 
 
@@ -71,6 +71,11 @@ def test_max_shift_bounds_the_sinusoids():
 def test_config_round_trip_and_validation():
     cfg = SimulationConfig.for_geometry(get_preset("tiny-fan"), noise_std=0.1)
     assert SimulationConfig.from_dict(cfg.to_dict()) == cfg
+    assert "phantoms" not in cfg.to_dict()  # the paper's family keeps the stored description of its data sets
+    other = SimulationConfig(phantoms="ellipses")
+    assert SimulationConfig.from_dict(other.to_dict()) == other and other.to_dict()["phantoms"] == "ellipses"
+    with pytest.raises(ValueError, match="phantoms"):
+        SimulationConfig(phantoms="disks")
     with pytest.raises(ValueError, match="oversample"):
         SimulationConfig(oversample=0)
     with pytest.raises(ValueError, match="noise_std"):
@@ -79,3 +84,14 @@ def test_config_round_trip_and_validation():
         sample_rngs(-1, 0)
     with pytest.raises(ValueError):
         model_error(np.zeros((3, 4)), np.zeros((3, 5)))
+
+
+def test_the_ellipse_family_changes_only_the_phantom():
+    """``phantoms="ellipses"``: the phantom of random_ellipse_phantom from the sample's generator, the same motion."""
+    g = get_preset("tiny-parallel")
+    paper = simulate_sample(g, SimulationConfig.for_geometry(g), 3, 1)
+    other = simulate_sample(g, SimulationConfig.for_geometry(g, phantoms="ellipses"), 3, 1)
+    expected = downsample(random_ellipse_phantom(sample_rngs(3, 1)[0], g.n, oversample=2), 2)
+    np.testing.assert_array_equal(other.phantom, expected)
+    np.testing.assert_array_equal(other.motion, paper.motion)
+    assert not np.array_equal(other.phantom, paper.phantom) and not np.array_equal(other.sinogram, paper.sinogram)

@@ -20,7 +20,10 @@ def test_shift_configs_change_one_thing():
     assert shift_config("noise", base, 10.0).noise_std == pytest.approx(0.1)
     assert shift_config("noise", base, 10.0).motion == m
     assert not shift_config("unperturbed", base, 10.0).perturbed
-    assert set(SHIFTS) == {"motion_x0.5", "motion_x1.5", "noise", "unperturbed"}
+    other = shift_config("phantoms", base, 10.0)
+    assert other.phantoms == "ellipses" and other.motion == m and other.noise_std == base.noise_std
+    assert base.phantoms == "shapes"
+    assert set(SHIFTS) == {"motion_x0.5", "motion_x1.5", "noise", "unperturbed", "phantoms"}
     with pytest.raises(NanoctError, match="unknown shift"):
         shift_config("rotation", base, 1.0)
 

@@ -12,8 +12,9 @@ risk-controlling prediction sets; :mod:`nanoct.evaluation.conformal`). The half-
 strictly increasing in the std, so it keeps the network's ranking of the pixels exactly. On
 the same validation outputs the multipliers of the edge baseline
 (:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
-validation images' std level is kept for the out-of-distribution check of
-:func:`nanoct.learn.predict.predict`.
+validation images' std level and the apparent-motion scores of the train and validation
+sinograms (:func:`nanoct.learn.scan_ood.scan_reference`) are kept for the out-of-distribution
+check of :func:`nanoct.learn.predict.predict`.
 
 The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
 An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
@@ -53,6 +54,7 @@ from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
+from .scan_ood import scan_reference
 from .train import resolve_device
 
 __all__ = [
@@ -71,7 +73,7 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 5
+CALIBRATION_FORMAT = 6
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
 
@@ -322,7 +324,9 @@ def calibrate(
     dict
         The entry: what it was fitted for (``format``, ``checkpoint``, ``checkpoint_sha256``,
         ``epoch``, ``store``, ``input``, ``reconstruct``, ``n_samples``, ``split`` = "val",
-        ``n_images``) and :func:`fit_intervals`'s result.
+        ``n_images``) and :func:`fit_intervals`'s result, with ``ood.scan`` the reference of the
+        apparent-motion statistic (:func:`nanoct.learn.scan_ood.scan_reference`) where the data
+        set has train or validation samples.
 
     Raises
     ------
@@ -375,6 +379,9 @@ def calibrate(
     entry = (
         key | {"n_images": int(val.size)} | fit_intervals(means, stds, store.read_phantoms(val), tuple(levels), delta)
     )
+    reference = scan_reference(store)
+    if reference is not None:
+        entry["ood"]["scan"] = reference
     entries[checkpoint] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry

@@ -9,7 +9,8 @@ not depend on batching or on interruptions. The stored std is the network's own 
 the calibration fitted on the validation split (:mod:`nanoct.learn.calibration`: one multiplier
 per interval level) is stored with the parameters, so the interval of level p is
 ``mean +- multiplier_p * stored std``, and images whose std level is unlike the validation
-split's are flagged (a warning, and the note ``ood`` of the result).
+split's, or whose sinogram shows more apparent motion than the training scans, are flagged (a
+warning, and the note ``ood`` of the result: :func:`ood_check`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
@@ -38,6 +39,7 @@ from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
+from .scan_ood import store_scan_scores
 
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
 
@@ -210,33 +212,62 @@ def predict(
 
 
 def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any]:
-    """Flag the images of a calibrated prediction whose std level is unlike the validation split's.
+    """Flag the images of a calibrated prediction that look unlike the data the run was calibrated on.
 
-    The statistic of each image (:func:`nanoct.learn.calibration.image_statistic`, its mean std) gets a
-    conformal p-value against the validation images' (:func:`nanoct.learn.calibration.ood_p_values`);
-    ``p <= alpha`` (the calibration's ``ood.alpha``) flags it, which wrongly flags at most a
-    fraction alpha of in-distribution images. The record (merged with earlier ones of other
-    samples) is stored as the note ``ood`` of ``name`` and a :class:`OutOfDistributionWarning`
-    names the flagged samples: their intervals may not hold their level.
+    Two conformal p-values per image, ``p <= a`` wrongly flagging at most a fraction ``a`` of
+    in-distribution images (:func:`nanoct.learn.calibration.ood_p_values`):
+
+    - ``std``: the image's mean std (:func:`nanoct.learn.calibration.image_statistic`) against the
+      validation images';
+    - ``scan``: the apparent motion of its measured sinogram (:mod:`nanoct.learn.scan_ood`) against
+      the train and validation sinograms', where the calibration holds that reference.
+
+    With both, an image is flagged if either p-value is at most alpha / 2 (Bonferroni: at most a
+    fraction alpha of in-distribution images in all), and its p-value is
+    ``min(1, 2 * min(p_std, p_scan))``; with the std alone, ``p_std <= alpha`` flags it. The
+    record (merged with earlier ones of other samples) is stored as the note ``ood`` of ``name``
+    and a :class:`OutOfDistributionWarning` names the flagged samples and which statistic flagged
+    them: their intervals may not hold their level.
 
     Returns
     -------
     dict
-        ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices).
+        ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices),
+        ``flagged_by`` = {sample index: the statistics with ``p <= alpha / 2``} and per statistic
+        (``std``, and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``}.
     """
     ood = store.reconstruction_params(name)["calibration"]["ood"]
-    stds = store.read_uncertainty(name, indices)
-    p = ood_p_values(image_statistic(stds), ood["val"])
+    alpha = float(ood["alpha"])
+    keys = [str(int(i)) for i in indices]
+    p_by = {"std": ood_p_values(image_statistic(store.read_uncertainty(name, indices)), ood["val"])}
+    if ood.get("scan"):
+        p_by["scan"] = ood_p_values(store_scan_scores(store, indices, ood["scan"]), ood["scan"]["scores"])
     old = store.reconstruction_note(name, "ood") or {}
-    p_values = {**old.get("p_values", {}), **{str(int(i)): float(v) for i, v in zip(indices, p)}}
-    flagged = sorted(int(i) for i, v in p_values.items() if v <= ood["alpha"])
-    record = {"statistic": ood["statistic"], "alpha": ood["alpha"], "p_values": p_values, "flagged": flagged}
+    statistics = [ood["statistic"]] + ([ood["scan"]["statistic"]] if "scan" in p_by else [])
+    share = alpha / len(p_by)
+    combined = np.minimum(1.0, len(p_by) * np.min(np.stack(list(p_by.values())), axis=0))
+    p_values = {**old.get("p_values", {}), **{k: float(v) for k, v in zip(keys, combined)}}
+    record: dict[str, Any] = {"statistic": " + ".join(statistics), "alpha": alpha, "p_values": p_values}
+    record["flagged"] = sorted(int(i) for i, v in p_values.items() if v <= alpha)
+    by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
+    earlier = {k: v for k, v in old.get("flagged_by", {}).items() if k not in by}
+    record["flagged_by"] = earlier | {k: v for k, v in by.items() if v}
+    for s, p in p_by.items():
+        own = {**(old.get(s) or {}).get("p_values", {}), **{k: float(v) for k, v in zip(keys, p)}}
+        record[s] = {"p_values": own, "flagged": sorted(int(i) for i, v in own.items() if v <= alpha)}
     store.set_reconstruction_note(name, "ood", record)
-    new = [int(i) for i, v in zip(indices, p) if v <= ood["alpha"]]
+    new = [int(k) for k in keys if by[k]]
     if new:
+        which = sorted({s for k in keys for s in by[k]})
+        what = {
+            "std": "std level above the validation split's",
+            "scan": "more apparent motion in the sinogram than the training scans",
+        }
+        reasons = "; ".join(f"{s}: {what[s]}" for s in which)
+        shown = ", ".join(f"{i} ({'+'.join(by[str(i)])})" for i in new[:10])
         warnings.warn(
-            f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution (std level "
-            f"above the validation split's, p <= {ood['alpha']}): samples {new[:10]}{' ...' if len(new) > 10 else ''}; "
+            f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution ({reasons}; "
+            f"p <= {share:g}{' each' if len(p_by) > 1 else ''}): samples {shown}{' ...' if len(new) > 10 else ''}; "
             "their intervals may not hold their stated level",
             OutOfDistributionWarning,
             stacklevel=2,

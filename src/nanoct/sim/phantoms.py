@@ -17,6 +17,11 @@ size, centre and rotation, and 0 to 3 sub-shapes (rectangles or ellipses, densit
 [0, 1]) strictly inside the main shape, each replacing the value inside it. The main shape lies
 inside the disc of radius ``0.9 (N-1)/2`` around the rotation axis, so it stays in the field of
 view at every view angle and under small motion.
+
+A second family, outside the paper's generator, serves as a shifted test set
+(:func:`random_ellipse_phantom`, ``SimulationConfig(phantoms="ellipses")``): Shepp-Logan-like
+heads, an elliptic body with a dense rim and 4-10 inner ellipses whose densities add (they
+overlap, and may lower the density), clipped to [0, 1].
 """
 
 from __future__ import annotations
@@ -37,8 +42,11 @@ __all__ = [
     "rasterize",
     "downsample",
     "random_phantom",
+    "random_ellipse_phantom",
+    "family_phantom",
     "MIN_SIZE",
     "FOV_FRACTION",
+    "PHANTOM_FAMILIES",
 ]
 
 ShapeKind = Literal["ellipse", "rectangle"]
@@ -60,6 +68,8 @@ _MAIN_DENSITY = (0.1, 1.0)
 # strictly inside the main shape.
 _STRICT = 0.95
 _MAX_SUBSHAPES = 3
+#: Phantom families of :func:`family_phantom`: the paper's shapes and Shepp-Logan-like ellipses.
+PHANTOM_FAMILIES = ("shapes", "ellipses")
 
 
 @dataclass(frozen=True)
@@ -330,3 +340,72 @@ def random_phantom(rng: np.random.Generator, n: int, *, oversample: int = 1) -> 
     n = check_int(n, "n", MIN_SIZE)
     oversample = check_int(oversample, "oversample", 1)
     return rasterize(random_phantom_spec(rng, n), n, oversample)
+
+
+def random_ellipse_phantom(rng: np.random.Generator, n: int, *, oversample: int = 1) -> np.ndarray:
+    """Draw a Shepp-Logan-like phantom of additive ellipses and rasterise it.
+
+    The body is an ellipse (larger half-axis ``U(0.6, 0.95)`` of the allowed disc radius
+    ``FOV_FRACTION * (n-1)/2``, aspect ``U(0.6, 1)``, random centre and orientation, inside the
+    disc) of density ``U(0.1, 0.35)`` with a rim of relative thickness ``U(0.04, 0.1)`` and density
+    ``U(0.6, 1)``; inside the rim 4 to 10 ellipses (bounding radius ``U(0.15, 0.45)`` of the
+    smaller inner half-axis, aspect ``U(0.3, 1)``, placed as the sub-shapes of
+    :func:`random_phantom_spec`) each add ``U(-0.5, 1)`` times the body density. The sum is
+    sampled at sub-pixel centres and clipped to [0, 1].
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of randomness.
+    n : int
+        Image side length in pixels, at least :data:`MIN_SIZE`.
+    oversample : int, optional
+        Sub-pixels per pixel along each axis.
+
+    Returns
+    -------
+    ndarray of shape (n*oversample, n*oversample), float32
+        Values in [0, 1]; ``downsample(result, oversample)`` is the ground-truth phantom.
+    """
+    rng = check_rng(rng)
+    n = check_int(n, "n", MIN_SIZE)
+    oversample = check_int(oversample, "oversample", 1)
+    fov_radius = FOV_FRACTION * (n - 1) / 2
+    a = rng.uniform(0.6, 0.95) * fov_radius
+    b = rng.uniform(0.6, 1.0) * a
+    offset = (fov_radius - a) * math.sqrt(rng.random())
+    direction = rng.uniform(0.0, 2.0 * math.pi)
+    center = (offset * math.cos(direction), offset * math.sin(direction))
+    angle = rng.uniform(0.0, 180.0)
+    body, rim = rng.uniform(0.1, 0.35), rng.uniform(0.6, 1.0)
+    inner = 1.0 - rng.uniform(0.04, 0.1)
+    # (shape, added density): the rim ellipse, the body inside it, then the inner features
+    parts = [
+        (Shape("ellipse", center, (a, b), angle, 1.0), rim),
+        (Shape("ellipse", center, (inner * a, inner * b), angle, 1.0), body - rim),
+    ]
+    inside = Shape("ellipse", center, (inner * a, inner * b), angle, 1.0)
+    for _ in range(int(rng.integers(4, 11))):
+        place = _random_subshape(rng, inside)  # its bounding disc lies inside the rim
+        half_axes = _random_half_axes(rng, "ellipse", place.bounding_radius)
+        parts.append((Shape("ellipse", place.center, half_axes, place.angle, 1.0), rng.uniform(-0.5, 1.0) * body))
+    r1, r2 = pixel_centers(n, oversample)
+    image = np.zeros((n * oversample, n * oversample))
+    for shape, density in parts:
+        image += density * shape.contains(r1, r2)
+    return np.clip(image, 0.0, 1.0).astype(np.float32)
+
+
+def family_phantom(family: str, rng: np.random.Generator, n: int, *, oversample: int = 1) -> np.ndarray:
+    """A random phantom of ``family`` (:data:`PHANTOM_FAMILIES`), fine grid as :func:`random_phantom`.
+
+    Raises
+    ------
+    ValueError
+        For an unknown family.
+    """
+    if family == "shapes":
+        return random_phantom(rng, n, oversample=oversample)
+    if family == "ellipses":
+        return random_ellipse_phantom(rng, n, oversample=oversample)
+    raise ValueError(f"phantom family {family!r} is unknown; use one of {', '.join(PHANTOM_FAMILIES)}")

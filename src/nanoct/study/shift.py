@@ -3,10 +3,12 @@
 For a finished one-setting study (``nanoct reproduce --preset ...``), each shift of
 :data:`SHIFTS` gets a new data set of test samples only (other phantoms: another data-set seed),
 simulated with the study's simulation changed in one respect: the motion amplitude halved or
-1.5 times larger, Gaussian noise on the data (the training data have none), or no motion. The
+1.5 times larger, Gaussian noise on the data (the training data have none), no motion, or
+another phantom family (:func:`nanoct.sim.phantoms.random_ellipse_phantom`). The
 study's first reconstructions that the networks take as input are made with the study's
 parameters, each sampling network predicts with its own run and its calibration from the
-study's validation split (a data set without a validation split reuses it), and the
+study's validation split (a data set without a validation split reuses it; the study's own test
+split is predicted again where that calibration has changed), and the
 uncertainty scores of :func:`nanoct.evaluation.evaluate.evaluate_store` are taken, including the
 share of images that predict flagged as out of distribution. The in-distribution row is the
 study's own test split. Everything is cached in ``<study>/shift``; a rerun only redoes what is
@@ -41,6 +43,7 @@ SHIFTS: dict[str, str] = {
     "motion_x1.5": "motion amplitude (sinusoids, bound and jitter) x 1.5",
     "noise": "Gaussian noise on the data, std 1 % of the largest value of a sinogram (training: none)",
     "unperturbed": "no motion",
+    "phantoms": "Shepp-Logan-like phantoms of additive ellipses (a family outside the training generator)",
 }
 #: Data-set seed of the shifted sets (the study's is 0): other phantoms than the study's.
 SHIFT_SEED = 1000
@@ -73,6 +76,8 @@ def shift_config(name: str, base: SimulationConfig, y_max: float) -> SimulationC
         return replace(base, noise_std=NOISE_FRACTION * y_max)
     if name == "unperturbed":
         return replace(base, perturbed=False)
+    if name == "phantoms":
+        return replace(base, phantoms="ellipses")
     raise NanoctError(f"unknown shift {name!r}; choose from {', '.join(SHIFTS)}")
 
 
@@ -149,11 +154,14 @@ def shift_study(
     for s in shifts:
         shift_config(s, SimulationConfig(), 1.0)  # rejects an unknown shift before any work
     names = [prediction_name(i, m) for m, i in runs]
+    sampling = {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
+    for m, i in runs:  # the study's test split, checked for being out of distribution as the shifted sets are
+        predict(data.path, root / "runs" / f"{m}-{i}", i, progress=progress, reconstruct_kwargs=sampling)
+    data = DataStore.open(root / "data")
     test = data.indices("test")
     out = {"in_distribution": _scores(evaluate_store(data, "test", names), names, level)}
     base = SimulationConfig.from_dict(data.meta["simulation"])
     y_max = float(data.read_array("sinograms", [int(test[0])]).max())
-    sampling = {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
     fan = {"workers": workers, "progress": progress}
     for s in shifts:
         path = root / "shift" / s
