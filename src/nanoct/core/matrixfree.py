@@ -47,6 +47,7 @@ __all__ = [
     "ray_dot",
     "ray_set",
     "ray_setup",
+    "ray_trace",
     "residual_norm_free",
     "use_threads",
 ]
@@ -219,6 +220,40 @@ def ray_set(x, n, setup, c0, coef):  # pragma: no cover - compiled
             x[base] = coef * (length - wl - wr)
         if m + 1 < n:
             x[base + minor] = coef * wr
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_trace(n, setup, c0, idx, wts):  # pragma: no cover - compiled
+    """Store the pixels of one ray: ``idx[:cnt]`` flat pixel indices, ``wts[:cnt]`` their weights.
+
+    The same pixels and weights as :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` (zero
+    weights of in-bounds neighbours included); ``idx`` and ``wts`` need ``3 N`` entries.
+    Returns ``cnt``. A method that uses a ray several times traces it once into these buffers.
+    """
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    cnt = 0
+    for i in range(n):
+        c = c0 + i * delta
+        m = _minor(c)
+        if m < -1 or m > n:
+            continue
+        off = c - m
+        wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+        wr = length * min(max((off - s) * invw, 0.0), 1.0)
+        base = i * major + m * minor
+        if m >= 1:
+            idx[cnt] = base - minor
+            wts[cnt] = wl
+            cnt += 1
+        if 0 <= m < n:
+            idx[cnt] = base
+            wts[cnt] = length - wl - wr
+            cnt += 1
+        if m + 1 < n:
+            idx[cnt] = base + minor
+            wts[cnt] = wr
+            cnt += 1
+    return cnt
 
 
 @numba.njit(cache=True, nogil=True)
