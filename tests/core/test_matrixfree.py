@@ -57,14 +57,15 @@ def test_ray_trace_stores_the_weights_of_ray_set_and_ray_dot(g: Geometry) -> Non
         rows = traced_rows(g, k)
         setup = ray_setup(rays.params[k], g.n)
         for l in range(g.n_det):
-            cnt = ray_trace(g.n, setup, setup[6] + l * setup[7], idx, wts)
+            cnt, tdot, tsq = ray_trace(x, g.n, setup, setup[6] + l * setup[7], idx, wts)
             assert len(set(idx[:cnt].tolist())) == cnt  # each pixel once
             row = np.zeros(g.n * g.n)
             row[idx[:cnt]] = wts[:cnt]
             np.testing.assert_array_equal(row, rows[l])  # same pixels, same weights, same orientation
             dot, _, sq = ray_dot(x, g.n, setup, setup[6] + l * setup[7])
-            assert wts[:cnt] @ x[idx[:cnt]] == pytest.approx(dot, rel=1e-12, abs=1e-12)
-            assert wts[:cnt] @ wts[:cnt] == pytest.approx(sq, rel=1e-12, abs=1e-12)
+            assert tdot == pytest.approx(dot, rel=1e-12, abs=1e-12)
+            assert tdot == pytest.approx(wts[:cnt] @ x[idx[:cnt]], rel=1e-12, abs=1e-12)
+            assert tsq == pytest.approx(sq, rel=1e-12, abs=1e-12)
 
 
 @pytest.mark.parametrize("g", GEOMETRIES)

@@ -223,15 +223,18 @@ def ray_set(x, n, setup, c0, coef):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def ray_trace(n, setup, c0, idx, wts):  # pragma: no cover - compiled
+def ray_trace(x, n, setup, c0, idx, wts):  # pragma: no cover - compiled
     """Store the pixels of one ray: ``idx[:cnt]`` flat pixel indices, ``wts[:cnt]`` their weights.
 
     The same pixels and weights as :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` (zero
     weights of in-bounds neighbours included); ``idx`` and ``wts`` need ``3 N`` entries.
-    Returns ``cnt``. A method that uses a ray several times traces it once into these buffers.
+    Returns ``(cnt, <a, x>, sum(a²))`` (flat image ``x``). A method that uses a ray several
+    times traces it once into these buffers.
     """
     major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
     cnt = 0
+    dot = 0.0
+    sq = 0.0
     for i in range(n):
         c = c0 + i * delta
         m = _minor(c)
@@ -241,19 +244,26 @@ def ray_trace(n, setup, c0, idx, wts):  # pragma: no cover - compiled
         wl = length * min(max((-s - off) * invw, 0.0), 1.0)
         wr = length * min(max((off - s) * invw, 0.0), 1.0)
         base = i * major + m * minor
+        wc = length - wl - wr
         if m >= 1:
             idx[cnt] = base - minor
             wts[cnt] = wl
+            dot += wl * x[base - minor]
+            sq += wl * wl
             cnt += 1
         if 0 <= m < n:
             idx[cnt] = base
-            wts[cnt] = length - wl - wr
+            wts[cnt] = wc
+            dot += wc * x[base]
+            sq += wc * wc
             cnt += 1
         if m + 1 < n:
             idx[cnt] = base + minor
             wts[cnt] = wr
+            dot += wr * x[base + minor]
+            sq += wr * wr
             cnt += 1
-    return cnt
+    return cnt, dot, sq
 
 
 @numba.njit(cache=True, nogil=True)

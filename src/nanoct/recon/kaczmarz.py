@@ -215,13 +215,7 @@ def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no co
         k = views[i]
         setup = ray_setup(params[k], n)
         for l in range(n_det):
-            cnt = ray_trace(n, setup, setup[6] + l * setup[7], idx, wts)
-            dot = 0.0
-            nr = 0.0
-            for j in range(cnt):
-                a = wts[j]
-                dot += a * x[idx[j]]
-                nr += a * a
+            cnt, dot, nr = ray_trace(x, n, setup, setup[6] + l * setup[7], idx, wts)
             if nr <= 0.0:
                 continue
             res = y[k * n_det + l] - dot

@@ -204,19 +204,13 @@ def _resesop_sweep_free(
     cnt_old = 0
     if old >= 0:
         old_setup = ray_setup(params[old // n_det], n)
-        cnt_old = ray_trace(n, old_setup, old_setup[6] + (old % n_det) * old_setup[7], idx_old, wts_old)
+        cnt_old = ray_trace(x, n, old_setup, old_setup[6] + (old % n_det) * old_setup[7], idx_old, wts_old)[0]
     for i in range(views.shape[0]):
         k = views[i]
         setup = ray_setup(params[k], n)
         for l in range(n_det):
             r = k * n_det + l
-            cnt = ray_trace(n, setup, setup[6] + l * setup[7], idx, wts)
-            dot = 0.0
-            nn = 0.0
-            for j in range(cnt):
-                a = wts[j]
-                dot += a * x[idx[j]]
-                nn += a * a
+            cnt, dot, nn = ray_trace(x, n, setup, setup[6] + l * setup[7], idx, wts)
             if nn <= 0.0:
                 flags[r] = True
                 continue
