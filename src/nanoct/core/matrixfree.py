@@ -5,6 +5,8 @@ view and grows as N³ (8 bytes per non-zero, about 1.3 K N² non-zeros for K vie
 the paper-parallel preset, 3 GB at N = 511, 190 GB at N = 2048). The row-action methods use
 one ray (Kaczmarz, RESESOP) or one view (Dremel) at a time, so above a size they trace each
 ray when they need it (:func:`ray_dot`, :func:`ray_add`) and store nothing but the image.
+Kaczmarz and RESESOP trace each ray once into a buffer of at most ``3 N`` pixels
+(:func:`ray_trace`) and use it for the ray's dot product and its update.
 
 The line model is ASTRA's parallel-beam ``line`` kernel: a ray that is mainly vertical
 (``|ray_x| < |ray_y|``) crosses the centre line of every image row at a fractional column
