@@ -22,6 +22,7 @@ from nanoct.core.matrixfree import (
     ray_dot,
     ray_set,
     ray_setup,
+    ray_trace,
     residual_norm_free,
 )
 from nanoct.core.operators import system_matrix
@@ -44,6 +45,27 @@ def traced_rows(g: Geometry, k: int) -> np.ndarray:
     for l in range(g.n_det):
         ray_set(rows[l], g.n, setup, setup[6] + l * setup[7], 1.0)
     return rows
+
+
+@pytest.mark.parametrize("g", GEOMETRIES)
+def test_ray_trace_stores_the_weights_of_ray_set_and_ray_dot(g: Geometry) -> None:
+    rays = ParallelRays(g)
+    x = np.random.default_rng(3).random(g.n * g.n)
+    idx = np.empty(3 * g.n, np.int64)
+    wts = np.empty(3 * g.n)
+    for k in range(0, g.n_angles, max(1, g.n_angles // 9)):
+        rows = traced_rows(g, k)
+        setup = ray_setup(rays.params[k], g.n)
+        for l in range(g.n_det):
+            cnt, tdot, tsq = ray_trace(x, g.n, setup, setup[6] + l * setup[7], idx, wts)
+            assert len(set(idx[:cnt].tolist())) == cnt  # each pixel once
+            row = np.zeros(g.n * g.n)
+            row[idx[:cnt]] = wts[:cnt]
+            np.testing.assert_array_equal(row, rows[l])  # same pixels, same weights, same orientation
+            dot, _, sq = ray_dot(x, g.n, setup, setup[6] + l * setup[7])
+            assert tdot == pytest.approx(dot, rel=1e-12, abs=1e-12)
+            assert tdot == pytest.approx(wts[:cnt] @ x[idx[:cnt]], rel=1e-12, abs=1e-12)
+            assert tsq == pytest.approx(sq, rel=1e-12, abs=1e-12)
 
 
 @pytest.mark.parametrize("g", GEOMETRIES)

@@ -5,6 +5,8 @@ view and grows as N³ (8 bytes per non-zero, about 1.3 K N² non-zeros for K vie
 the paper-parallel preset, 3 GB at N = 511, 190 GB at N = 2048). The row-action methods use
 one ray (Kaczmarz, RESESOP) or one view (Dremel) at a time, so above a size they trace each
 ray when they need it (:func:`ray_dot`, :func:`ray_add`) and store nothing but the image.
+Kaczmarz and RESESOP trace each ray once into a buffer of at most ``3 N`` pixels
+(:func:`ray_trace`) and use it for the ray's dot product and its update.
 
 The line model is ASTRA's parallel-beam ``line`` kernel: a ray that is mainly vertical
 (``|ray_x| < |ray_y|``) crosses the centre line of every image row at a fractional column
@@ -47,6 +49,7 @@ __all__ = [
     "ray_dot",
     "ray_set",
     "ray_setup",
+    "ray_trace",
     "residual_norm_free",
     "use_threads",
 ]
@@ -219,6 +222,50 @@ def ray_set(x, n, setup, c0, coef):  # pragma: no cover - compiled
             x[base] = coef * (length - wl - wr)
         if m + 1 < n:
             x[base + minor] = coef * wr
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_trace(x, n, setup, c0, idx, wts):  # pragma: no cover - compiled
+    """Store the pixels of one ray: ``idx[:cnt]`` flat pixel indices, ``wts[:cnt]`` their weights.
+
+    The same pixels and weights as :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` (zero
+    weights of in-bounds neighbours included); ``idx`` and ``wts`` need ``3 N`` entries.
+    Returns ``(cnt, <a, x>, sum(a²))`` (flat image ``x``). A method that uses a ray several
+    times traces it once into these buffers.
+    """
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    cnt = 0
+    dot = 0.0
+    sq = 0.0
+    for i in range(n):
+        c = c0 + i * delta
+        m = _minor(c)
+        if m < -1 or m > n:
+            continue
+        off = c - m
+        wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+        wr = length * min(max((off - s) * invw, 0.0), 1.0)
+        base = i * major + m * minor
+        wc = length - wl - wr
+        if m >= 1:
+            idx[cnt] = base - minor
+            wts[cnt] = wl
+            dot += wl * x[base - minor]
+            sq += wl * wl
+            cnt += 1
+        if 0 <= m < n:
+            idx[cnt] = base
+            wts[cnt] = wc
+            dot += wc * x[base]
+            sq += wc * wc
+            cnt += 1
+        if m + 1 < n:
+            idx[cnt] = base + minor
+            wts[cnt] = wr
+            dot += wr * x[base + minor]
+            sq += wr * wr
+            cnt += 1
+    return cnt, dot, sq
 
 
 @numba.njit(cache=True, nogil=True)

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays, ray_add, ray_dot, ray_setup, residual_norm_free
+from ..core.matrixfree import ParallelRays, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from .params import MethodParams
 from .result import ReconResult
@@ -209,15 +209,18 @@ def kaczmarz(
 def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no cover - compiled
     """:func:`_kaczmarz_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
+    idx = np.empty(3 * n, np.int64)  # each ray is traced once, for its dot and its update
+    wts = np.empty(3 * n)
     for i in range(views.shape[0]):
         k = views[i]
         setup = ray_setup(params[k], n)
         for l in range(n_det):
-            c0 = setup[6] + l * setup[7]
-            dot, _, nr = ray_dot(x, n, setup, c0)
+            cnt, dot, nr = ray_trace(x, n, setup, setup[6] + l * setup[7], idx, wts)
             if nr <= 0.0:
                 continue
             res = y[k * n_det + l] - dot
             run += res * res
-            ray_add(x, n, setup, c0, omega * res / nr, x, False, False)
+            coef = omega * res / nr
+            for j in range(cnt):
+                x[idx[j]] += coef * wts[j]
     return run

@@ -56,7 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays, ray_add, ray_dot, ray_set, ray_setup, residual_norm_free
+from ..core.matrixfree import ParallelRays, ray_dot, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float
 from .params import MethodParams
@@ -195,13 +195,22 @@ def _resesop_sweep_free(
     old_norm = state[2]
     n_upd = 0
     run = 0.0
+    # each ray is traced once into (idx, wts); the previous search direction's ray stays in
+    # (idx_old, wts_old) for its update, so no ray is traced twice
+    idx = np.empty(3 * n, np.int64)
+    wts = np.empty(3 * n)
+    idx_old = np.empty(3 * n, np.int64)
+    wts_old = np.empty(3 * n)
+    cnt_old = 0
+    if old >= 0:
+        old_setup = ray_setup(params[old // n_det], n)
+        cnt_old = ray_trace(x, n, old_setup, old_setup[6] + (old % n_det) * old_setup[7], idx_old, wts_old)[0]
     for i in range(views.shape[0]):
         k = views[i]
         setup = ray_setup(params[k], n)
         for l in range(n_det):
             r = k * n_det + l
-            c0 = setup[6] + l * setup[7]
-            dot, _, nn = ray_dot(x, n, setup, c0)
+            cnt, dot, nn = ray_trace(x, n, setup, setup[6] + l * setup[7], idx, wts)
             if nn <= 0.0:
                 flags[r] = True
                 continue
@@ -220,7 +229,9 @@ def _resesop_sweep_free(
             coef_new = -step
             coef_old = 0.0
             if old >= 0:
-                g = ray_dot(wo, n, setup, c0)[0]
+                g = 0.0
+                for j in range(cnt):
+                    g += wts[j] * wo[idx[j]]
                 c_old = old_val - step * g
                 y_old = y[old]
                 w_old = width[old]
@@ -236,13 +247,16 @@ def _resesop_sweep_free(
                         tt = (c_old - b_old) / det
                         coef_new += tt * g
                         coef_old = -tt * nn
-                old_setup = ray_setup(params[old // n_det], n)
-                old_c0 = old_setup[6] + (old % n_det) * old_setup[7]
-                if coef_old != 0.0:
-                    ray_add(x, n, old_setup, old_c0, coef_old, x, False, False)
-                ray_set(wo, n, old_setup, old_c0, 0.0)
-            ray_add(x, n, setup, c0, coef_new, x, False, False)
-            ray_set(wo, n, setup, c0, 1.0)
+                for j in range(cnt_old):
+                    if coef_old != 0.0:
+                        x[idx_old[j]] += coef_old * wts_old[j]
+                    wo[idx_old[j]] = 0.0
+            for j in range(cnt):
+                x[idx[j]] += coef_new * wts[j]
+                wo[idx[j]] = wts[j]
+            idx, idx_old = idx_old, idx
+            wts, wts_old = wts_old, wts
+            cnt_old = cnt
             old = r
             old_val = b_new
             old_norm = nn
