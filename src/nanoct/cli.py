@@ -704,7 +704,12 @@ def _parse_center(text: str) -> float | str:
 def stack(
     source: Path = typer.Argument(..., help="Data-set store, or a scan file to import into --store first."),
     store_dir: Path | None = typer.Option(None, "--store", help="With a scan file: the new data set to import into."),
-    method: str = typer.Option("fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed)."),
+    method: str = typer.Option(
+        "fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed) | resesop (corrected data)."
+    ),
+    eta: str = typer.Option(
+        "auto", "--eta", help="resesop: model-uncertainty level: auto (FBP residual per view) | NUMBER | FILE.npy (K,)."
+    ),
     center_offset: str = typer.Option("auto", "--center-offset", help="Axis offset in detector pixels, or auto."),
     motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),
     binning: int = typer.Option(8, "--binning", help="Binning of the coarse Dremel estimate (used without centroids)."),
@@ -734,7 +739,7 @@ def stack(
         raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
-        binning=binning, coarse_iter=coarse_iter, model=smooth,
+        binning=binning, coarse_iter=coarse_iter, model=smooth, eta=_parse_eta(eta),
         refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
@@ -743,6 +748,22 @@ def stack(
         f"wrote reconstructions/{written}: axis offset {info.get('center_offset', float('nan')):+.3f} px, "
         f"shift RMS {info.get('shift_rms', float('nan')):.3f} px"
     )
+
+
+def _parse_eta(text: str) -> Any:
+    """``--eta``: ``auto``, a number, or a ``.npy`` file of per-view levels (checked by the stack)."""
+    if text == "auto":
+        return text
+    if text.endswith(".npy"):
+        import numpy as np
+
+        if not Path(text).is_file():
+            raise NanoctError(f"--eta {text!r}: no such file; give auto, a number or a .npy file of per-view levels")
+        return np.load(text)
+    try:
+        return float(text)
+    except ValueError:
+        raise NanoctError(f"--eta {text!r}: give auto, a number >= 0 or a .npy file of per-view levels") from None
 
 
 def _parse_ints(text: str, flag: str, low: int = 1) -> tuple[int, ...]:

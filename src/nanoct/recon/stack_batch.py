@@ -23,13 +23,60 @@ from ..core.fanout import run_tasks
 from ..io.store import DataStore, open_cached
 from ..names import stack_name
 from .motion_model import fit_motion_model
-from .stack import corrected_fbp, estimate_stack_motion, with_center
+from .stack import corrected_fbp, estimate_stack_motion, reproject, with_center
 
-__all__ = ["STACK_METHODS", "reconstruct_stack"]
+__all__ = ["STACK_METHODS", "reconstruct_stack", "shift_corrected"]
 
-#: Reconstruction of each slice with the stack's motion: motion-corrected FBP, or Dremel (SART
-#: view steps) with the motion held fixed.
-STACK_METHODS = ("fbp", "dremel")
+#: Reconstruction of each slice with the stack's motion: motion-corrected FBP, Dremel (SART
+#: view steps) with the motion held fixed, or RESESOP-Kaczmarz on the shift-corrected sinogram.
+STACK_METHODS = ("fbp", "dremel", "resesop")
+
+
+def _check_eta(eta: Any, n_views: int) -> str | float | list[float]:
+    """``"auto"``, one level >= 0 for every view, or ``n_views`` levels >= 0 (as stored in the params)."""
+    if isinstance(eta, str) and eta == "auto":
+        return "auto"
+    try:
+        arr = np.asarray(eta, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.array([np.nan])
+    if arr.ndim > 1 or (arr.ndim == 1 and arr.size != n_views) or not np.isfinite(arr).all() or (arr < 0).any():
+        raise NanoctError(
+            f"--eta {eta!r}: give 'auto', one finite level >= 0, or {n_views} per-view levels >= 0 (a .npy file)"
+        )
+    return float(arr) if arr.ndim == 0 else arr.tolist()
+
+
+def shift_corrected(sinogram: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """The sinogram with view ``k`` read at ``u - d_k`` (linear interpolation, zero outside).
+
+    Parameters
+    ----------
+    sinogram : ndarray of shape (K, L)
+        Measured line integrals.
+    shifts : ndarray of shape (K,)
+        Per-view shifts ``d_k`` in detector pixels, as :func:`~nanoct.recon.stack.corrected_fbp` takes them.
+
+    Returns
+    -------
+    ndarray of shape (K, L), float64
+        The views as the unmoved object would give them.
+    """
+    u = np.arange(sinogram.shape[1], dtype=np.float64)
+    return np.stack([np.interp(u - d, u, view, left=0.0, right=0.0) for view, d in zip(sinogram, shifts)])
+
+
+def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
+    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: the corrected FBP's residual per view."""
+    from .resesop import resesop
+
+    corrected = shift_corrected(sino.astype(np.float64), shifts)
+    if eta == "auto":
+        start = corrected_fbp(geometry, corrected)
+        levels = np.abs(corrected - reproject(geometry, start)).max(axis=1)
+    else:
+        levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
+    return resesop(geometry, corrected, levels, projector="auto").image
 
 
 def _motion_slices(store: DataStore, value: str | None) -> list[int]:
@@ -81,12 +128,16 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
     store.recons.set_motion_info(name, info)
 
 
-def _reconstruct_slice(path: str, name: str, method: str, center: float, shifts: np.ndarray, index: int) -> int:
+def _reconstruct_slice(
+    path: str, name: str, method: str, center: float, eta: Any, shifts: np.ndarray, index: int
+) -> int:
     store = open_cached(path)
     geometry = with_center(store.geometry, center)
     sino = store.read_array("sinograms", [index])[0]
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
+    elif method == "resesop":
+        image = _resesop_slice(geometry, sino, shifts, eta)
     else:
         from .dremel import dremel
 
@@ -106,6 +157,7 @@ def reconstruct_stack(
     coarse_iter: int = 8,
     refine: tuple[int, ...] | None = None,
     model: tuple[int, int] | None = None,
+    eta: Any = "auto",
     name: str | None = None,
     overwrite: bool = False,
     workers: int = 2,
@@ -118,8 +170,10 @@ def reconstruct_stack(
     ----------
     path : path
         Data-set store (an imported scan, or a simulated parallel-beam store).
-    method : {"fbp", "dremel"}
-        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`).
+    method : {"fbp", "dremel", "resesop"}
+        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`). ``"resesop"`` runs
+        :func:`~nanoct.recon.resesop.resesop` (20 sweeps at most, matrix-free rays for large
+        slices) on the sinogram with every view moved back by its shift (:func:`shift_corrected`).
     center : float or "auto"
         Rotation-axis offset in the store's detector pixels, or ``"auto"``: estimated with the motion.
     motion_slices : str, optional
@@ -128,7 +182,10 @@ def reconstruct_stack(
         See :func:`~nanoct.recon.stack.estimate_stack_motion`.
     model : (int, int), optional
         Replace the estimate by its smooth model (polynomial degree, rotation harmonics).
-    name : str, optional
+    eta : "auto", float or array_like of shape (K,)
+        RESESOP's model-uncertainty level per view (only with ``method="resesop"``). ``"auto"``:
+        per view, the largest ``|y_c - A x_0|`` of the shift-corrected sinogram ``y_c`` and its
+        FBP ``x_0``; a number: that level for every view. : str, optional
         Output name (default :func:`~nanoct.names.stack_name`).
     overwrite : bool
         Delete an existing reconstruction of that name first (its motion too).
@@ -143,7 +200,8 @@ def reconstruct_stack(
     Raises
     ------
     NanoctError
-        For a fan-beam store, an unknown method, bad slices, or a name made with other settings.
+        For a fan-beam store, an unknown method, bad slices, a bad ``eta``, or a name made with
+        other settings.
     """
     if method not in STACK_METHODS:
         raise NanoctError(f"--method {method!r} is not a stack method; use one of {', '.join(STACK_METHODS)}")
@@ -161,6 +219,8 @@ def reconstruct_stack(
         "refine": None if refine is None else [int(b) for b in refine],
         "model": None if model is None else [int(v) for v in model],
     }
+    if method == "resesop":
+        params["eta"] = _check_eta(eta, store.geometry.sino_shape[0])
     name = name or stack_name(method)
     if overwrite:
         store.delete_reconstruction(name)
@@ -170,6 +230,8 @@ def reconstruct_stack(
     info = store.recons.motion_info(name)
     shifts = store.recons.shared_shifts(name).astype(np.float64)
     pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
-    task = partial(_reconstruct_slice, str(store.path), name, method, float(info["center_offset"]), shifts)
+    task = partial(
+        _reconstruct_slice, str(store.path), name, method, float(info["center_offset"]), params.get("eta"), shifts
+    )
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
     return name
