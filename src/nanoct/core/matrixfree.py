@@ -21,7 +21,8 @@ rays are handled the same way with rows and columns exchanged. Here the arithmet
 and the crossings are computed directly (ASTRA accumulates them in float32), so a ray's weights
 agree with the cached CSR row to about 1e-3 of a pixel length (tested row by row).
 
-A view's rays can be split over threads (:func:`project_view`, :func:`backproject_view`):
+A view's rays can be split over threads (:func:`project_view`, :func:`backproject_view` and
+the buffered :func:`trace_view`, :func:`backproject_traced`):
 projections are independent; back projections go in blocks of rays, the even blocks in
 parallel and then the odd ones, so that concurrent blocks touch disjoint pixels and the
 result does not depend on the number of threads.
@@ -405,17 +406,62 @@ def view_buffer(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return np.empty((n_det, 3 * n), np.int32), np.empty((n_det, 3 * n)), np.empty(n_det, np.int64)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _store(idx, wts, l, q, j, w):  # pragma: no cover - compiled
+    idx[l, q] = j
+    wts[l, q] = w
+
+
 @numba.njit(cache=True, nogil=True)
 def _trace_rays(par, n, x, p, rowsum, idx, wts, cnt, lo, hi):  # pragma: no cover - compiled
+    """The pixels and weights of :func:`ray_trace` (same order), with a branch-free interior."""
     setup = ray_setup(par, n)
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
     for l in range(lo, hi):
-        c, dot, _ = ray_trace(x, n, setup, setup[6] + l * setup[7], idx[l], wts[l])
-        cnt[l] = c
-        p[l] = dot
+        c0 = setup[6] + l * setup[7]
+        q = 0
         tot = 0.0
-        for q in range(c):
-            tot += wts[l, q]
+        for i in range(n):
+            c = c0 + i * delta
+            m = _minor(c)
+            if m < -1 or m > n:
+                continue
+            off = c - m
+            wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+            wr = length * min(max((off - s) * invw, 0.0), 1.0)
+            wc = length - wl - wr
+            base = i * major + m * minor
+            if 1 <= m <= n - 2:
+                _store(idx, wts, l, q, base - minor, wl)
+                _store(idx, wts, l, q + 1, base, wc)
+                _store(idx, wts, l, q + 2, base + minor, wr)
+                q += 3
+                tot += length
+                continue
+            if m >= 1:
+                _store(idx, wts, l, q, base - minor, wl)
+                q += 1
+                tot += wl
+            if 0 <= m < n:
+                _store(idx, wts, l, q, base, wc)
+                q += 1
+                tot += wc
+            if m + 1 < n:
+                _store(idx, wts, l, q, base + minor, wr)
+                q += 1
+                tot += wr
+        cnt[l] = q
         rowsum[l] = tot
+        p[l] = _gather_dot(idx[l], wts[l], x, q)
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "nsz", "contract"})
+def _gather_dot(idx, wts, x, cnt):  # pragma: no cover - compiled
+    """``sum(wts[q] * x[idx[q]] for q < cnt)`` (vectorised float64)."""
+    dot = 0.0
+    for q in range(cnt):
+        dot += wts[q] * x[idx[q]]
+    return dot
 
 
 @numba.njit(cache=True, nogil=True)
