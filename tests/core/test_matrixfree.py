@@ -12,6 +12,8 @@ import pytest
 from nanoct.core.geometry import Geometry, get_preset
 from nanoct.core.matrixfree import (
     ParallelRays,
+    backproject_traced,
+    backproject_traced_serial,
     backproject_view,
     backproject_view_serial,
     column_sums,
@@ -24,6 +26,9 @@ from nanoct.core.matrixfree import (
     ray_setup,
     ray_trace,
     residual_norm_free,
+    trace_view,
+    trace_view_serial,
+    view_buffer,
 )
 from nanoct.core.operators import system_matrix
 from nanoct.recon.rowaction import AUTO_MATRIX_BYTES, resolve_projector
@@ -164,3 +169,45 @@ def test_resolve_projector() -> None:
 def test_parallel_rays_refuses_fan_beam() -> None:
     with pytest.raises(ValueError, match="projector='matrix'"):
         ParallelRays(get_preset("tiny-fan"))
+
+
+@pytest.mark.parametrize("threads", [False, True])
+@pytest.mark.parametrize("g", GEOMETRIES)
+def test_buffered_view_equals_project_view_and_backproject_view(g: Geometry, threads: bool) -> None:
+    """A view traced once into its buffer: the projections of project_view (to rounding), the row
+    sums of the traced rows, and the same bytes as backproject_view (clipped and scaled)."""
+    rays = ParallelRays(g)
+    rng = np.random.default_rng(4)
+    x = rng.random(g.n * g.n)
+    scale = rng.random(g.n * g.n).astype(np.float32)
+    idx, wts, cnt = view_buffer(g)
+    block = ray_block(g)
+    trace, back = (trace_view, backproject_traced) if threads else (trace_view_serial, backproject_traced_serial)
+    for k in range(0, g.n_angles, max(1, g.n_angles // 7)):
+        p, rs, p_ref, rs_ref = (np.zeros(g.n_det) for _ in range(4))
+        trace(rays.params[k], g.n, g.n_det, x, p, rs, idx, wts, cnt, block)
+        project_view_serial(rays.params[k], g.n, g.n_det, x, p_ref, rs_ref, block)
+        np.testing.assert_allclose(p, p_ref, rtol=1e-12, atol=1e-12)
+        rows = traced_rows(g, k)
+        np.testing.assert_allclose(rs, rows.sum(axis=1), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(p, rows @ x, rtol=1e-12, atol=1e-12)
+        coef = rng.standard_normal(g.n_det)
+        coef[::5] = 0.0
+        a = (rng.random(g.n * g.n) - 0.3).clip(0.0).astype(np.float32)
+        b = a.copy()
+        back(g.n_det, coef, a, scale, True, True, block, idx, wts, cnt)
+        backproject_view_serial(rays.params[k], g.n, g.n_det, coef, b, scale, True, True, block)
+        np.testing.assert_array_equal(a, b)
+        c = np.zeros(g.n * g.n)
+        back(g.n_det, coef, c, c, False, False, block, idx, wts, cnt)
+        np.testing.assert_allclose(c, rows.T @ coef, rtol=1e-12, atol=1e-12)  # A_k^T, not A_k
+
+
+def test_view_buffer_is_capped(monkeypatch) -> None:
+    import nanoct.core.matrixfree as mf
+
+    g = GEOMETRIES[2]
+    idx, wts, cnt = view_buffer(g)
+    assert idx.shape == wts.shape == (g.n_det, 3 * g.n) and cnt.shape == (g.n_det,)
+    monkeypatch.setattr(mf, "VIEW_BUFFER_BYTES", 36 * g.n * g.n_det - 1)
+    assert view_buffer(g) is None

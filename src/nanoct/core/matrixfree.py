@@ -6,7 +6,10 @@ the paper-parallel preset, 3 GB at N = 511, 190 GB at N = 2048). The row-action 
 one ray (Kaczmarz, RESESOP) or one view (Dremel) at a time, so above a size they trace each
 ray when they need it (:func:`ray_dot`, :func:`ray_add`) and store nothing but the image.
 Kaczmarz and RESESOP trace each ray once into a buffer of at most ``3 N`` pixels
-(:func:`ray_trace`) and use it for the ray's dot product and its update.
+(:func:`ray_trace`) and use it for the ray's dot product and its update; Dremel traces a
+whole view's rays once into a per-view buffer (:func:`trace_view`, at most
+:data:`VIEW_BUFFER_BYTES`) and uses it for the view's projection and back projection
+(:func:`backproject_traced`).
 
 The line model is ASTRA's parallel-beam ``line`` kernel: a ray that is mainly vertical
 (``|ray_x| < |ray_y|``) crosses the centre line of every image row at a fractional column
@@ -18,7 +21,8 @@ rays are handled the same way with rows and columns exchanged. Here the arithmet
 and the crossings are computed directly (ASTRA accumulates them in float32), so a ray's weights
 agree with the cached CSR row to about 1e-3 of a pixel length (tested row by row).
 
-A view's rays can be split over threads (:func:`project_view`, :func:`backproject_view`):
+A view's rays can be split over threads (:func:`project_view`, :func:`backproject_view` and
+the buffered :func:`trace_view`, :func:`backproject_traced`):
 projections are independent; back projections go in blocks of rays, the even blocks in
 parallel and then the odd ones, so that concurrent blocks touch disjoint pixels and the
 result does not depend on the number of threads.
@@ -38,6 +42,9 @@ __all__ = [
     "NNZ_PER_VIEW_PIXEL",
     "PARALLEL_MIN_WORK",
     "ParallelRays",
+    "VIEW_BUFFER_BYTES",
+    "backproject_traced",
+    "backproject_traced_serial",
     "backproject_view",
     "backproject_view_serial",
     "column_sums",
@@ -51,7 +58,10 @@ __all__ = [
     "ray_setup",
     "ray_trace",
     "residual_norm_free",
+    "trace_view",
+    "trace_view_serial",
     "use_threads",
+    "view_buffer",
 ]
 
 #: Non-zeros of the parallel ``line`` matrix per view and image pixel (measured: 47.0 M for the
@@ -367,3 +377,137 @@ PARALLEL_MIN_WORK = 1 << 22
 def use_threads(geometry: Geometry) -> bool:
     """Whether one view's rays are split over threads: ``N * L >= PARALLEL_MIN_WORK``."""
     return geometry.n * geometry.n_det >= PARALLEL_MIN_WORK
+
+
+# ------------------------------------------------------------------ views traced once into a buffer
+#: Largest per-view buffer of traced rays (bytes): ``12 * 3 N * L`` (int32 pixel index and
+#: float64 weight for at most ``3 N`` pixels per ray). Views whose buffer would be larger are
+#: traced twice per step (:func:`project_view`, :func:`backproject_view`).
+VIEW_BUFFER_BYTES = 256 * 2**20
+
+
+def view_buffer(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A buffer for one view's traced rays, or None when it would exceed :data:`VIEW_BUFFER_BYTES`.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        A parallel-beam geometry.
+
+    Returns
+    -------
+    tuple of ndarray or None
+        ``(idx, wts, cnt)``: (L, 3 N) int32 flat pixel indices, (L, 3 N) float64 weights and
+        (L,) int64 pixel counts, for :func:`trace_view` and :func:`backproject_traced`.
+    """
+    n, n_det = geometry.n, geometry.n_det
+    if 12 * 3 * n * n_det > VIEW_BUFFER_BYTES:
+        return None
+    return np.empty((n_det, 3 * n), np.int32), np.empty((n_det, 3 * n)), np.empty(n_det, np.int64)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _store(idx, wts, l, q, j, w):  # pragma: no cover - compiled
+    idx[l, q] = j
+    wts[l, q] = w
+
+
+@numba.njit(cache=True, nogil=True)
+def _trace_rays(par, n, x, p, rowsum, idx, wts, cnt, lo, hi):  # pragma: no cover - compiled
+    """The pixels and weights of :func:`ray_trace` (same order), with a branch-free interior."""
+    setup = ray_setup(par, n)
+    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
+    for l in range(lo, hi):
+        c0 = setup[6] + l * setup[7]
+        q = 0
+        tot = 0.0
+        for i in range(n):
+            c = c0 + i * delta
+            m = _minor(c)
+            if m < -1 or m > n:
+                continue
+            off = c - m
+            wl = length * min(max((-s - off) * invw, 0.0), 1.0)
+            wr = length * min(max((off - s) * invw, 0.0), 1.0)
+            wc = length - wl - wr
+            base = i * major + m * minor
+            if 1 <= m <= n - 2:
+                _store(idx, wts, l, q, base - minor, wl)
+                _store(idx, wts, l, q + 1, base, wc)
+                _store(idx, wts, l, q + 2, base + minor, wr)
+                q += 3
+                tot += length
+                continue
+            if m >= 1:
+                _store(idx, wts, l, q, base - minor, wl)
+                q += 1
+                tot += wl
+            if 0 <= m < n:
+                _store(idx, wts, l, q, base, wc)
+                q += 1
+                tot += wc
+            if m + 1 < n:
+                _store(idx, wts, l, q, base + minor, wr)
+                q += 1
+                tot += wr
+        cnt[l] = q
+        rowsum[l] = tot
+        p[l] = _gather_dot(idx[l], wts[l], x, q)
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "nsz", "contract"})
+def _gather_dot(idx, wts, x, cnt):  # pragma: no cover - compiled
+    """``sum(wts[q] * x[idx[q]] for q < cnt)`` (vectorised float64)."""
+    dot = 0.0
+    for q in range(cnt):
+        dot += wts[q] * x[idx[q]]
+    return dot
+
+
+@numba.njit(cache=True, nogil=True)
+def _backproject_traced_rays(coef, x, scale, scaled, nonneg, idx, wts, cnt, lo, hi):  # pragma: no cover
+    for l in range(lo, hi):
+        cl = coef[l]
+        if cl != 0.0:
+            for q in range(cnt[l]):
+                _put(x, idx[l, q], cl * wts[l, q], scale, scaled, nonneg)
+
+
+@numba.njit(cache=True, parallel=True)
+def trace_view(par, n, n_det, x, p, rowsum, idx, wts, cnt, block):  # pragma: no cover - compiled
+    """Trace the rays of one view into ``(idx, wts, cnt)`` (:func:`view_buffer`), blocks in parallel.
+
+    Ray ``l`` stores its pixels in ``idx[l, :cnt[l]]`` and weights in ``wts[l, :cnt[l]]``
+    (:func:`ray_trace`); also ``p[l] = <a_l, x>`` and ``rowsum[l] = sum(a_l)``.
+    """
+    for b in numba.prange((n_det + block - 1) // block):
+        _trace_rays(par, n, x, p, rowsum, idx, wts, cnt, b * block, min((b + 1) * block, n_det))
+
+
+@numba.njit(cache=True, nogil=True)
+def trace_view_serial(par, n, n_det, x, p, rowsum, idx, wts, cnt, block):  # pragma: no cover - compiled
+    """:func:`trace_view` on one thread."""
+    _trace_rays(par, n, x, p, rowsum, idx, wts, cnt, 0, n_det)
+
+
+@numba.njit(cache=True, parallel=True)
+def backproject_traced(n_det, coef, x, scale, scaled, nonneg, block, idx, wts, cnt):  # pragma: no cover
+    """:func:`backproject_view` with the view's rays read from the buffer of :func:`trace_view`.
+
+    The same pixels, increments and block order as :func:`backproject_view`, so the same result.
+    """
+    n_blocks = (n_det + block - 1) // block
+    for phase in range(2):
+        for b in numba.prange((n_blocks + 1 - phase) // 2):
+            start = (2 * b + phase) * block
+            _backproject_traced_rays(coef, x, scale, scaled, nonneg, idx, wts, cnt, start, min(start + block, n_det))
+
+
+@numba.njit(cache=True, nogil=True)
+def backproject_traced_serial(n_det, coef, x, scale, scaled, nonneg, block, idx, wts, cnt):  # pragma: no cover
+    """:func:`backproject_traced` on one thread, blocks in the same order (the same result)."""
+    n_blocks = (n_det + block - 1) // block
+    for phase in range(2):
+        for b in range((n_blocks + 1 - phase) // 2):
+            start = (2 * b + phase) * block
+            _backproject_traced_rays(coef, x, scale, scaled, nonneg, idx, wts, cnt, start, min(start + block, n_det))

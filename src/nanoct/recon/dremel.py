@@ -65,6 +65,8 @@ import scipy.sparse as sp
 from ..core.geometry import Geometry
 from ..core.matrixfree import (
     ParallelRays,
+    backproject_traced,
+    backproject_traced_serial,
     backproject_view,
     backproject_view_serial,
     column_sums,
@@ -73,7 +75,10 @@ from ..core.matrixfree import (
     ray_block,
     ray_dot,
     ray_setup,
+    trace_view,
+    trace_view_serial,
     use_threads,
+    view_buffer,
 )
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
@@ -453,18 +458,34 @@ def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def _view_step_free(
-    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads
+    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads, buffered, idx, wts, cnt
 ):  # pragma: no cover - compiled
-    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters);
-    projection and back projection use all threads (:func:`~nanoct.core.matrixfree.backproject_view`)."""
-    if threads:
+    """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters).
+
+    ``buffered``: each ray is traced once into ``(idx, wts, cnt)``
+    (:func:`~nanoct.core.matrixfree.trace_view`) for the projection and the back projection;
+    otherwise twice (:func:`~nanoct.core.matrixfree.project_view`,
+    :func:`~nanoct.core.matrixfree.backproject_view`). ``threads``: the view's rays are split
+    over all threads.
+    """
+    if buffered:
+        if threads:
+            trace_view(par, n, n_det, x, p, rowsum, idx, wts, cnt, block)
+        else:
+            trace_view_serial(par, n, n_det, x, p, rowsum, idx, wts, cnt, block)
+    elif threads:
         project_view(par, n, n_det, x, p, rowsum, block)
     else:
         project_view_serial(par, n, n_det, x, p, rowsum, block)
     res2 = _shifted_step(p, y, 0, rowsum, 0, n_det, d, z, g)
     for l in range(n_det):
         g[l] *= -omega
-    if threads:
+    if buffered:
+        if threads:
+            backproject_traced(n_det, g, x, inv_col, True, nonneg, block, idx, wts, cnt)
+        else:
+            backproject_traced_serial(n_det, g, x, inv_col, True, nonneg, block, idx, wts, cnt)
+    elif threads:
         backproject_view(par, n, n_det, g, x, inv_col, True, nonneg, block)
     else:
         backproject_view_serial(par, n, n_det, g, x, inv_col, True, nonneg, block)
@@ -499,6 +520,10 @@ def _dremel_sweep_free(
     rowsum,
     block,
     threads,
+    buffered,
+    idx,
+    wts,
+    cnt,
 ):  # pragma: no cover - compiled
     """:func:`_dremel_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
@@ -506,7 +531,8 @@ def _dremel_sweep_free(
         k = views[i]
         d = shifts[k] * det_per_obj
         yk = y[k * n_det : (k + 1) * n_det]
-        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, omega, nonneg, p, z, g, rowsum, block, threads)
+        step = (omega, nonneg, p, z, g, rowsum, block, threads, buffered, idx, wts, cnt)
+        run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, *step)
         if correct:
             zmean = _upsample_centre(z, f_sr, zc)
             sigma = _xcorr_shift(zc, zmean, ycorr[k], ymean[k], f_sr, mode, subpixel, c)
@@ -681,6 +707,10 @@ def dremel(
     if free:
         inv_col = _inverse_column_sums(mat)
         rowsum = np.zeros(n_det)
+        buffer = view_buffer(geometry)
+        buffered = buffer is not None
+        if buffer is None:  # typed placeholders: each ray is traced twice per view step
+            buffer = (np.empty((1, 1), np.int32), np.empty((1, 1)), np.empty(1, np.int64))
     else:
         rowsum, inv_col = _row_col_sums(mat, n_views)
         indices = unsigned_indices(mat)
@@ -690,7 +720,7 @@ def dremel(
         if free:
             run = _dremel_sweep_free(
                 mat.params, geometry.n, inv_col, y, x, views, n_det, shifts, *step, *shift_args, ycorr, ymean,
-                *work, rowsum, ray_block(geometry), use_threads(geometry),
+                *work, rowsum, ray_block(geometry), use_threads(geometry), buffered, *buffer,
             )  # fmt: skip
         else:
             step_args = (views, n_det, shifts, *step)
