@@ -235,18 +235,16 @@ def ray_set(x, n, setup, c0, coef):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def ray_trace(x, n, setup, c0, idx, wts):  # pragma: no cover - compiled
-    """Store the pixels of one ray: ``idx[:cnt]`` flat pixel indices, ``wts[:cnt]`` their weights.
+def _trace_into(n, setup, c0, idx, wts):  # pragma: no cover - compiled
+    """Store the pixels of one ray in ``idx[:cnt]`` and their weights in ``wts[:cnt]``.
 
-    The same pixels and weights as :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` (zero
-    weights of in-bounds neighbours included); ``idx`` and ``wts`` need ``3 N`` entries.
-    Returns ``(cnt, <a, x>, sum(a²))`` (flat image ``x``). A method that uses a ray several
-    times traces it once into these buffers.
+    The pixels of :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` in their order (zero
+    weights of in-bounds neighbours included), with a branch-free interior. Returns
+    ``(cnt, sum of the weights)``.
     """
     major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
-    cnt = 0
-    dot = 0.0
-    sq = 0.0
+    q = 0
+    tot = 0.0
     for i in range(n):
         c = c0 + i * delta
         m = _minor(c)
@@ -255,26 +253,52 @@ def ray_trace(x, n, setup, c0, idx, wts):  # pragma: no cover - compiled
         off = c - m
         wl = length * min(max((-s - off) * invw, 0.0), 1.0)
         wr = length * min(max((off - s) * invw, 0.0), 1.0)
-        base = i * major + m * minor
         wc = length - wl - wr
+        base = i * major + m * minor
+        if 1 <= m <= n - 2:
+            idx[q] = base - minor
+            wts[q] = wl
+            idx[q + 1] = base
+            wts[q + 1] = wc
+            idx[q + 2] = base + minor
+            wts[q + 2] = wr
+            q += 3
+            tot += length
+            continue
         if m >= 1:
-            idx[cnt] = base - minor
-            wts[cnt] = wl
-            dot += wl * x[base - minor]
-            sq += wl * wl
-            cnt += 1
+            idx[q] = base - minor
+            wts[q] = wl
+            q += 1
+            tot += wl
         if 0 <= m < n:
-            idx[cnt] = base
-            wts[cnt] = wc
-            dot += wc * x[base]
-            sq += wc * wc
-            cnt += 1
+            idx[q] = base
+            wts[q] = wc
+            q += 1
+            tot += wc
         if m + 1 < n:
-            idx[cnt] = base + minor
-            wts[cnt] = wr
-            dot += wr * x[base + minor]
-            sq += wr * wr
-            cnt += 1
+            idx[q] = base + minor
+            wts[q] = wr
+            q += 1
+            tot += wr
+    return q, tot
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_trace(x, n, setup, c0, idx, wts):  # pragma: no cover - compiled
+    """Store the pixels of one ray: ``idx[:cnt]`` flat pixel indices, ``wts[:cnt]`` their weights.
+
+    The same pixels and weights as :func:`ray_dot`, :func:`ray_add` and :func:`ray_set` (zero
+    weights of in-bounds neighbours included); ``idx`` and ``wts`` need ``3 N`` entries.
+    Returns ``(cnt, <a, x>, sum(a²))`` (flat image ``x``). A method that uses a ray several
+    times traces it once into these buffers.
+    """
+    cnt = _trace_into(n, setup, c0, idx, wts)[0]
+    dot = 0.0
+    sq = 0.0
+    for q in range(cnt):
+        w = wts[q]
+        dot += w * x[idx[q]]
+        sq += w * w
     return cnt, dot, sq
 
 
@@ -406,50 +430,13 @@ def view_buffer(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return np.empty((n_det, 3 * n), np.int32), np.empty((n_det, 3 * n)), np.empty(n_det, np.int64)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _store(idx, wts, l, q, j, w):  # pragma: no cover - compiled
-    idx[l, q] = j
-    wts[l, q] = w
-
-
 @numba.njit(cache=True, nogil=True)
 def _trace_rays(par, n, x, p, rowsum, idx, wts, cnt, lo, hi):  # pragma: no cover - compiled
-    """The pixels and weights of :func:`ray_trace` (same order), with a branch-free interior."""
+    """Rays ``lo:hi`` of a view traced into rows of the buffer (:func:`_trace_into`), with their
+    projections ``p`` and weight sums ``rowsum``."""
     setup = ray_setup(par, n)
-    major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
     for l in range(lo, hi):
-        c0 = setup[6] + l * setup[7]
-        q = 0
-        tot = 0.0
-        for i in range(n):
-            c = c0 + i * delta
-            m = _minor(c)
-            if m < -1 or m > n:
-                continue
-            off = c - m
-            wl = length * min(max((-s - off) * invw, 0.0), 1.0)
-            wr = length * min(max((off - s) * invw, 0.0), 1.0)
-            wc = length - wl - wr
-            base = i * major + m * minor
-            if 1 <= m <= n - 2:
-                _store(idx, wts, l, q, base - minor, wl)
-                _store(idx, wts, l, q + 1, base, wc)
-                _store(idx, wts, l, q + 2, base + minor, wr)
-                q += 3
-                tot += length
-                continue
-            if m >= 1:
-                _store(idx, wts, l, q, base - minor, wl)
-                q += 1
-                tot += wl
-            if 0 <= m < n:
-                _store(idx, wts, l, q, base, wc)
-                q += 1
-                tot += wc
-            if m + 1 < n:
-                _store(idx, wts, l, q, base + minor, wr)
-                q += 1
-                tot += wr
+        q, tot = _trace_into(n, setup, setup[6] + l * setup[7], idx[l], wts[l])
         cnt[l] = q
         rowsum[l] = tot
         p[l] = _gather_dot(idx[l], wts[l], x, q)

@@ -185,7 +185,8 @@ def reconstruct_stack(
     eta : "auto", float or array_like of shape (K,)
         RESESOP's model-uncertainty level per view (only with ``method="resesop"``). ``"auto"``:
         per view, the largest ``|y_c - A x_0|`` of the shift-corrected sinogram ``y_c`` and its
-        FBP ``x_0``; a number: that level for every view. : str, optional
+        FBP ``x_0``; a number: that level for every view.
+    name : str, optional
         Output name (default :func:`~nanoct.names.stack_name`).
     overwrite : bool
         Delete an existing reconstruction of that name first (its motion too).

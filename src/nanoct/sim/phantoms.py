@@ -202,6 +202,14 @@ def _random_subshape(rng: np.random.Generator, main: Shape) -> Shape:
     )
 
 
+def _random_center(rng: np.random.Generator, radius: float) -> tuple[float, float]:
+    """A point uniform in the disc of ``radius`` about the origin (where a shape's bounding disc
+    stays inside the field of view)."""
+    offset = radius * math.sqrt(rng.random())
+    direction = rng.uniform(0.0, 2.0 * math.pi)
+    return float(offset * math.cos(direction)), float(offset * math.sin(direction))
+
+
 def random_phantom_spec(rng: np.random.Generator, n: int) -> PhantomSpec:
     """Draw a random phantom description for an ``n x n`` field of view.
 
@@ -226,12 +234,9 @@ def random_phantom_spec(rng: np.random.Generator, n: int) -> PhantomSpec:
     kind = _random_kind(rng)
     extent = rng.uniform(*_MAIN_EXTENT) * fov_radius
     half_axes = _random_half_axes(rng, kind, extent)
-    # Centre uniform in the disc where the bounding disc of the shape stays inside fov_radius.
-    offset = (fov_radius - extent) * math.sqrt(rng.random())
-    direction = rng.uniform(0.0, 2.0 * math.pi)
     main = Shape(
         kind=kind,
-        center=(float(offset * math.cos(direction)), float(offset * math.sin(direction))),
+        center=_random_center(rng, fov_radius - extent),
         half_axes=half_axes,
         angle=float(rng.uniform(0.0, 180.0)),
         density=float(rng.uniform(*_MAIN_DENSITY)),
@@ -373,18 +378,13 @@ def random_ellipse_phantom(rng: np.random.Generator, n: int, *, oversample: int 
     fov_radius = FOV_FRACTION * (n - 1) / 2
     a = rng.uniform(0.6, 0.95) * fov_radius
     b = rng.uniform(0.6, 1.0) * a
-    offset = (fov_radius - a) * math.sqrt(rng.random())
-    direction = rng.uniform(0.0, 2.0 * math.pi)
-    center = (offset * math.cos(direction), offset * math.sin(direction))
+    center = _random_center(rng, fov_radius - a)
     angle = rng.uniform(0.0, 180.0)
     body, rim = rng.uniform(0.1, 0.35), rng.uniform(0.6, 1.0)
     inner = 1.0 - rng.uniform(0.04, 0.1)
-    # (shape, added density): the rim ellipse, the body inside it, then the inner features
-    parts = [
-        (Shape("ellipse", center, (a, b), angle, 1.0), rim),
-        (Shape("ellipse", center, (inner * a, inner * b), angle, 1.0), body - rim),
-    ]
     inside = Shape("ellipse", center, (inner * a, inner * b), angle, 1.0)
+    # (shape, added density): the rim ellipse, the body inside it, then the inner features
+    parts = [(Shape("ellipse", center, (a, b), angle, 1.0), rim), (inside, body - rim)]
     for _ in range(int(rng.integers(4, 11))):
         place = _random_subshape(rng, inside)  # its bounding disc lies inside the rim
         half_axes = _random_half_axes(rng, "ellipse", place.bounding_radius)
