@@ -458,11 +458,11 @@ def _inverse_column_sums(rays: ParallelRays) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def _view_step_free(
-    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads, buffered, idx, wts, cnt
+    par, n, n_det, inv_col, y, x, d, omega, nonneg, p, z, g, rowsum, block, threads, buffered, code, shared, rows
 ):  # pragma: no cover - compiled
     """:func:`_view_step` with the rays of one view traced on the fly (``par``: its ray parameters).
 
-    ``buffered``: each ray is traced once into ``(idx, wts, cnt)``
+    ``buffered``: each ray is traced once into ``(code, shared, rows)``
     (:func:`~nanoct.core.matrixfree.trace_view`) for the projection and the back projection;
     otherwise twice (:func:`~nanoct.core.matrixfree.project_view`,
     :func:`~nanoct.core.matrixfree.backproject_view`). ``threads``: the view's rays are split
@@ -470,9 +470,9 @@ def _view_step_free(
     """
     if buffered:
         if threads:
-            trace_view(par, n, n_det, x, p, rowsum, idx, wts, cnt, block)
+            trace_view(par, n, n_det, x, p, rowsum, code, shared, rows, block)
         else:
-            trace_view_serial(par, n, n_det, x, p, rowsum, idx, wts, cnt, block)
+            trace_view_serial(par, n, n_det, x, p, rowsum, code, shared, rows, block)
     elif threads:
         project_view(par, n, n_det, x, p, rowsum, block)
     else:
@@ -482,9 +482,9 @@ def _view_step_free(
         g[l] *= -omega
     if buffered:
         if threads:
-            backproject_traced(n_det, g, x, inv_col, True, nonneg, block, idx, wts, cnt)
+            backproject_traced(par, n, n_det, g, x, inv_col, True, nonneg, block, code, shared, rows)
         else:
-            backproject_traced_serial(n_det, g, x, inv_col, True, nonneg, block, idx, wts, cnt)
+            backproject_traced_serial(par, n, n_det, g, x, inv_col, True, nonneg, block, code, shared, rows)
     elif threads:
         backproject_view(par, n, n_det, g, x, inv_col, True, nonneg, block)
     else:
@@ -521,9 +521,9 @@ def _dremel_sweep_free(
     block,
     threads,
     buffered,
-    idx,
-    wts,
-    cnt,
+    code,
+    shared,
+    rows,
 ):  # pragma: no cover - compiled
     """:func:`_dremel_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
@@ -531,7 +531,7 @@ def _dremel_sweep_free(
         k = views[i]
         d = shifts[k] * det_per_obj
         yk = y[k * n_det : (k + 1) * n_det]
-        step = (omega, nonneg, p, z, g, rowsum, block, threads, buffered, idx, wts, cnt)
+        step = (omega, nonneg, p, z, g, rowsum, block, threads, buffered, code, shared, rows)
         run += _view_step_free(params[k], n, n_det, inv_col, yk, x, d, *step)
         if correct:
             zmean = _upsample_centre(z, f_sr, zc)
@@ -710,7 +710,7 @@ def dremel(
         buffer = view_buffer(geometry)
         buffered = buffer is not None
         if buffer is None:  # typed placeholders: each ray is traced twice per view step
-            buffer = (np.empty((1, 1), np.int32), np.empty((1, 1)), np.empty(1, np.int64))
+            buffer = (np.empty((1, 1), np.int32), np.empty((1, 1), np.float32), np.empty((1, 4), np.int32))
     else:
         rowsum, inv_col = _row_col_sums(mat, n_views)
         indices = unsigned_indices(mat)

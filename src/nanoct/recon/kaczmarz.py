@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays, ray_setup, ray_trace, residual_norm_free
+from ..core.matrixfree import RAY_ENTRIES_PER_N, ParallelRays, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from .params import MethodParams
 from .result import ReconResult
@@ -209,8 +209,8 @@ def kaczmarz(
 def _kaczmarz_sweep_free(params, n, y, x, views, n_det, omega):  # pragma: no cover - compiled
     """:func:`_kaczmarz_sweep` with the rays traced on the fly (``params``: (K, 6) ray parameters)."""
     run = 0.0
-    idx = np.empty(3 * n, np.int64)  # each ray is traced once, for its dot and its update
-    wts = np.empty(3 * n)
+    idx = np.empty(RAY_ENTRIES_PER_N * n, np.int64)  # each ray is traced once, for its dot and its update
+    wts = np.empty(RAY_ENTRIES_PER_N * n)
     for i in range(views.shape[0]):
         k = views[i]
         setup = ray_setup(params[k], n)

@@ -56,7 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.geometry import Geometry
-from ..core.matrixfree import ParallelRays, ray_dot, ray_setup, ray_trace, residual_norm_free
+from ..core.matrixfree import RAY_ENTRIES_PER_N, ParallelRays, ray_dot, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float
 from .params import MethodParams
@@ -197,10 +197,10 @@ def _resesop_sweep_free(
     run = 0.0
     # each ray is traced once into (idx, wts); the previous search direction's ray stays in
     # (idx_old, wts_old) for its update, so no ray is traced twice
-    idx = np.empty(3 * n, np.int64)
-    wts = np.empty(3 * n)
-    idx_old = np.empty(3 * n, np.int64)
-    wts_old = np.empty(3 * n)
+    idx = np.empty(RAY_ENTRIES_PER_N * n, np.int64)
+    wts = np.empty(RAY_ENTRIES_PER_N * n)
+    idx_old = np.empty(RAY_ENTRIES_PER_N * n, np.int64)
+    wts_old = np.empty(RAY_ENTRIES_PER_N * n)
     cnt_old = 0
     if old >= 0:
         old_setup = ray_setup(params[old // n_det], n)
