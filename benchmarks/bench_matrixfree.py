@@ -3,14 +3,16 @@
 Usage::
 
     NANOCT_CACHE=/tmp/nanoct-cache python benchmarks/bench_matrixfree.py
-        [--sizes 255 511 1024] [--fbp-sizes 255 511 1024 2048] [--matrix-sizes 255] [--sweeps 1]
+        [--sizes 255 511 1024] [--fbp-sizes 255 511 1024 2048] [--matrix-sizes 255] [--sweeps 3]
 
 Every case runs in its own subprocess, so its peak memory (``ru_maxrss`` of that process:
 Python, numba, the data, the matrix if any) is its own. Geometries follow the paper-parallel
 ratios: ``K = round(567 N / 255)`` views, ``L = round(363 N / 255)`` detector pixels.
 
 * Dremel and RESESOP: seconds per sweep (compiled beforehand on a small geometry; the
-  matrix's load or build time is reported separately) with the cached matrix
+  matrix's load or build time and each path's one-time sums, which are cached with the
+  geometry or the matrix, are measured by a first call and reported separately) with the
+  cached matrix
   (``--matrix-sizes``) and with the traced rays, and their ratio at the sizes where both ran;
   also the cost per ray crossing (K L N crossings per sweep). ``dremel:matrixfree+threads``
   splits every view over the threads (``--thread-sizes``), whatever its size.
@@ -116,8 +118,12 @@ def worker(case: str, n: int, sweeps: int) -> dict:
         else:
             resesop(small, np.ones(small.sino_shape), np.zeros(small.n_angles), n_iter=1, projector=projector)
         t = time.perf_counter()
+        run(1)  # the one-time sums (cached with the geometry or the matrix) and one sweep
+        first = time.perf_counter() - t
+        t = time.perf_counter()
         run(sweeps)
         out["seconds"] = (time.perf_counter() - t) / sweeps
+        out["setup_seconds"] = max(first - out["seconds"], 0.0)
         out["crossings"] = g.n_angles * g.n_det * g.n  # ray-row (or ray-column) crossings per sweep
     out["peak_gb"] = peak_gb()
     return out
@@ -137,7 +143,7 @@ def main() -> None:
     ap.add_argument("--matrix-sizes", type=int, nargs="*", default=[255])
     ap.add_argument("--thread-sizes", type=int, nargs="*", default=[255, 511], help="Dremel with threads per view")
     ap.add_argument("--fbp-sizes", type=int, nargs="*", default=[255, 511, 1024, 2048])
-    ap.add_argument("--sweeps", type=int, default=1)
+    ap.add_argument("--sweeps", type=int, default=3)
     ap.add_argument("--worker", nargs=2, metavar=("CASE", "N"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
@@ -155,7 +161,8 @@ def main() -> None:
                 if "error" in r:
                     print(f"{c:20s} N={n:5d} failed: {r['error']}", flush=True)
                     continue
-                extra = f", matrix load/build {r['matrix_seconds']:.1f} s" if "matrix_seconds" in r else ""
+                extra = f", set-up {r['setup_seconds']:.2f} s"
+                extra += f", matrix load/build {r['matrix_seconds']:.1f} s" if "matrix_seconds" in r else ""
                 ns = r["seconds"] / r["crossings"] * 1e9
                 print(
                     f"{c:20s} N={n:5d} K={r['views']} L={r['det']}: {r['seconds']:.2f} s/sweep "
