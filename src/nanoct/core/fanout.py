@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 from tqdm.auto import tqdm
 
-__all__ = ["dask_client", "run_tasks"]
+__all__ = ["dask_client", "run_tasks", "worker_threads"]
 
 
 @contextmanager
@@ -30,7 +30,8 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[obje
     Parameters
     ----------
     workers : int
-        Worker processes of the local cluster (one thread each).
+        Worker processes of the local cluster (one task at a time each; the compiled kernels
+        of each get :func:`worker_threads` threads).
     scheduler : str, optional
         Address of a running scheduler, e.g. ``tcp://10.0.0.1:8786``.
     """
@@ -41,6 +42,26 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[obje
     finally:
         os.environ.clear()
         os.environ.update(env)
+
+
+def worker_threads(workers: int) -> int:
+    """Compiled-kernel threads of each local worker process: the usable CPUs shared out, at least 1.
+
+    The matrix-free kernels split a large view over threads (:func:`nanoct.core.matrixfree.use_threads`);
+    with every worker process on all CPUs they would wait for each other's cores at every view.
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes of the local cluster.
+
+    Returns
+    -------
+    int
+        ``max(1, usable CPUs // workers)``.
+    """
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, cpus // max(workers, 1))
 
 
 @contextmanager
@@ -62,6 +83,7 @@ def _client(workers: int, scheduler: str | None) -> Iterator[object]:
             dashboard_address=None,
             scheduler_kwargs={"dashboard_address": ":0"},  # its HTTP server on a free port: runs side by side
             silence_logs=logging.CRITICAL,
+            env={"NUMBA_NUM_THREADS": str(worker_threads(workers))},
         )
     client = Client(cluster)
     try:

@@ -465,11 +465,14 @@ def backproject_view_serial(par, n, n_det, coef, x, scale, scaled, nonneg, block
 
 
 #: Views with at least this many ray-crossings (``N * L``) are projected and back-projected
-#: with all threads (:func:`project_view`, :func:`backproject_view`); smaller ones on one
-#: thread. Threads meet twice per view; on the shared 2-core machine of the benchmarks that
-#: made a Dremel sweep at N = 511 several times slower than one thread
-#: (``benchmarks/README.md``), so only views of 2048-column scans (N L >= 2^22) use them.
-PARALLEL_MIN_WORK = 1 << 22
+#: with all threads (:func:`project_view`, :func:`backproject_view`, :func:`trace_view`,
+#: :func:`backproject_traced`); smaller ones on one thread. Threads meet twice per view: on an
+#: idle 2-core machine two threads made a Dremel sweep 1.5x faster at N = 255, 1.3x at N = 511
+#: and 2.0x at N = 1024, but on a machine loaded by other jobs the waits made it several times
+#: slower (``benchmarks/README.md``). So views of 1024-column scans and larger (N L >= 2^20) use
+#: them, where the gain is largest; the local Dask workers share the CPUs out
+#: (:func:`nanoct.core.fanout.worker_threads`).
+PARALLEL_MIN_WORK = 1 << 20
 
 
 def use_threads(geometry: Geometry) -> bool:
