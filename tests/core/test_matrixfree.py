@@ -228,3 +228,20 @@ def test_view_buffer_is_capped(monkeypatch) -> None:
     assert (code.dtype, shared.dtype, rows.dtype) == (np.int32, np.float32, np.int32)
     monkeypatch.setattr(mf, "VIEW_BUFFER_BYTES", 8 * g.n * g.n_det - 1)
     assert view_buffer(g) is None
+
+
+def test_buffer_read_with_another_views_rays_stays_inside_the_image() -> None:
+    """The edge lines are traced again from ``par``: a mismatched view touches no pixel outside."""
+    g = GEOMETRIES[2]
+    rays = ParallelRays(g)
+    buf = view_buffer(g)
+    x = np.ones(g.n * g.n)
+    p, rs = np.zeros(g.n_det), np.zeros(g.n_det)
+    trace_view_serial(rays.params[0], g.n, g.n_det, x, p, rs, *buf, ray_block(g))
+    guard = np.full(3 * g.n * g.n, 7.0)
+    image = guard[g.n * g.n : 2 * g.n * g.n]
+    image[:] = 1.0
+    k = g.n_angles // 2 + 1
+    backproject_traced_serial(rays.params[k], g.n, g.n_det, np.ones(g.n_det), image, image, False, False, 8, *buf)
+    assert np.all(guard[: g.n * g.n] == 7.0) and np.all(guard[2 * g.n * g.n :] == 7.0)
+    assert np.isfinite(image).all()

@@ -224,6 +224,8 @@ def _edge_row(n, setup, c0, i):  # pragma: no cover - compiled
     major, minor, delta, s, invw, length = setup[0], setup[1], setup[2], setup[3], setup[4], setup[5]
     c = c0 + i * delta
     m = _minor(c)
+    if m < -1 or m > n:  # not a line of this ray (a buffer read with another view's rays): no pixel
+        return 0, 0, 0.0, 0.0
     off = c - m
     wl = np.float64(np.float32(length * min(max((-s - off) * invw, 0.0), 1.0)))
     wr = np.float64(np.float32(length * min(max((off - s) * invw, 0.0), 1.0)))
@@ -601,6 +603,7 @@ def backproject_traced(
     """:func:`backproject_view` with the view's interior lines read from the buffer of :func:`trace_view`.
 
     The same pixels, increments and block order as :func:`backproject_view`, so the same result.
+    ``par`` must be the view last traced into the buffer (its edge lines are traced again).
     """
     n_blocks = (n_det + block - 1) // block
     for phase in range(2):
