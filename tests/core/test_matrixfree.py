@@ -18,6 +18,7 @@ from nanoct.core.matrixfree import (
     backproject_view,
     backproject_view_serial,
     column_sums,
+    forward_project,
     matrix_bytes,
     project_view,
     project_view_serial,
@@ -245,3 +246,13 @@ def test_buffer_read_with_another_views_rays_stays_inside_the_image() -> None:
     backproject_traced_serial(rays.params[k], g.n, g.n_det, np.ones(g.n_det), image, image, False, False, 8, *buf)
     assert np.all(guard[: g.n * g.n] == 7.0) and np.all(guard[2 * g.n * g.n :] == 7.0)
     assert np.isfinite(image).all()
+
+
+@pytest.mark.parametrize("g", GEOMETRIES)
+def test_forward_project_is_the_traced_rows_applied_to_the_image(g: Geometry, tmp_path) -> None:
+    x = np.random.default_rng(5).random(g.image_shape)
+    got = forward_project(g, x)
+    expected = np.stack([traced_rows(g, k) @ x.ravel() for k in range(g.n_angles)])
+    np.testing.assert_allclose(got, expected, rtol=1e-7, atol=1e-7)
+    cached = (system_matrix(g, directory=tmp_path) @ x.ravel()).reshape(g.sino_shape)
+    np.testing.assert_allclose(got, cached, rtol=1e-3, atol=1e-3 * np.abs(cached).max())
