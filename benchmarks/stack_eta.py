@@ -2,7 +2,7 @@
 
 Usage::
 
-    PYTHONPATH=src python benchmarks/stack_eta.py [--slices 2]
+    PYTHONPATH=src python benchmarks/stack_eta.py [--slices 2] [--extra]
 
 For analytic moving stacks (``nanoct.sim.analytic``: sizes, motion amplitudes and noise levels
 below) each slice is reconstructed with the motion given (``true``) and with the motion from
@@ -37,6 +37,8 @@ from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phan
 
 #: (columns, views, drift amplitude in px, relative noise)
 STACKS = ((160, 240, 1.0, 0.0), (160, 240, 2.0, 0.005), (256, 384, 1.5, 0.02))
+#: Two more stacks (``--extra``): a larger one and the small one at 2 % noise.
+EXTRA_STACKS = ((384, 576, 2.0, 0.005), (160, 240, 1.0, 0.02))
 RULES = ("max", "max*0.5", "max*0.2", "rms", "p90", "model")
 
 
@@ -72,10 +74,11 @@ def stack(n: int, k: int, amp: float, noise: float, n_slices: int):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--slices", type=int, default=2)
+    parser.add_argument("--extra", action="store_true", help="run EXTRA_STACKS instead of STACKS")
     args = parser.parse_args()
     print("| stack | motion | FBP | Dremel | " + " | ".join(RULES) + " |")
     print("|---" * (4 + len(RULES)) + "|")
-    for n, k, amp, noise in STACKS:
+    for n, k, amp, noise in EXTRA_STACKS if args.extra else STACKS:
         sino, truth, geometry, d = stack(n, k, amp, noise, args.slices)
         est = estimate_stack_motion(geometry, sino, center=0.0).shifts
         # an object translation (shifts a cos + b sin) is what no method can tell: align it to the truth
