@@ -708,7 +708,9 @@ def stack(
         "fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed) | resesop (corrected data)."
     ),
     eta: str = typer.Option(
-        "auto", "--eta", help="resesop: model-uncertainty level: auto (FBP residual per view) | NUMBER | FILE.npy (K,)."
+        "auto",
+        "--eta",
+        help="resesop: uncertainty level per view: auto (half the FBP's largest residual) | NUMBER | FILE.npy (K,).",
     ),
     center_offset: str = typer.Option("auto", "--center-offset", help="Axis offset in detector pixels, or auto."),
     motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),

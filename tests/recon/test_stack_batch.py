@@ -95,8 +95,8 @@ def test_stack_resesop_with_the_true_motion_beats_uncorrected_fbp_and_resumes(st
         )
         score[method] = np.mean([psnr(images[i], truth[i]) for i in range(S)])
     uncorrected = np.mean([psnr(corrected_fbp(geometry, sino[i]), truth[i]) for i in range(S)])
-    # measured: uncorrected 28.5 dB, fbp 39.6, dremel 39.3, resesop 34.8
-    assert score["resesop"] > uncorrected + 4 and score["resesop"] > min(score["fbp"], score["dremel"]) - 7, score
+    # measured: uncorrected 28.5 dB, fbp 39.6, dremel 39.3, resesop 38.0 (34.8 with the full max residual as eta)
+    assert score["resesop"] > uncorrected + 8 and score["resesop"] > min(score["fbp"], score["dremel"]) - 3, score
     params = DataStore.open(store).recons.params("resesop_stack")
     assert params["eta"] == "auto" and params["method"] == "resesop"
     # resume skips the slices written; another eta is another name's job
