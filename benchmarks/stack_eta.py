@@ -12,7 +12,7 @@ the shifts fixed, and RESESOP on the shift-corrected sinogram with these per-vie
 (``r = |y_c - A x_0|``, ``x_0`` the corrected FBP of ``y_c``; ``r_c`` the same residual of the
 FBP of the consistent data ``A x_0``, the FBP's own error):
 
-- ``max``: ``max_l r`` (the ``auto`` default), ``max*0.5``, ``max*0.2``;
+- ``max``: ``max_l r``, ``max*0.5`` (the ``auto`` default), ``max*0.2``;
 - ``rms``: the root mean square of ``r`` per view; ``p90``: its 90th percentile;
 - ``model``: ``max_l |r - r_c|``, the residual with the FBP's own error removed.
 
