@@ -157,13 +157,15 @@ def _check_race(results: list[subprocess.CompletedProcess]) -> None:
 def test_concurrent_reconstructions(tiny_store, tmp_path):
     reference = tmp_path / "reference"
     shutil.copytree(tiny_store.path, reference)
-    reconstruct_dataset(reference, "dremel", workers=0, progress=False, params={"n_iter": 4})
+    # a name of its own: the session's tiny_store may already hold a "dremel" of other parameters
+    reconstruct_dataset(reference, "dremel", workers=0, progress=False, params={"n_iter": 4}, name="dremel_race")
     store = tmp_path / "store"
     shutil.copytree(tiny_store.path, store)
-    _check_race(_race(["reconstruct", store, "-m", "dremel", "--param", "n_iter=4", "-w", 0, "-q"]))
+    args = ["reconstruct", store, "-m", "dremel", "--param", "n_iter=4", "--name", "dremel_race", "-w", 0, "-q"]
+    _check_race(_race(args))
     s, ref = DataStore.open(store), DataStore.open(reference)
-    np.testing.assert_array_equal(s.read_reconstruction("dremel"), ref.read_reconstruction("dremel"))
-    assert not lock_path(store, "dremel").exists()
+    np.testing.assert_array_equal(s.read_reconstruction("dremel_race"), ref.read_reconstruction("dremel_race"))
+    assert not lock_path(store, "dremel_race").exists()
 
 
 @pytest.mark.slow
