@@ -251,9 +251,9 @@ def _resesop_sweep_free(
                     if coef_old != 0.0:
                         x[idx_old[j]] += coef_old * wts_old[j]
                     wo[idx_old[j]] = 0.0
-            for j in range(cnt):
+            for j in range(cnt):  # wo is zero here; += as a line may list its pixel twice (once with 0)
                 x[idx[j]] += coef_new * wts[j]
-                wo[idx[j]] = wts[j]
+                wo[idx[j]] += wts[j]
             idx, idx_old = idx_old, idx
             wts, wts_old = wts_old, wts
             cnt_old = cnt
