@@ -57,7 +57,6 @@ __all__ = [
     "backproject_view",
     "backproject_view_serial",
     "column_sums",
-    "forward_project",
     "matrix_bytes",
     "project_view",
     "project_view_serial",
@@ -190,6 +189,12 @@ def ray_rows(n, setup, c0):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _edge_line(r0, a, b, e):  # pragma: no cover - compiled
+    """The ``e``-th edge line of a ray (:func:`ray_rows`): ``[r0, a)`` first, then ``[b, r1)``."""
+    return r0 + e if r0 + e < a else b + e - (a - r0)
+
+
+@numba.njit(cache=True, nogil=True)
 def _interior_cross(setup, c0, i):  # pragma: no cover - compiled
     """``(j, up, ws)`` on an interior line: the nearest pixel ``j``, whether the ray's crossing
     lies towards the next pixel (``j + minor``, else ``j - minor``), and the weight shared with
@@ -273,7 +278,7 @@ def ray_dot(x, n, setup, c0):  # pragma: no cover - compiled
         sq += w1 * w1 + w2 * w2
     tot += (b - a) * setup[5]
     for e in range((a - r0) + (r1 - b)):  # the edge lines: before and after the interior
-        i = r0 + e if r0 + e < a else b + e - (a - r0)
+        i = _edge_line(r0, a, b, e)
         j1, j2, w1, w2 = _edge_row(n, setup, c0, i)
         dot += w1 * x[j1] + w2 * x[j2]
         tot += w1 + w2
@@ -290,12 +295,25 @@ def ray_add(x, n, setup, c0, coef, scale, scaled, nonneg):  # pragma: no cover -
     any later update; a non-negative image is unchanged by them.
     """
     r0, a, b, r1 = ray_rows(n, setup, c0)
-    for i in range(r0, r1):
-        if a <= i < b:
-            j1, j2, w1, w2 = _interior_row(setup, c0, i)
-        else:
-            j1, j2, w1, w2 = _edge_row(n, setup, c0, i)
+    for i in range(a, b):
+        j1, j2, w1, w2 = _interior_row(setup, c0, i)
         for t in range(2):  # the pixel update written out once: a call per pixel is slow
+            j = j1 if t == 0 else j2
+            v = coef * (w1 if t == 0 else w2)
+            if scaled:
+                v *= scale[j]
+            v += x[j]
+            x[j] = v if (v > 0.0 or not nonneg) else 0.0
+    _add_edge_lines(x, n, setup, c0, (r0, a, b, r1), coef, scale, scaled, nonneg)
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_edge_lines(x, n, setup, c0, lines, coef, scale, scaled, nonneg):  # pragma: no cover - compiled
+    """:func:`ray_add` on the edge lines of a ray (``lines``: its :func:`ray_rows`)."""
+    r0, a, b, r1 = lines
+    for e in range((a - r0) + (r1 - b)):
+        j1, j2, w1, w2 = _edge_row(n, setup, c0, _edge_line(r0, a, b, e))
+        for t in range(2):
             j = j1 if t == 0 else j2
             v = coef * (w1 if t == 0 else w2)
             if scaled:
@@ -353,7 +371,7 @@ def _trace_into(n, setup, c0, idx, wts):  # pragma: no cover - compiled
         idx2[q] = j2
         wts2[q] = w2
     for e in range((a - r0) + (r1 - b)):  # the edge lines: before and after the interior
-        i = r0 + e if r0 + e < a else b + e - (a - r0)
+        i = _edge_line(r0, a, b, e)
         j1, j2, w1, w2 = _edge_row(n, setup, c0, i)
         idx[i - r0] = j1
         wts[i - r0] = w1
@@ -402,36 +420,6 @@ def residual_norm_free(params, n, n_det, y, x):  # pragma: no cover - compiled
             e = ray_dot(x, n, setup, setup[6] + l * setup[7])[0] - y[k * n_det + l]
             tot += e * e
     return math.sqrt(tot)
-
-
-@numba.njit(cache=True, parallel=True)
-def _project_all(params, n, n_det, x, out):  # pragma: no cover - compiled
-    for k in numba.prange(params.shape[0]):
-        setup = ray_setup(params[k], n)
-        for l in range(n_det):
-            out[k, l] = ray_dot(x, n, setup, setup[6] + l * setup[7])[0]
-
-
-def forward_project(geometry: Geometry, image: np.ndarray) -> np.ndarray:
-    """``A x`` for every view with the rays traced on the fly (views in parallel), no matrix.
-
-    Parameters
-    ----------
-    geometry : Geometry
-        A parallel-beam geometry.
-    image : ndarray of shape (N, N)
-        The image ``x``.
-
-    Returns
-    -------
-    ndarray of shape (K, L), float64
-        The projections of the ``line`` model, as ``system_matrix(geometry) @ x`` gives them
-        (weights as close to ASTRA's as the module docstring says).
-    """
-    rays = ParallelRays(geometry)
-    out = np.empty(geometry.sino_shape)
-    _project_all(rays.params, geometry.n, geometry.n_det, np.ascontiguousarray(image, np.float64).ravel(), out)
-    return out
 
 
 def ray_block(geometry: Geometry) -> int:
@@ -571,7 +559,7 @@ def _trace_rays(par, n, x, p, rowsum, code, shared, rows, lo, hi):  # pragma: no
             dot += (length - w2) * x[j] + w2 * x[j + (2 * (cd & 1) - 1) * minor]
         tot = (b - a) * length
         for e in range((a - r0) + (r1 - b)):
-            i = r0 + e if r0 + e < a else b + e - (a - r0)
+            i = _edge_line(r0, a, b, e)
             j1, j2, w1, w2 = _edge_row(n, setup, c0, i)
             dot += w1 * x[j1] + w2 * x[j2]
             tot += w1 + w2
@@ -600,17 +588,8 @@ def _backproject_traced_rays(par, n, coef, x, scale, scaled, nonneg, code, share
                 v += x[j]
                 x[j] = v if (v > 0.0 or not nonneg) else 0.0
                 j += side
-        c0 = setup[6] + l * setup[7]
-        for e in range((a - r0) + (r1 - b)):  # the edge lines, traced again
-            i = r0 + e if r0 + e < a else b + e - (a - r0)
-            j1, j2, w1, w2 = _edge_row(n, setup, c0, i)
-            for t in range(2):
-                j = j1 if t == 0 else j2
-                v = cl * (w1 if t == 0 else w2)
-                if scaled:
-                    v *= scale[j]
-                v += x[j]
-                x[j] = v if (v > 0.0 or not nonneg) else 0.0
+        # the edge lines, traced again
+        _add_edge_lines(x, n, setup, setup[6] + l * setup[7], (r0, a, b, r1), cl, scale, scaled, nonneg)
 
 
 @numba.njit(cache=True, parallel=True)
