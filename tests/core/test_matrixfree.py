@@ -18,7 +18,6 @@ from nanoct.core.matrixfree import (
     backproject_view,
     backproject_view_serial,
     column_sums,
-    forward_project,
     matrix_bytes,
     project_view,
     project_view_serial,
@@ -230,16 +229,6 @@ def test_view_buffer_is_capped(monkeypatch) -> None:
     assert (code.dtype, shared.dtype, rows.dtype) == (np.int32, np.float32, np.int32)
     monkeypatch.setattr(mf, "VIEW_BUFFER_BYTES", 8 * g.n * g.n_det - 1)
     assert view_buffer(g) is None
-
-
-@pytest.mark.parametrize("g", GEOMETRIES)
-def test_forward_project_is_the_traced_rows_applied_to_the_image(g: Geometry, tmp_path) -> None:
-    x = np.random.default_rng(5).random(g.image_shape)
-    got = forward_project(g, x)
-    expected = np.stack([traced_rows(g, k) @ x.ravel() for k in range(g.n_angles)])
-    np.testing.assert_allclose(got, expected, rtol=1e-7, atol=1e-7)
-    cached = (system_matrix(g, directory=tmp_path) @ x.ravel()).reshape(g.sino_shape)
-    np.testing.assert_allclose(got, cached, rtol=1e-3, atol=1e-3 * np.abs(cached).max())
 
 
 @pytest.mark.parametrize("seed", range(40))

@@ -28,8 +28,8 @@ def test_residual_is_zero_on_consistent_data_and_finds_a_bump(geometry):
     assert np.delete(eta, 7).max() < 1e-4
 
 
-def test_residual_above_the_matrix_size_traces_the_rays(geometry, monkeypatch):
-    """Where reconstructions trace their rays, so does the residual: no matrix, the same levels."""
+def test_residual_above_the_matrix_size_needs_no_matrix(geometry, monkeypatch):
+    """Where reconstructions trace their rays, the residual builds no matrix either: the same levels."""
     import nanoct.recon.eta as eta_module
     import nanoct.recon.rowaction as rowaction
 
@@ -40,7 +40,7 @@ def test_residual_above_the_matrix_size_traces_the_rays(geometry, monkeypatch):
     monkeypatch.setattr(rowaction, "AUTO_MATRIX_BYTES", 0)
     monkeypatch.setattr(eta_module, "system_matrix", lambda *a, **k: pytest.fail("built the matrix"))
     traced = eta_from_residual(geometry, y, x)
-    # the traced weights differ from ASTRA's by up to 1e-2 for nearly axis-parallel rays
+    # ASTRA's projection and its cached matrix accumulate in float32 in different orders
     tol = 5e-4 * float(np.abs(y).max())
     np.testing.assert_allclose(traced, with_matrix, rtol=0, atol=tol)
     assert traced[3] == pytest.approx(0.5, abs=tol)

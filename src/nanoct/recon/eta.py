@@ -26,8 +26,7 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
-from ..core.matrixfree import forward_project
-from ..core.operators import system_matrix
+from ..core.operators import RayTransform, system_matrix
 from ..core.validation import check_array, check_float
 from .rowaction import resolve_projector
 
@@ -53,9 +52,9 @@ def eta_from_residual(
     scale : float
         Factor on the residual's per-view maximum (>= 0).
     projector : str, optional
-        ASTRA projector of ``A`` (default: the one reconstructions use; its rays are traced
-        without a matrix, :func:`~nanoct.core.matrixfree.forward_project`, for a parallel beam
-        whose matrix would exceed :data:`~nanoct.recon.rowaction.AUTO_MATRIX_BYTES`).
+        ASTRA projector of ``A`` (default: the one reconstructions use; where they trace their
+        rays instead of holding the matrix, a parallel beam whose matrix would exceed
+        :data:`~nanoct.recon.rowaction.AUTO_MATRIX_BYTES`, ASTRA projects without it).
 
     Returns
     -------
@@ -68,7 +67,7 @@ def eta_from_residual(
     except ValueError as exc:
         raise NanoctError(str(exc)) from exc
     if projector is None and resolve_projector("auto", geometry) == "matrixfree":
-        model = forward_project(geometry, x)
+        model = RayTransform(geometry)(x)
     else:
         model = (system_matrix(geometry, projector) @ x.ravel()).reshape(geometry.sino_shape)
     return (scale * np.abs(y.astype(np.float64) - model).max(axis=1)).astype(np.float32)
