@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 from tqdm.auto import tqdm
 
-__all__ = ["dask_client", "run_tasks", "worker_threads"]
+__all__ = ["dask_client", "run_tasks", "usable_cpus", "worker_threads"]
 
 
 @contextmanager
@@ -44,6 +44,11 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[obje
         os.environ.update(env)
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the platform has one), at least 1."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def worker_threads(workers: int) -> int:
     """Compiled-kernel threads of each local worker process: the usable CPUs shared out, at least 1.
 
@@ -60,8 +65,7 @@ def worker_threads(workers: int) -> int:
     int
         ``max(1, usable CPUs // workers)``.
     """
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, cpus // max(workers, 1))
+    return max(1, usable_cpus() // max(workers, 1))
 
 
 @contextmanager

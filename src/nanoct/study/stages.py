@@ -9,13 +9,12 @@ they go to its workers, one torch thread each.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ..core.fanout import run_tasks
+from ..core.fanout import run_tasks, usable_cpus
 from ..core.geometry import get_preset
 from ..io.store import DataStore
 from ..learn.models import model_class
@@ -90,10 +89,6 @@ def _predict_job(
     return index
 
 
-def _cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def data_stage(setting: Setting, study: Study, jobs: Jobs, seed: int, fan: dict[str, Any]) -> DataStore:
     """Simulate the setting's data set (resumable) and return its store."""
     geometry = get_preset(setting.preset)
@@ -126,7 +121,7 @@ def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
     """
     if fan.get("scheduler") is not None:
         return fan, 1
-    return fan | {"workers": 0}, _cores()
+    return fan | {"workers": 0}, usable_cpus()
 
 
 def _torch_stage(job: Callable[..., int], jobs: list, desc: str, setting: Setting, study: Study, fan: dict) -> None:
