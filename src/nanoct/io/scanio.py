@@ -471,9 +471,9 @@ def import_scan(
         Rotation axis relative to the centre of the raw detector row, in raw detector pixels
         (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
         detector. ``"auto"``: estimated from up to 8 of the selected rows, from the views'
-        centroids (:func:`nanoct.recon.center.centroid_motion`, which the motion does not bias)
+        centroids (:func:`nanoct.motion.center.centroid_motion`, which the motion does not bias)
         when the object stays on the detector, else from opposite views
-        (:func:`nanoct.recon.center.fit_center`, no motion assumed).
+        (:func:`nanoct.motion.center.fit_center`, no motion assumed).
     size : int, optional
         Reconstructed image size N (default: the number of detector columns after cropping
         and binning; one image pixel = one binned detector pixel).
@@ -546,7 +546,7 @@ def import_scan(
 
 def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> float:
     """The axis offset (raw detector pixels) from up to 8 of the read rows: centroids, else opposite views."""
-    from ..recon.center import centroid_motion, fit_center
+    from ..motion.center import centroid_motion, fit_center
 
     picked = np.unique(np.linspace(0, scan.projections.shape[1] - 1, 8).round().astype(int))
     some = replace(

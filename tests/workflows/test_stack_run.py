@@ -10,10 +10,11 @@ from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import psnr
 from nanoct.io.store import DataStore, create_scan
-from nanoct.recon import stack_batch
-from nanoct.recon.stack import StackMotion, corrected_fbp, reproject
-from nanoct.recon.stack_batch import reconstruct_stack, shift_corrected
+from nanoct.motion.stack import StackMotion
+from nanoct.recon.stack import corrected_fbp, reproject
 from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phantom
+from nanoct.workflows import stack as stack_batch
+from nanoct.workflows.stack import reconstruct_stack, shift_corrected
 
 L, K, S, OFFSET = 160, 240, 3, 1.8
 

@@ -1,8 +1,8 @@
 """``nanoct stack``: one motion and axis for a whole measured stack, then every slice with them fixed.
 
 The motion and the rotation axis are estimated once from a few slices
-(:func:`~nanoct.recon.stack.estimate_stack_motion`), optionally replaced by a smooth model
-(:func:`~nanoct.recon.motion_model.fit_motion_model`), and recorded with the reconstruction
+(:func:`~nanoct.motion.stack.estimate_stack_motion`), optionally replaced by a smooth model
+(:func:`~nanoct.motion.model.fit_motion_model`), and recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
 then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
 per slice); a run that is stopped resumes where it was: the recorded motion is reused and the
@@ -21,9 +21,10 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..io.store import DataStore, open_cached
+from ..motion.model import fit_motion_model
+from ..motion.stack import estimate_stack_motion
 from ..names import stack_name
-from .motion_model import fit_motion_model
-from .stack import corrected_fbp, estimate_stack_motion, reproject, with_center
+from ..recon.stack import corrected_fbp, reproject, with_center
 
 __all__ = ["STACK_METHODS", "reconstruct_stack", "shift_corrected"]
 
@@ -73,7 +74,7 @@ def shift_corrected(sinogram: np.ndarray, shifts: np.ndarray) -> np.ndarray:
 
 def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
     """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view."""
-    from .resesop import resesop
+    from ..recon.resesop import resesop
 
     corrected = shift_corrected(sino.astype(np.float64), shifts)
     if eta == "auto":
@@ -144,7 +145,7 @@ def _reconstruct_slice(
     elif method == "resesop":
         image = _resesop_slice(geometry, sino, shifts, eta)
     else:
-        from .dremel import dremel
+        from ..recon.dremel import dremel
 
         shifts_obj = shifts * geometry.det_spacing / geometry.magnification  # detector px -> object px
         image = dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=True).image
@@ -184,7 +185,7 @@ def reconstruct_stack(
     motion_slices : str, optional
         ``"auto"`` (default: up to 4 slices spread over the stack), ``"all"`` or ``"0,5,9"``.
     binning, coarse_iter, refine
-        See :func:`~nanoct.recon.stack.estimate_stack_motion`.
+        See :func:`~nanoct.motion.stack.estimate_stack_motion`.
     model : (int, int), optional
         Replace the estimate by its smooth model (polynomial degree, rotation harmonics).
     eta : "auto", float or array_like of shape (K,)
