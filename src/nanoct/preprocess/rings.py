@@ -6,8 +6,9 @@ structure, which is not centred there, into a smooth curve. The metric:
 
 1. ``P(r)``: the mean of the pixels whose distance from the image centre ``((N - 1) / 2, (N -
    1) / 2)`` rounds to ``r``, for ``r = 0 .. N // 2 - 1`` (the inscribed disc);
-2. ``H = P - gaussian_filter1d(P, sigma)`` (``sigma = 4`` pixels, edges repeated): the part of
-   the profile narrower than about 10 pixels;
+2. ``H = P - savgol_filter(P, 11, 2)`` (scipy's Savitzky-Golay filter: a quadratic fitted over
+   11 radii, ``mode="interp"`` at the ends): the part of the profile narrower than about 10
+   pixels; a smooth profile's slope and curvature pass into the fit, not into ``H``;
 3. ``ring_metric = sum over r >= r_min of H(r)^2`` (``r_min = 3``: the centre's few pixels have
    too few samples for a mean).
 """
@@ -15,7 +16,7 @@ structure, which is not centred there, into a smooth curve. The metric:
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
+from scipy.signal import savgol_filter
 
 __all__ = ["radial_profile", "ring_metric"]
 
@@ -32,8 +33,11 @@ def radial_profile(image: np.ndarray) -> np.ndarray:
     return np.bincount(radius[inside], img[inside]) / np.bincount(radius[inside])
 
 
-def ring_metric(image: np.ndarray, *, sigma: float = 4.0, r_min: int = 3) -> float:
+def ring_metric(image: np.ndarray, *, window: int = 11, r_min: int = 3) -> float:
     """The high-pass energy of ``image``'s radial profile (module docstring), in image units squared."""
     profile = radial_profile(image)
-    high = profile - ndimage.gaussian_filter1d(profile, sigma, mode="nearest")
+    window = min(window, profile.size - 1 + profile.size % 2)  # odd and within the profile
+    if window < 3:
+        raise ValueError(f"image of shape {np.shape(image)} is too small for a ring metric (at least 6 x 6)")
+    high = profile - savgol_filter(profile, window, 2, mode="interp")
     return float(np.sum(high[r_min:] ** 2))
