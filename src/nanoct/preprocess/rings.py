@@ -21,21 +21,32 @@ from scipy.signal import savgol_filter
 __all__ = ["radial_profile", "ring_metric"]
 
 
-def radial_profile(image: np.ndarray) -> np.ndarray:
-    """The azimuthal mean ``P(r)``, ``r = 0 .. N // 2 - 1``, of a square image about its centre."""
+def radial_profile(image: np.ndarray, *, offset: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """The azimuthal mean ``P(r)``, ``r = 0 .. N // 2 - 1 - max|offset|``, of a square image.
+
+    About the image centre moved by ``offset`` = (rows, columns) pixels: off the rotation axis,
+    rings spread over many radii, so the metric there measures the slice's other high-pass
+    content (the floor the metric cannot go below).
+    """
     img = np.asarray(image, np.float64)
     n = img.shape[0]
     if img.ndim != 2 or img.shape[1] != n:
         raise ValueError(f"image of shape {img.shape} must be square")
     y, x = np.indices(img.shape)
-    radius = np.rint(np.hypot(x - (n - 1) / 2, y - (n - 1) / 2)).astype(int)
-    inside = radius <= n // 2 - 1
+    dy, dx = offset
+    radius = np.rint(np.hypot(x - (n - 1) / 2 - dx, y - (n - 1) / 2 - dy)).astype(int)
+    inside = radius <= n // 2 - 1 - int(np.ceil(max(abs(dy), abs(dx))))
     return np.bincount(radius[inside], img[inside]) / np.bincount(radius[inside])
 
 
-def ring_metric(image: np.ndarray, *, window: int = 11, r_min: int = 3) -> float:
-    """The high-pass energy of ``image``'s radial profile (module docstring), in image units squared."""
-    profile = radial_profile(image)
+def ring_metric(
+    image: np.ndarray, *, window: int = 11, r_min: int = 3, offset: tuple[float, float] = (0.0, 0.0)
+) -> float:
+    """The high-pass energy of ``image``'s radial profile (module docstring), in image units squared.
+
+    ``offset``: about a point this many (rows, columns) pixels from the centre (see :func:`radial_profile`).
+    """
+    profile = radial_profile(image, offset=offset)
     window = min(window, profile.size - 1 + profile.size % 2)  # odd and within the profile
     if window < 3:
         raise ValueError(f"image of shape {np.shape(image)} is too small for a ring metric (at least 6 x 6)")
