@@ -169,12 +169,10 @@ def air_level(lines: np.ndarray) -> tuple[float, float]:
 def i13_air(png: Path | None) -> dict[str, tuple[float, float]]:
     """Air absorbance on I13 24737 before and after each open-beam normalisation."""
     trans, angles = i13_transmission()
-    runs = {"before (flat/dark only)": Corrections()}
+    runs = {"before (flat/dark only)": Corrections(), "open beam, automatic air (default)": Corrections(open_beam=True)}
     for degree in (0, 1, 2):
         runs[f"open beam, automatic air, degree {degree}"] = Corrections(open_beam=True, open_beam_degree=degree)
-    runs["open beam, columns 0:30,130:160, degree 2"] = Corrections(
-        open_beam=True, air_columns=((0, 30), (130, 160)), open_beam_degree=2
-    )
+    runs["open beam, columns 0:30,130:160"] = Corrections(open_beam=True, air_columns=((0, 30), (130, 160)))
     results, lines = {}, {}
     print(f"{'I13 24737':44s} {'air mean':>9s} {'worst view':>10s} {'seconds':>8s}")
     for name, corr in runs.items():
@@ -183,7 +181,7 @@ def i13_air(png: Path | None) -> dict[str, tuple[float, float]]:
         results[name] = air_level(lines[name])
         print(f"{name:44s} {results[name][0]:9.4f} {results[name][1]:10.4f} {time.perf_counter() - start:8.2f}")
     if png is not None:
-        after = "open beam, automatic air, degree 2"
+        after = "open beam, automatic air (default)"
         row = 67
         images = [lines[name][:, row] for name in (next(iter(runs)), after)]
         slices = [reconstruct(image, np.deg2rad(angles), 85.5) for image in images]
@@ -198,7 +196,7 @@ def _i13_figure(png: Path, sinos: list[np.ndarray], slices: list[np.ndarray], ro
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 4, figsize=(15, 4))
-    for i, (sino, image, label) in enumerate(zip(sinos, slices, ("before", "after open beam (degree 2)"))):
+    for i, (sino, image, label) in enumerate(zip(sinos, slices, ("before", "after open beam"))):
         shown = axes[i].imshow(sino, cmap="gray", vmin=-0.05, vmax=1.6, aspect="auto")
         axes[i].set_title(f"sinogram row {row}, {label}\nair absorbance {np.median(sino[:, :25]):.3f}", fontsize=9)
         fig.colorbar(shown, ax=axes[i], fraction=0.04)

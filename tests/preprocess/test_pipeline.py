@@ -84,7 +84,7 @@ def test_record_round_trip():
         ({"energy_kev": 20.0}, "only with --delta-beta"),
         ({"air_columns": ((0, 3),)}, "--air-columns needs --open-beam"),
         ({"outliers": -1.0}, "--outliers -1.0"),
-        ({"open_beam_degree": 3}, "--open-beam-degree 3"),
+        ({"open_beam_degree": 3}, "--open-beam-degree 3 must be 0, 1, 2 or auto"),
         ({"stripes": "wavelet"}, "--stripes 'wavelet'"),
         ({"stripe_params": {"size": 3}}, "only with --stripes"),
     ],

@@ -34,7 +34,10 @@ least-squares polynomial surface of total degree 1 (a plane) or 2 in the centred
 coordinates, for a beam profile that differs from the flat's (on Diamond I13-2 the open beam
 falls off towards both sides by about 5 % and moves sideways during the scan). A surface is
 refitted three times to the pixels within the band around it (air at the sides is darker than
-the brightest mode) and needs air spanning at least half the detector width.
+the brightest mode). A plane needs air spanning at least half the detector width; a quadratic
+also needs air in the middle third of the columns (above or below the object), since air at
+the two sides alone cannot tell the constant from the curvature. The default,
+``degree="auto"``, fits each view the highest degree its air determines.
 """
 
 from __future__ import annotations
@@ -151,11 +154,27 @@ def _slope(smooth: np.ndarray, air: np.ndarray, half: float) -> float:
     return float(np.median(grad[air]) / half) if half > 0 else 0.0
 
 
-def _auto_fit(view: np.ndarray, band: float, degree: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _spans_half(air: np.ndarray) -> bool:
+    """Whether the air's columns span at least half the detector width (a plane can be fitted)."""
+    cols = np.nonzero(air.any(axis=0))[0]
+    return cols.size > 0 and cols[-1] - cols[0] >= air.shape[1] / 2
+
+
+def _fits_degree(air: np.ndarray) -> int:
+    """The highest degree the air determines: 2 with air in the middle third of the columns too
+    (air at the two sides only cannot tell the constant from the curvature), 1 if it spans half
+    the detector width, else 0."""
+    if not _spans_half(air):
+        return 0
+    third = air.shape[1] // 3
+    return 2 if air[:, third : air.shape[1] - third].any() else 1
+
+
+def _auto_fit(view: np.ndarray, band: float, degree: int | str, k: int) -> tuple[np.ndarray, np.ndarray]:
     """``(coefficients, air mask)`` of view ``k``: the brightest mode's pixels, then refits of the surface."""
     finite, smooth, sigma = _robust_noise(view)
     if not finite.any():
-        return np.zeros(len(poly_terms(np.zeros(1), np.zeros(1), degree))), finite
+        return np.zeros(1), finite
     level, half = _upper_mode(smooth[finite], band, sigma)
     air = _without_specks(finite & (np.abs(smooth - level) <= half))
     if air.any() and _slope(smooth, air, half) > _MAX_SLOPE:
@@ -164,6 +183,8 @@ def _auto_fit(view: np.ndarray, band: float, degree: int, k: int) -> tuple[np.nd
             f"band widths per pixel (air: < {_MAX_SLOPE}), so the object fills the detector; give the detector "
             "columns that see only air (--air-columns FIRST:STOP[,FIRST:STOP])"
         )
+    if degree == "auto":
+        degree = _fits_degree(air)
     coef = _fit(view, air, degree)
     for _ in range(_REFITS if degree > 0 and air.any() else 0):  # air darker or brighter by the beam profile
         field = OpenBeam(coef[None], degree, np.zeros(1), view.shape).field(0)
@@ -202,7 +223,7 @@ def estimate_open_beam(
     transmission: np.ndarray,
     *,
     columns: list[tuple[int, int]] | None = None,
-    degree: int = 0,
+    degree: int | str = "auto",
     band: float = 3.0,
     min_fraction: float = 0.01,
 ) -> OpenBeam:
@@ -215,9 +236,11 @@ def estimate_open_beam(
     columns : list of (int, int), optional
         Detector column ranges ``[first, stop)`` known to see only air in every view. Default:
         found automatically per view.
-    degree : {0, 1, 2}
+    degree : {"auto", 0, 1, 2}
         Total degree of the polynomial surface fitted per view: 0, one level (the median of the
-        air); 1, a plane; 2, a quadratic surface (a beam profile that falls off to the sides).
+        air); 1, a plane; 2, a quadratic surface (a beam profile that falls off to the sides);
+        ``"auto"``, per view the highest degree its air determines: 2 with air spanning half the
+        detector width and reaching its middle third, 1 with air spanning half the width, else 0.
     band : float
         Half-width of the air band around the brightest mode (and around the fitted surface),
         in units of the robust pixel noise (automatic detection only).
@@ -237,34 +260,36 @@ def estimate_open_beam(
     data = np.asarray(transmission)
     if data.ndim != 3 or 0 in data.shape:
         raise NanoctError(f"projections of shape {data.shape} must be (views, rows, columns), none empty")
-    if degree not in (0, 1, 2):
-        raise NanoctError(f"open-beam degree {degree!r} must be 0, 1 or 2")
+    if degree not in (0, 1, 2, "auto"):
+        raise NanoctError(f"--open-beam-degree {degree!r} must be 0, 1, 2 or auto")
     if not (band > 0 and 0 < min_fraction < 1):
         raise NanoctError(f"air band {band} must be > 0 and the least air fraction {min_fraction} in (0, 1)")
     shape = data.shape[1:]
     given = None if columns is None else _columns_mask(shape, columns)
-    coefficients = []
+    n_terms = len(poly_terms(np.zeros(1), np.zeros(1), 2 if degree == "auto" else degree))
+    coefficients = np.zeros((data.shape[0], n_terms))
     fraction = np.zeros(data.shape[0])
     for k, view in enumerate(data):
         if given is None:
             coef, air = _auto_fit(view, band, degree, k)
         else:
             air = given & np.isfinite(view)
-            coef = _fit(view, air, degree) if air.any() else None
+            coef = _fit(view, air, _fits_degree(air) if degree == "auto" else degree)
         fraction[k] = air.mean()
         if fraction[k] < min_fraction:
             raise NanoctError(
                 f"no air found in view {k}: {fraction[k]:.1%} of its pixels (need {min_fraction:.0%}); "
                 "give the detector columns that see only air (--air-columns FIRST:STOP[,FIRST:STOP])"
             )
-        cols = np.nonzero(air.any(axis=0))[0]
-        if degree > 0 and cols[-1] - cols[0] < shape[1] / 2:
+        if degree in (1, 2) and _fits_degree(air) < degree:
+            cols = np.nonzero(air.any(axis=0))[0]
             raise NanoctError(
-                f"the air of view {k} spans columns {cols[0]}..{cols[-1]}, less than half the detector: "
-                f"a surface of degree {degree} cannot be fitted; use --open-beam-degree 0"
+                f"the air of view {k} (columns {cols[0]}..{cols[-1]}) does not determine a surface of degree "
+                f"{degree} (1: air spanning half the detector width; 2: also air in its middle third); "
+                "use --open-beam-degree auto"
             )
-        coefficients.append(coef)
-    beam = OpenBeam(np.array(coefficients), degree, fraction, shape)
+        coefficients[k, : coef.size] = coef  # a degree-0 view of an auto fit: the other terms stay 0
+    beam = OpenBeam(coefficients, 2 if degree == "auto" else degree, fraction, shape)
     lows = [float(beam.field(k).min()) for k in range(data.shape[0])]
     if min(lows) <= 0:
         bad = int(np.argmin(lows))

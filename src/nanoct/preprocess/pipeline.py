@@ -69,8 +69,9 @@ class Corrections:
         Divide each view by its open beam fitted to air (:func:`estimate_open_beam`).
     air_columns : tuple of (int, int), optional
         Detector columns ``[first, stop)`` that see only air; None: found automatically.
-    open_beam_degree : {0, 1, 2}
-        Degree of the open-beam surface per view (0: one level).
+    open_beam_degree : {"auto", 0, 1, 2}
+        Degree of the open-beam surface per view (0: one level; ``"auto"``: the highest degree
+        each view's air determines, see :func:`estimate_open_beam`).
     delta_beta : float, optional
         Paganin's ``delta / beta``; None: no phase retrieval. Needs ``energy_kev``,
         ``distance_m`` and ``pixel_size_m``.
@@ -87,7 +88,7 @@ class Corrections:
     outlier_kind: str = "both"
     open_beam: bool = False
     air_columns: tuple[tuple[int, int], ...] | None = None
-    open_beam_degree: int = 0
+    open_beam_degree: int | str = "auto"
     delta_beta: float | None = None
     energy_kev: float | None = None
     distance_m: float | None = None
@@ -102,8 +103,8 @@ class Corrections:
             raise NanoctError(f"--outlier-size {self.outlier_size} must be an odd integer >= 3")
         if self.outlier_kind not in OUTLIER_KINDS:
             raise NanoctError(f"--outlier-kind {self.outlier_kind!r} must be one of {', '.join(OUTLIER_KINDS)}")
-        if self.open_beam_degree not in (0, 1, 2):
-            raise NanoctError(f"--open-beam-degree {self.open_beam_degree} must be 0, 1 or 2")
+        if self.open_beam_degree not in (0, 1, 2, "auto"):
+            raise NanoctError(f"--open-beam-degree {self.open_beam_degree} must be 0, 1, 2 or auto")
         if self.air_columns is not None:
             object.__setattr__(self, "air_columns", tuple((int(a), int(b)) for a, b in self.air_columns))
             if not self.open_beam:
