@@ -15,6 +15,7 @@ from nanoct.preprocess import (
     normalize_open_beam,
     paganin,
     parse_columns,
+    parse_stripe_params,
     remove_outliers,
     remove_stripes,
 )
@@ -75,6 +76,9 @@ def test_record_round_trip():
     assert record["stripe_params"] == {"snr": 3.0, "la_size": 51, "sm_size": 21, "drop_ratio": 0.1}
     assert Corrections.from_dict(record) == corr
     assert Corrections.from_dict(FULL.to_dict()) == FULL
+    assert hash(Corrections.from_dict(FULL.to_dict())) == hash(FULL) != hash(corr)
+    parsed = Corrections(stripes="all", stripe_params=parse_stripe_params("snr=2.5, la_size=61"))
+    assert parsed.stripe_params == {"snr": 2.5, "la_size": 61, "sm_size": 21, "drop_ratio": 0.1}
 
 
 @pytest.mark.parametrize(
@@ -99,5 +103,9 @@ def test_bad_input():
         Corrections.from_dict({"ring": 1})
     with pytest.raises(NanoctError, match="FIRST:STOP"):
         parse_columns("0-30")
+    with pytest.raises(NanoctError, match="NAME=NUMBER"):
+        parse_stripe_params("snr:3")
+    with pytest.raises(NanoctError, match="whole numbers"):
+        Corrections(stripes="all", stripe_params={"la_size": 51.5})
     with pytest.raises(NanoctError, match="must be \\(views, rows, columns\\)"):
         apply_corrections(np.ones((4, 4)), Corrections())

@@ -9,7 +9,7 @@ removal with algotom (:mod:`.stripes`, measured by :mod:`.rings`); :mod:`.pipeli
 from .openbeam import OpenBeam, estimate_open_beam, normalize_open_beam
 from .outliers import remove_outliers
 from .phase import paganin, paganin_filter
-from .pipeline import CorrectionResult, Corrections, apply_corrections, parse_columns
+from .pipeline import CorrectionResult, Corrections, apply_corrections, parse_columns, parse_stripe_params
 from .rings import radial_profile, ring_metric
 from .stripes import STRIPE_METHODS, remove_stripes
 
@@ -24,6 +24,7 @@ __all__ = [
     "paganin",
     "paganin_filter",
     "parse_columns",
+    "parse_stripe_params",
     "radial_profile",
     "remove_outliers",
     "remove_stripes",

@@ -17,6 +17,7 @@ angles. Every step is off by default: ``Corrections()`` changes nothing but taki
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -28,7 +29,7 @@ from .outliers import OUTLIER_KINDS, remove_outliers
 from .phase import paganin
 from .stripes import remove_stripes, stripe_function
 
-__all__ = ["CorrectionResult", "Corrections", "apply_corrections", "parse_columns"]
+__all__ = ["CorrectionResult", "Corrections", "apply_corrections", "parse_columns", "parse_stripe_params"]
 
 _FLOOR = 1e-6  # transmissions at or below 0 (dead pixels) are raised to this before -log
 
@@ -51,6 +52,26 @@ def parse_columns(text: str) -> tuple[tuple[int, int], ...]:
             raise NanoctError(f"--air-columns range {part!r} must satisfy 0 <= FIRST < STOP")
         ranges.append((first, stop))
     return tuple(ranges)
+
+
+def parse_stripe_params(text: str) -> dict[str, float]:
+    """``"snr=3,la_size=61"`` -> ``{"snr": 3.0, "la_size": 61.0}`` (:class:`Corrections` casts them).
+
+    Raises
+    ------
+    NanoctError
+        For text that is not comma-separated ``NAME=NUMBER`` pairs.
+    """
+    params = {}
+    for part in str(text).split(","):
+        name, _, value = part.partition("=")
+        try:
+            params[name.strip()] = float(value)
+        except ValueError:
+            raise NanoctError(
+                f"--stripe-params {text!r} must be NAME=NUMBER[,NAME=NUMBER...], e.g. snr=3,la_size=61"
+            ) from None
+    return params
 
 
 @dataclass(frozen=True)
@@ -120,6 +141,9 @@ class Corrections:
             object.__setattr__(self, "stripe_params", stripe_function(self.stripes, self.stripe_params)[1])
         elif self.stripe_params:
             raise NanoctError("stripe parameters are used only with --stripes")
+
+    def __hash__(self) -> int:  # stripe_params is a dict: hash the record instead
+        return hash(json.dumps(self.to_dict(), sort_keys=True))
 
     @property
     def any(self) -> bool:

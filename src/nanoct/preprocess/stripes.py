@@ -57,6 +57,8 @@ def stripe_function(method: str, params: dict[str, Any] | None = None) -> tuple[
     if unknown:
         raise NanoctError(f"stripe parameter {unknown[0]!r} is not one of method {method!r}'s: {', '.join(defaults)}")
     full = {key: type(value)(params.get(key, value)) for key, value in defaults.items()}
+    if any(isinstance(value, int) and params.get(key, value) != value for key, value in full.items()):
+        raise NanoctError(f"stripe parameters {params} must be whole numbers where algotom's are ({defaults})")
     if any(not value > 0 for value in full.values()):
         raise NanoctError(f"stripe parameters {full} must all be > 0")
     from algotom.prep import removal
