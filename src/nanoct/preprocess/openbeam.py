@@ -198,6 +198,8 @@ def _auto_fit(view: np.ndarray, band: float, degree: int | str, k: int) -> tuple
 def _fit(view: np.ndarray, air: np.ndarray, degree: int) -> np.ndarray:
     """The polynomial's coefficients from the air pixels of one view (degree 0: their median)."""
     values = view[air].astype(np.float64)
+    if values.size == 0:  # no air: a zero level, which the caller refuses by its air fraction
+        return np.zeros(1)
     if degree == 0:
         return np.array([np.median(values)])
     w, u = _coordinates(view.shape)
