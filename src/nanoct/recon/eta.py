@@ -27,7 +27,8 @@ import numpy as np
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..core.operators import RayTransform, system_matrix
-from ..core.validation import check_array, check_float
+from ..core.validation import check_array, check_choice, check_float
+from .measured import MEASURED_MODES, air_level, looks_measured
 from .rowaction import resolve_projector
 
 __all__ = ["eta_from_reference", "eta_from_residual", "fit_scale"]
@@ -36,9 +37,19 @@ _STATISTICS = ("median", "mean", "max")
 
 
 def eta_from_residual(
-    geometry: Geometry, sinogram: Any, image: Any, *, scale: float = 1.0, projector: str | None = None
+    geometry: Geometry,
+    sinogram: Any,
+    image: Any,
+    *,
+    scale: float = 1.0,
+    projector: str | None = None,
+    measured: str = "auto",
 ) -> np.ndarray:
     """``scale * max_l |y - A x0|`` per view, from a first reconstruction ``x0``.
+
+    For measured data the per-view air level (:func:`~nanoct.recon.measured.air_level`) is
+    removed from ``y`` first, as the reconstruction methods do, so that the open beam is not
+    counted as model error.
 
     Parameters
     ----------
@@ -55,13 +66,18 @@ def eta_from_residual(
         ASTRA projector of ``A`` (default: the one reconstructions use; where they trace their
         rays instead of holding the matrix, a parallel beam whose matrix would exceed
         :data:`~nanoct.recon.rowaction.AUTO_MATRIX_BYTES`, ASTRA projects without it).
+    measured : {"auto", "on", "off"}
+        Remove the air level: ``"auto"`` where :func:`~nanoct.recon.measured.looks_measured`.
 
     Returns
     -------
     ndarray of shape (K,), float32
     """
-    y = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
+    y = check_array(sinogram, "sinogram", shape=geometry.sino_shape).astype(np.float64)
     x = check_array(image, "image", shape=geometry.image_shape)
+    measured = check_choice(measured, "measured", MEASURED_MODES)
+    if measured == "on" or (measured == "auto" and looks_measured(y)):
+        y = y - air_level(y)[:, None]
     try:
         scale = check_float(scale, "eta scale", low=0.0)
     except ValueError as exc:
@@ -70,7 +86,7 @@ def eta_from_residual(
         model = RayTransform(geometry)(x)
     else:
         model = (system_matrix(geometry, projector) @ x.ravel()).reshape(geometry.sino_shape)
-    return (scale * np.abs(y.astype(np.float64) - model).max(axis=1)).astype(np.float32)
+    return (scale * np.abs(y - model).max(axis=1)).astype(np.float32)
 
 
 def eta_from_reference(etas: Any, *, statistic: str = "median") -> np.ndarray:
