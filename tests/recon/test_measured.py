@@ -165,8 +165,11 @@ def test_resesop_takes_the_estimated_noise_as_delta(offset_scan) -> None:
 
 def test_eta_from_residual_leaves_out_the_open_beam(offset_scan) -> None:
     g, x, clean, measured, _ = offset_scan
-    np.testing.assert_allclose(eta_from_residual(g, measured, x), eta_from_residual(g, clean, x), atol=1e-4)
-    assert eta_from_residual(g, measured, x, measured="off").min() > 0.3
+    start = 0.9 * x  # a first reconstruction with an error
+    plain = eta_from_residual(g, clean, start)
+    np.testing.assert_allclose(eta_from_residual(g, measured, start), 0.5 * plain, atol=1e-4)  # measured: half
+    np.testing.assert_allclose(eta_from_residual(g, measured, start, scale=1.0), plain, atol=1e-4)
+    assert eta_from_residual(g, measured, start, measured="off").min() > 0.3
 
 
 def test_a_matrix_keeps_the_data_as_given_unless_asked(offset_scan) -> None:
