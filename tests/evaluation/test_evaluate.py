@@ -193,3 +193,15 @@ def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp
     assert "| dremel | " in md and "PSNR registered [dB]" in md
     assert payload["setting"] == "parallel" and payload["conclusions"][0]["id"] == checks[0]["id"]
     assert "The paper's conclusions (parallel)" in (tmp_path / "evaluation.md").read_text()
+
+
+def test_paper_comparison_keeps_the_papers_convention():
+    """The comparison with the paper uses the scores as reconstructed, not the registered ones, and says so."""
+    from nanoct.evaluation.paper import PAPER_GAUGE, format_comparison
+
+    scores = {**_scores(28.0), "psnr_registered_mean": 35.0, "psnr_registered_std": 1.0}
+    scores |= {"ssim_registered_mean": 0.9, "ssim_registered_std": 0.01}
+    text = format_comparison({"fbp": scores}, "parallel")
+    row = next(line for line in text.splitlines() if line.startswith("| fbp |"))
+    assert "28.00 ± 1.00" in row and "35.00" not in row
+    assert PAPER_GAUGE in text
