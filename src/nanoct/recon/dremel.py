@@ -609,11 +609,13 @@ class DremelParams(MethodParams):
         Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
         computes them per view when the matrix would exceed 1 GB
         (:func:`~nanoct.recon.rowaction.resolve_projector`).
-    measured : {"auto", "on", "off"}, default "auto"
+    measured : {"auto", "on", "extend", "off"}, default "auto"
         Measured-data treatment (:mod:`~nanoct.recon.measured`): per-view air level removed,
         sinogram extended at the detector edges onto a larger grid, stop by the discrepancy
         principle with the estimated noise. ``"auto"`` applies it when the detector edges are
         not at zero (a measured scan); a simulation is reconstructed as given.
+        ``"extend"``: the same without removing an air level (an object wider than the
+        detector, open beam at zero).
     pad : int, optional
         Detector pixels added on each side for measured data (default a quarter of the
         detector width; 0: no extension).
