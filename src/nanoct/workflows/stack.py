@@ -93,10 +93,18 @@ def shift_corrected(sinogram: np.ndarray, shifts: np.ndarray) -> np.ndarray:
 
 
 def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
-    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view."""
+    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view.
+
+    A measured sinogram's air level (:func:`~nanoct.recon.measured.air_level`) is removed first, so
+    that the level is not taken for the model error.
+    """
+    from ..recon.measured import air_level, looks_measured
     from ..recon.resesop import resesop
 
-    corrected = shift_corrected(sino.astype(np.float64), shifts)
+    sino = sino.astype(np.float64)
+    if looks_measured(sino):
+        sino = sino - air_level(sino)[:, None]
+    corrected = shift_corrected(sino, shifts)
     if eta == "auto":
         start = corrected_fbp(geometry, corrected)
         levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(geometry, start)).max(axis=1)
