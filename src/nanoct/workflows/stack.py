@@ -27,8 +27,8 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, estimate_axis, remove_air
-from ..motion.center import centroid_motion
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, remove_air
+from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.stack import estimate_stack_motion
 from ..motion.vertical import vertical_shifts
@@ -174,6 +174,27 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
     return estimate.offset, estimate.to_dict()
 
 
+def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
+    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone."""
+    if not opposite_pairs(store.geometry.angles)[0].size:
+        return {"tilt": {"note": "no views 180 degrees apart: the axis tilt is not estimated"}}
+    firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
+    rows = [int(r) for first in firsts for r in range(first, first + 4)]
+    straight = read_straight(store, rows, vertical)
+    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    try:
+        tilt = axis_tilt(corrected, store.geometry.angles, rows=rows, n_rows=store.n)
+    except NanoctError as exc:
+        return {"tilt": {"note": str(exc)}}
+    return {"tilt": {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual}}
+
+
+def slice_center(info: dict[str, Any], index: int, n_slices: int) -> float:
+    """The axis offset of slice ``index``: the stack's axis, moved along the tilt line where one was found."""
+    slope = info.get("tilt", {}).get("slope", 0.0)
+    return float(info["center_offset"] + slope * (index - (n_slices - 1) / 2))
+
+
 def horizontal_motion(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
 ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -220,6 +241,8 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
     if store.n >= MIN_VERTICAL_SLICES and store.done.all():
         vertical = vertical_shifts(_profiles(store))
     shifts, info = horizontal_motion(store, params, vertical, progress, name)
+    if params["center"] == "auto" and store.n >= MIN_VERTICAL_SLICES and store.done.all():
+        info.update(_tilt(store, vertical, shifts))
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     info["vertical"] = [float(v) for v in vertical]
@@ -233,10 +256,17 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
 
 
 def _reconstruct_slice(
-    path: str, name: str, method: str, center: float, eta: Any, shifts: np.ndarray, vertical: np.ndarray, index: int
+    path: str,
+    name: str,
+    method: str,
+    info: dict[str, Any],
+    eta: Any,
+    shifts: np.ndarray,
+    vertical: np.ndarray,
+    index: int,
 ) -> int:
     store = open_cached(path)
-    geometry = with_center(store.geometry, center)
+    geometry = with_center(store.geometry, slice_center(info, index, store.n))
     sino = read_straight(store, [index], vertical)[0]
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
@@ -341,7 +371,7 @@ def reconstruct_stack(
         str(store.path),
         name,
         method,
-        float(info["center_offset"]),
+        info,
         params.get("eta"),
         shifts,
         vertical,
