@@ -37,3 +37,17 @@ def test_estimate_motion_bad_input():
         estimate_motion(np.zeros((4, 8, 8)), np.zeros(3))
     with pytest.raises(NanoctError, match="horizontal estimator"):
         estimate_motion(np.zeros((4, 8, 8)), np.zeros(4), horizontal="magic")
+
+
+def test_limited_angle_tilt_series_with_jumps_between_frames():
+    from motion_cases import analytic_projections
+
+    angles = np.deg2rad(np.linspace(-76, 76, 39))  # no two views 180 degrees apart: prealigned, sharpness axis
+    proj = np.pad(analytic_projections(angles, 64, 24, 2.0, seed=5), ((0, 0), (0, 0), (24, 24)))
+    rng = np.random.default_rng(0)
+    horizontal = np.clip(np.cumsum(rng.normal(0, 5, angles.size)), -20, 20)  # jumps of up to ~10 px
+    vertical = np.clip(np.cumsum(rng.normal(0, 2, angles.size)), -5, 5)
+    result = estimate_motion(moved(proj, horizontal - horizontal.mean(), vertical), angles)
+    assert result.record["prealign"] and result.axis.used == ("sharpness",)
+    assert gauge_free_rms(result.horizontal, horizontal, angles) < 1.0  # measured 0.31 px on a 77-view series
+    assert gauge_free_rms(result.vertical, vertical, angles, vertical=True) < 1.0

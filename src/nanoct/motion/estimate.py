@@ -31,15 +31,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
 from .axis import AxisEstimate, axis_rows, estimate_axis, remove_air
-from .center import centroid_motion
+from .center import centroid_motion, opposite_pairs
 from .matching import apply_vertical, match_projections
+from .registration import register_shifts
 from .vertical import row_profiles, vertical_shifts
 
-__all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion"]
+__all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours"]
 
 #: The horizontal estimators :func:`estimate_motion` chooses from.
 HORIZONTAL_ESTIMATORS = ("auto", "centroid", "matching")
@@ -68,6 +70,34 @@ class Motion3D:
     record: dict[str, Any] = field(default_factory=dict)
 
 
+def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Coarse ``(v_k, d_k)`` for jumps of tens of pixels: each view registered to the one before it.
+
+    Consecutive views of a fine angular step look alike, so the 2-D cross-correlation of view
+    ``k`` with view ``k - 1`` (:func:`~nanoct.motion.registration.register_shifts`, high-pass of 4
+    pixels) gives the jump between them; the running sum is the coarse motion (with zero mean).
+    The object's own rotation between the views adds a small bias to every jump, which the
+    running sum carries along: the fine estimators correct it.
+
+    Parameters
+    ----------
+    projections : ndarray of shape (K, R, L)
+        In acquisition order.
+    max_shift : float, optional
+        Largest jump searched (default a third of the detector in each direction).
+
+    Returns
+    -------
+    vertical, horizontal : ndarray of shape (K,)
+    """
+    proj = np.asarray(projections, dtype=np.float64)
+    limit = (proj.shape[1] / 3, proj.shape[2] / 3) if max_shift is None else (max_shift, max_shift)
+    jumps = register_shifts(proj[:-1], proj[1:], sigma=4.0, margin=(4, 4), max_shift=limit)
+    steps = np.concatenate([np.zeros((1, 2)), np.cumsum(jumps, axis=0)])
+    steps -= steps.mean(axis=0)
+    return steps[:, 0], steps[:, 1]
+
+
 def estimate_motion(
     projections: Any,
     angles: Any,
@@ -75,6 +105,7 @@ def estimate_motion(
     center: float | None = None,
     horizontal: str = "auto",
     vertical: bool = True,
+    prealign: bool | str = "auto",
     progress: Callable[[str], Any] | None = None,
 ) -> Motion3D:
     """Vertical and horizontal shift per view and the rotation axis (see the module docstring).
@@ -91,6 +122,10 @@ def estimate_motion(
         Horizontal estimator (``"auto"``: centroid where air is seen, else matching).
     vertical : bool
         Estimate the vertical shifts (else zero).
+    prealign : bool or "auto"
+        Start from :func:`prealign_neighbours` (jumps of tens of pixels between frames);
+        ``"auto"``: for a limited-angle series (no two views 180 degrees apart), where frames
+        of a tilt series are acquired in angular order.
     progress : callable, optional
         Called with the name of each finished stage.
 
@@ -105,6 +140,11 @@ def estimate_motion(
     if horizontal not in HORIZONTAL_ESTIMATORS:
         raise NanoctError(f"horizontal estimator {horizontal!r}: choose one of {', '.join(HORIZONTAL_ESTIMATORS)}")
     tick = progress or (lambda stage: None)
+    if prealign == "auto":
+        prealign = not opposite_pairs(phi)[0].size
+    v0, d0 = prealign_neighbours(proj) if prealign else (np.zeros(phi.size), np.zeros(phi.size))
+    if prealign:
+        proj = np.stack([ndi.shift(p, (a, b), order=1, mode="nearest") for p, a, b in zip(proj, v0, d0)])
     v = vertical_shifts(row_profiles(proj)) if vertical and proj.shape[1] >= 4 else np.zeros(phi.size)
     straight = apply_vertical(proj, v) if np.any(v) else proj
     tick("vertical")
@@ -125,6 +165,8 @@ def estimate_motion(
     else:
         d = match_projections(straight, phi, axis.offset, progress=lambda stage: None).horizontal
         record["why"] = "no air around the object: centroids do not hold" if horizontal == "auto" else "requested"
-    d = remove_translation(d, phi)
+    record["prealign"] = bool(prealign)
+    d = remove_translation(d + d0, phi)
+    v = v + v0 if vertical else v
     tick("horizontal")
-    return Motion3D(d, v, axis, method, record)
+    return Motion3D(d, v - v.mean(), axis, method, record)
