@@ -49,5 +49,5 @@ def test_limited_angle_tilt_series_with_jumps_between_frames():
     vertical = np.clip(np.cumsum(rng.normal(0, 2, angles.size)), -5, 5)
     result = estimate_motion(moved(proj, horizontal - horizontal.mean(), vertical), angles)
     assert result.record["prealign"] and result.axis.used == ("sharpness",)
-    assert gauge_free_rms(result.horizontal, horizontal, angles) < 1.0  # measured 0.31 px on a 77-view series
+    assert gauge_free_rms(result.horizontal, horizontal, angles) < 1.0  # measured 0.44 px (vertical 0.014)
     assert gauge_free_rms(result.vertical, vertical, angles, vertical=True) < 1.0
