@@ -309,7 +309,7 @@ def _mrc_views(path: Path) -> int:
     import mrcfile
 
     try:
-        with mrcfile.mmap(path, mode="r", permissive=False, header_only=True) as mrc:
+        with mrcfile.open(path, mode="r", permissive=False, header_only=True) as mrc:
             return int(mrc.header.nz)
     except (ValueError, OSError, EOFError) as exc:
         raise NanoctError(f"cannot read {path} as MRC ({exc}); is the file complete?") from None
