@@ -750,8 +750,8 @@ def import_(
     Data Exchange) is read without options; any other with --data-path (and --image-key-path,
     --angles-path). External links and virtual datasets are followed only below the file's
     folder (and --allow-outside folders). The data set has no ground truth: reconstruct it
-    (Dremel estimates one shift per view for the whole stack), post-process it with a trained
-    network of the same image size, and export the images.
+    (Dremel estimates one shift per view for the whole stack), post-process it with a
+    network trained on data simulated with its geometry, and export the images.
     """
     from .io.scanio import import_scan
 
