@@ -868,6 +868,10 @@ def stack(
     typer.echo(_stack_summary(DataStore.open(source), written))
 
 
+def _how_found(method: str | None) -> str:
+    return "as given (--center-offset)" if method == "given" else f"found by {method or 'an unrecorded method'}"
+
+
 def _stack_summary(store: Any, name: str) -> str:
     """What 'nanoct stack' found and wrote: axis, how it was found, the motion's range, where the slices are."""
     import numpy as np
@@ -880,7 +884,7 @@ def _stack_summary(store: Any, name: str) -> str:
         f"wrote reconstructions/{name}: axis offset {info.get('center_offset', float('nan')):+.3f} px, "
         f"shift RMS {info.get('shift_rms', float('nan')):.3f} px",
         f"  axis     column {column:.2f} of 0..{g.n_det - 1} (offset {info.get('center_offset', float('nan')):+.3f} "
-        f"px from the centre), found by {info.get('center_method', '?')}",
+        f"px from the centre), {_how_found(info.get('center_method'))}",
     ]
     if shifts is not None and np.isfinite(shifts).all():
         size = (scan.get("pixel_size_m") or [None])[0]

@@ -135,3 +135,17 @@ def test_angles_from_an_hdf5_dataset_for_a_npy_scan(tmp_path):
     np.testing.assert_allclose(scan.angles, np.linspace(0, np.pi, K, endpoint=False))
     with pytest.raises(NanoctError, match="missing"):
         read_scan(tmp_path / "p.npy", angles_file=f"{tmp_path / 'angles.h5'}:/entry/nothing")
+
+
+def test_nxtomo_angles_in_the_unit_the_user_states(tmp_path):
+    proj, flat, _ = _frames()
+    path = tmp_path / "scan.nx"
+    with h5py.File(path, "w") as f:
+        f["entry/instrument/detector/data"] = np.concatenate([flat, proj])
+        f["entry/instrument/detector/image_key"] = np.r_[1, 1, np.zeros(K, int)]
+        f["entry/sample/rotation_angle"] = np.r_[0, 0, np.linspace(0, np.pi, K, endpoint=False)]  # radians, no units
+    with pytest.raises(NanoctError, match="look like radians"):
+        read_scan(path)
+    scan = read_scan(path, options=ReaderOptions(angle_units="rad"))
+    assert scan.source["format"] == "nxtomo"
+    np.testing.assert_allclose(scan.angles, np.linspace(0, np.pi, K, endpoint=False))
