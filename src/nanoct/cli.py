@@ -50,6 +50,44 @@ def _options(
 WORKERS = typer.Option(2, "--workers", "-w", help="Local Dask worker processes (0: run in this process).")
 SCHEDULER = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler (instead of a local cluster).")
 QUIET = typer.Option(False, "--quiet", "-q", help="No progress bars.")
+QUIET_OUTPUT = typer.Option(False, "--quiet", "-q", help="Print nothing but errors.")
+
+# how to read a scan file: shared by 'import' and 'stack' (which imports a scan file first)
+FORMAT = typer.Option(
+    None,
+    "--format",
+    help="nxtomo | diamond | diamond-nxtomo | dxchange | hdf5 | tiff | npy | mrc (default: from the file).",
+)
+ANGLES = typer.Option(
+    None,
+    "--angles",
+    help="Angles: text file, one per view (IMOD .tlt/.rawtlt too), FILE.h5:/dataset, or FIRST:STOP (evenly "
+    "spaced, STOP excluded).",
+)
+ANGLES_SELECT = typer.Option(
+    None, "--angles-select", help="Use only the values FIRST:STOP (0-based, STOP excluded) of the --angles file."
+)
+RADIANS = typer.Option(False, "--radians", help="The --angles text file is in radians (default degrees).")
+ANGLE_UNITS = typer.Option(
+    None, "--angles-units", help="deg | rad: the unit of the angles, overriding the file's units attribute."
+)
+DATA_PATH = typer.Option(None, "--data-path", help="HDF5: dataset of the frames (frames, rows, columns).")
+KEY_PATH = typer.Option(
+    None, "--image-key-path", help="HDF5: dataset of the NXtomo image keys (0 proj, 1 flat, 2 dark)."
+)
+ANGLES_PATH = typer.Option(None, "--angles-path", help="HDF5: dataset of the angles (one per frame).")
+ALLOW = typer.Option(
+    [], "--allow-outside", help="HDF5: a folder outside the scan's own that links may read (repeatable)."
+)
+TILT_AXIS = typer.Option("columns", "--tilt-axis", help="MRC: the tilt axis runs along the image columns | rows.")
+FLATS = typer.Option(None, "--flats", help="Flat fields (TIFF or .npy) for TIFF and .npy scans.")
+DARKS = typer.Option(None, "--darks", help="Dark fields (TIFF or .npy) for TIFF and .npy scans.")
+ENTRY = typer.Option(None, "--entry", help="NXtomo entry to read (when the file has several).")
+ROWS = typer.Option(None, "--rows", help="Detector rows (slices) FIRST:STOP (default all).")
+CROP = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep.")
+LINE_INTEGRALS = typer.Option(
+    False, "--line-integrals", help="The data are already -log normalised (no flat/dark correction)."
+)
 
 
 def _parse_fractions(text: str) -> tuple[float, float, float]:
@@ -218,6 +256,7 @@ def reconstruct(
 @app.command()
 def methods(
     method: str | None = typer.Argument(None, help="A method (default: all of them)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Only the methods' names, one per line."),
 ) -> None:
     """List the reconstruction methods and the parameters each takes (--param NAME=VALUE).
 
@@ -231,6 +270,9 @@ def methods(
 
     for name in [method_spec(method).name] if method else list(METHODS):
         spec = METHODS[name]
+        if quiet:
+            typer.echo(name)
+            continue
         typer.echo(f"{name}: {spec.help}")
         defaults = {f.name: f.default for f in fields(spec.params_class())}
         batch = set(spec.batch_parameter_names())
@@ -382,6 +424,7 @@ def info(
     check: bool = typer.Option(
         False, "--check", help="Read every written sample and list damaged ones (exit status 2 if any)."
     ),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing (with --check: only damage, as an error)."),
 ) -> None:
     """Sizes, splits, geometry, completeness and reconstructions of a data set.
 
@@ -394,7 +437,9 @@ def info(
     data = store.info()
     if check:
         data["damaged"] = store.verify()
-    if as_json:
+    if quiet:
+        pass
+    elif as_json:
         typer.echo(json.dumps(data, indent=2))
     else:
         _print_info(data)
@@ -445,6 +490,7 @@ def show(
     directory: Path = typer.Argument(..., help="Data-set store."),
     index: int = typer.Option(0, "--index", "-i", help="Sample index."),
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
+    quiet: bool = QUIET_OUTPUT,
 ) -> None:
     """Figure of one sample: phantom, motion, sinograms with and without motion, FBPs."""
     from .evaluation.figures import show_sample
@@ -453,7 +499,9 @@ def show(
     store = DataStore.open(directory)
     if not 0 <= index < store.n:
         raise NanoctError(f"--index {index} is out of range 0..{store.n - 1}")
-    typer.echo(f"wrote {show_sample(store, index, out)}")
+    written = show_sample(store, index, out)
+    if not quiet:
+        typer.echo(f"wrote {written}")
 
 
 @app.command()
@@ -462,6 +510,7 @@ def evaluate(
     split: str = typer.Option("test", "--split", help="Split to evaluate on."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for evaluation.md/json (default DIR/report)."),
     as_json: bool = typer.Option(False, "--json", help="Print evaluation.json instead of the Markdown tables."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Write the files, print nothing."),
 ) -> None:
     """PSNR/SSIM (mean ± std over a split, and per image) of every reconstruction in the store.
 
@@ -487,8 +536,9 @@ def evaluate(
         conclusions=scores.checks,
         setting=scores.setting,
     )
-    typer.echo(js.read_text() if as_json else md.read_text())
-    typer.echo(f"wrote {md} and {js}", err=True)
+    if not quiet:
+        typer.echo(js.read_text() if as_json else md.read_text())
+        typer.echo(f"wrote {md} and {js}", err=True)
 
 
 @app.command()
@@ -631,20 +681,47 @@ def _parse_range(text: str | None, flag: str, sep: str) -> tuple[int, int] | Non
     return first, stop
 
 
+def _reader_options(
+    data_path: str | None,
+    key_path: str | None,
+    angles_path: str | None,
+    units: str | None,
+    allow: list[Path],
+    tilt: str,
+    select: str | None,
+) -> Any:
+    """The reading options of 'import' and 'stack', checked."""
+    from .io.scanio import ReaderOptions
+
+    if units is not None and units not in ("deg", "rad"):
+        raise NanoctError(f"--angles-units {units!r}: use deg or rad")
+    if tilt not in ("columns", "rows"):
+        raise NanoctError(f"--tilt-axis {tilt!r}: use columns (IMOD's, vertical) or rows (horizontal)")
+    allowed = tuple(str(a) for a in allow)
+    return ReaderOptions(
+        data_path, key_path, angles_path, units, tilt, allowed, _parse_range(select, "--angles-select", ":")
+    )
+
+
 @app.command("import")
 def import_(
-    src: Path = typer.Argument(..., help="Scan: NXtomo/Data Exchange .h5/.nxs, .tif stack or folder, or .npy."),
+    src: Path = typer.Argument(..., help="Scan: HDF5/NeXus (.h5/.nxs), .tif stack or folder, .npy, or MRC (.mrc/.st)."),
     out: Path = typer.Option(..., "--out", "-o", help="New data-set directory."),
-    fmt: str | None = typer.Option(None, "--format", help="nxtomo | dxchange | tiff | npy (default: from the file)."),
-    angles: Path | None = typer.Option(None, "--angles", help="Text file, one angle per view (TIFF and .npy)."),
-    radians: bool = typer.Option(False, "--radians", help="The --angles file is in radians (default degrees)."),
-    flats: Path | None = typer.Option(None, "--flats", help="Flat fields (TIFF or .npy) for TIFF and .npy scans."),
-    darks: Path | None = typer.Option(None, "--darks", help="Dark fields (TIFF or .npy) for TIFF and .npy scans."),
-    line_integrals: bool = typer.Option(
-        False, "--line-integrals", help="The data are already -log normalised (no flat/dark correction)."
-    ),
-    rows: str | None = typer.Option(None, "--rows", help="Detector rows (slices) FIRST:STOP (default all)."),
-    crop: str | None = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep."),
+    fmt: str | None = FORMAT,
+    angles: str | None = ANGLES,
+    angles_select: str | None = ANGLES_SELECT,
+    radians: bool = RADIANS,
+    angles_units: str | None = ANGLE_UNITS,
+    data_path: str | None = DATA_PATH,
+    image_key_path: str | None = KEY_PATH,
+    angles_path: str | None = ANGLES_PATH,
+    allow_outside: list[Path] = ALLOW,
+    tilt_axis: str = TILT_AXIS,
+    flats: Path | None = FLATS,
+    darks: Path | None = DARKS,
+    line_integrals: bool = LINE_INTEGRALS,
+    rows: str | None = ROWS,
+    crop: str | None = CROP,
     binning: int = typer.Option(1, "--binning", help="Average this many detector columns (and rows)."),
     center_offset: str = typer.Option(
         "0",
@@ -658,34 +735,47 @@ def import_(
     tolerance: float = typer.Option(
         1e-3, "--tolerance", help="Fraction of non-positive flat/dark-corrected values raised to a floor."
     ),
-    entry: str | None = typer.Option(None, "--entry", help="NXtomo entry to read (when the file has several)."),
+    entry: str | None = ENTRY,
     drop_bad_views: bool = typer.Option(
         False, "--drop-bad-views", help="Leave out projections (and flats/darks) holding NaN or infinite values."
     ),
+    quiet: bool = QUIET_OUTPUT,
 ) -> None:
     """Import a measured parallel-beam scan: one sample per detector row, all sharing one motion.
 
     Flat/dark correction and -log, slice selection, cropping and binning; the view angles come
-    from the file (NXtomo rotation_angle in its units, Data Exchange theta: degrees) or --angles,
-    the pixel size from NXtomo. The data
-    set has no ground truth: reconstruct it (Dremel estimates one shift per view for the whole
-    stack), post-process it with a trained network of the same image size, and export the images.
+    from the file (NXtomo rotation_angle in its units, other HDF5 layouts in theirs, Data
+    Exchange theta: degrees, IMOD .rawtlt/.tlt next to an MRC stack) or --angles, the pixel size
+    from NXtomo or the MRC header. An HDF5 file of a known layout (NXtomo, Diamond's scan NeXus,
+    Data Exchange) is read without options; any other with --data-path (and --image-key-path,
+    --angles-path). External links and virtual datasets are followed only below the file's
+    folder (and --allow-outside folders). The data set has no ground truth: reconstruct it
+    (Dremel estimates one shift per view for the whole stack), post-process it with a
+    network trained on data simulated with its geometry, and export the images.
     """
     from .io.scanio import import_scan
 
     row_range = _parse_range(rows, "--rows", ":")
+    options = _reader_options(
+        data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
+    )
     store = import_scan(
         src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
         is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
         crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset),
-        size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views,
+        size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views, options=options,
     )  # fmt: skip
+    if not quiet:
+        _echo_import(store)
+
+
+def _echo_import(store: Any) -> None:
     g = store.geometry
     scan = store.meta.get("scan") or {}
     pixel = f", pixel {scan['pixel_size_m'][0] * 1e9:.4g} nm" if scan.get("pixel_size_m") else ""
     typer.echo(
         f"{store.path}: {store.n} slice(s), {g.n_angles} views x {g.n_det} detector pixels, image {g.n}x{g.n}, "
-        f"axis offset {g.center_offset:+.2f} px{pixel}"
+        f"axis offset {g.center_offset:+.2f} px{pixel} ({scan.get('format')})"
     )
     for note in scan.get("notes", []):
         typer.echo(f"note: {note}", err=True)
@@ -722,11 +812,33 @@ def stack(
     model: str | None = typer.Option(None, "--model", help="DEGREE,HARMONICS: use a smooth model of the motion."),
     name: str | None = typer.Option(None, "--name", help="Output name (default METHOD_stack).", callback=_check_name),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result of that name."),
+    fmt: str | None = FORMAT,
+    angles: str | None = ANGLES,
+    angles_select: str | None = ANGLES_SELECT,
+    radians: bool = RADIANS,
+    angles_units: str | None = ANGLE_UNITS,
+    data_path: str | None = DATA_PATH,
+    image_key_path: str | None = KEY_PATH,
+    angles_path: str | None = ANGLES_PATH,
+    allow_outside: list[Path] = ALLOW,
+    tilt_axis: str = TILT_AXIS,
+    flats: Path | None = FLATS,
+    darks: Path | None = DARKS,
+    line_integrals: bool = LINE_INTEGRALS,
+    rows: str | None = ROWS,
+    crop: str | None = CROP,
+    entry: str | None = ENTRY,
     workers: int = WORKERS,
     scheduler: str | None = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
-    """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable)."""
+    """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable).
+
+    Given a scan file and --store, imports it first with the reading options of 'nanoct import'
+    (--format, --angles, --data-path ...; the axis is then estimated here, not at import).
+    Ends with a summary: the axis and how it was found, the range of the motion, and where the
+    slices are.
+    """
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
 
@@ -735,7 +847,15 @@ def stack(
             raise NanoctError(f"{source} is not a data set; to import a scan file, add --store NEW_DIR")
         from .io.scanio import import_scan
 
-        source = import_scan(source, store_dir).path
+        row_range = _parse_range(rows, "--rows", ":")
+        options = _reader_options(
+            data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
+        )
+        source = import_scan(
+            source, store_dir, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
+            is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
+            crop=_parse_range(crop, "--crop", ","), entry=entry, options=options,
+        ).path  # fmt: skip
     smooth = None if model is None else _parse_ints(model, "--model", low=0)
     if smooth is not None and len(smooth) != 2:
         raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
@@ -745,11 +865,40 @@ def stack(
         refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
-    info = DataStore.open(source).recons.motion_info(written) or {}
-    typer.echo(
-        f"wrote reconstructions/{written}: axis offset {info.get('center_offset', float('nan')):+.3f} px, "
-        f"shift RMS {info.get('shift_rms', float('nan')):.3f} px"
+    typer.echo(_stack_summary(DataStore.open(source), written))
+
+
+def _how_found(method: str | None) -> str:
+    return "as given (--center-offset)" if method == "given" else f"found by {method or 'an unrecorded method'}"
+
+
+def _stack_summary(store: Any, name: str) -> str:
+    """What 'nanoct stack' found and wrote: axis, how it was found, the motion's range, where the slices are."""
+    import numpy as np
+
+    info = store.recons.motion_info(name) or {}
+    shifts = store.recons.shared_shifts(name)
+    g, scan = store.geometry, store.meta.get("scan") or {}
+    column = (g.n_det - 1) / 2 + info.get("center_offset", float("nan"))
+    lines = [
+        f"wrote reconstructions/{name}: axis offset {info.get('center_offset', float('nan')):+.3f} px, "
+        f"shift RMS {info.get('shift_rms', float('nan')):.3f} px",
+        f"  axis     column {column:.2f} of 0..{g.n_det - 1} (offset {info.get('center_offset', float('nan')):+.3f} "
+        f"px from the centre), {_how_found(info.get('center_method'))}",
+    ]
+    if shifts is not None and np.isfinite(shifts).all():
+        size = (scan.get("pixel_size_m") or [None])[0]
+        nm = f" ({shifts.min() * size * 1e9:+.4g} to {shifts.max() * size * 1e9:+.4g} nm)" if size else ""
+        lines.append(f"  motion   {shifts.min():+.3f} to {shifts.max():+.3f} px over {shifts.size} views{nm}")
+    for key in ("estimators", "agreement", "agreed"):
+        if key in info:
+            lines.append(f"  {key:8s} {info[key]}")
+    done = int(store.reconstruction_done(name).sum())
+    lines.append(
+        f"  slices   {done} of {store.n} in {store.path}/reconstructions/{name}; "
+        f"nanoct export {store.path} --name {name} --out slices.tif"
     )
+    return "\n".join(lines)
 
 
 def _parse_eta(text: str) -> Any:
@@ -794,22 +943,27 @@ def export(
     index: int | None = typer.Option(
         None, "--index", "-i", help="With .txt: the sample whose shifts to write (needed unless motion is shared)."
     ),
+    quiet: bool = QUIET_OUTPUT,
 ) -> None:
     """Export a reconstruction: float32 images (one TIFF page / .npy or HDF5 slice per sample) or shifts as text.
 
-    A .txt output writes the per-view shifts of a motion-estimating reconstruction (Dremel) as
-    nabu's translation_movements_file: one row "horizontal vertical" per view, raw detector
-    pixels, nabu's sign, nm in comments when the scan gave a pixel size (read back with
-    --param shifts_from=FILE): the stack's shared shifts for an imported scan, else those of
-    sample --index.
+    A .txt output writes the per-view shifts of a stack result ('nanoct stack': its one
+    motion) or of a motion-estimating reconstruction (Dremel) as nabu's
+    translation_movements_file: one row "horizontal vertical" per view, raw detector pixels,
+    nabu's sign, nm in comments when the scan gave a pixel size (read back with --param
+    shifts_from=FILE): the stack's shared shifts for an imported scan, else those of sample
+    --index.
     """
     from .io.scanio import write_images
+    from .io.shiftfile import write_stack_shifts
     from .io.store import DataStore
     from .recon.shared import write_store_shifts
 
     if out.suffix.lower() == ".txt":
-        path = write_store_shifts(directory, name, out, sample=index)
-        typer.echo(f"wrote the shifts of reconstructions/{name} to {path}")
+        path = write_stack_shifts(DataStore.open(directory), name, out)
+        path = path or write_store_shifts(directory, name, out, sample=index)
+        if not quiet:
+            typer.echo(f"wrote the shifts of reconstructions/{name} to {path}")
         return
     store = DataStore.open(directory)
     if name not in store.reconstruction_names():
@@ -833,7 +987,8 @@ def export(
         images, content = store.read_reconstruction(name, idx), "image"
     attrs = {"store": str(store.path), "name": name, "content": content, "samples": str(idx.tolist())}
     path = write_images(out, images, attrs=attrs)
-    typer.echo(f"wrote {idx.size} {content} map(s) of reconstructions/{name} to {path}")
+    if not quiet:
+        typer.echo(f"wrote {idx.size} {content} map(s) of reconstructions/{name} to {path}")
 
 
 def _expected_error(exc: BaseException) -> str | None:

@@ -107,7 +107,7 @@ def test_several_entries_need_entry(tmp_path, truth, capsys):
         ("count-units", "'counts' .count., which is not a unit of radian"),
         ("radians-labelled-degrees", "look like radians"),
         ("frame-count", "one key and one angle per frame"),
-        ("no-nxtomo-entry", "neither NXtomo"),
+        ("no-nxtomo-entry", "no known layout"),
     ],
 )
 def test_odd_nxtomo_files_are_refused(tmp_path, truth, case, message):
@@ -221,7 +221,7 @@ def test_a_virtual_dataset_with_missing_sources_is_refused(tmp_path, truth):
         f["entry/sample/rotation_angle"] = np.r_[0.0, 0.0, truth["deg"]]
     np.testing.assert_allclose(line_integrals(read_scan(path)), truth["sino"], atol=2e-5)  # sources next to it
     (tmp_path / "acquisition.h5").rename(tmp_path / "elsewhere.h5")
-    with pytest.raises(NanoctError, match="source file.*acquisition.h5 are missing"):
+    with pytest.raises(NanoctError, match="source file.*acquisition.h5 is missing"):
         read_scan(path)
 
 

@@ -133,7 +133,7 @@ def test_sinograms_select_crop_and_bin(truth):
     [
         ("missing", "does not exist"),
         ("unknown-extension", "--format"),
-        ("hdf5-without-layout", "neither NXtomo"),
+        ("hdf5-without-layout", "no known layout"),
         ("angle-count", "angle"),
         ("flats-shape", "flats have shape"),
         ("nan", "NaN"),

@@ -19,17 +19,16 @@ The NXtomo application definition lets the ``NXentry`` have any name (``nxtomo``
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import NanoctError
+from .h5tree import H5Tree, text
 
-__all__ = ["NXtomoFrames", "nxtomo_entries", "read_h5_dataset", "read_nxtomo", "to_unit"]
+__all__ = ["NXtomoFrames", "nxtomo_entries", "read_nxtomo", "split_by_key", "to_unit"]
 
 KEY_PROJECTION, KEY_FLAT, KEY_DARK, KEY_INVALID, KEY_ALIGNMENT = 0, 1, 2, 3, -1
 
@@ -63,15 +62,7 @@ class NXtomoFrames:
     source: dict[str, Any] = field(default_factory=dict)
 
 
-def _text(value: Any) -> str:
-    if isinstance(value, bytes):
-        return value.decode(errors="replace")
-    if isinstance(value, np.ndarray) and value.size == 1:
-        return _text(value.item())
-    return str(value)
-
-
-def nxtomo_entries(f: Any) -> list[str]:
+def nxtomo_entries(tree: H5Tree) -> list[str]:
     """Names of the top-level NXtomo entries of an open HDF5 file.
 
     An entry is a group with ``NX_class`` ``NXentry`` whose ``definition`` (a dataset or an
@@ -80,7 +71,7 @@ def nxtomo_entries(f: Any) -> list[str]:
 
     Parameters
     ----------
-    f : h5py.File
+    tree : H5Tree
 
     Returns
     -------
@@ -90,16 +81,18 @@ def nxtomo_entries(f: Any) -> list[str]:
     import h5py
 
     found = []
-    for name in f:
-        group = f.get(name, getlink=False)
-        if not isinstance(group, h5py.Group) or _text(group.attrs.get("NX_class", "")) != "NXentry":
+    for name in tree.keys():
+        if tree.file.get(name, getlink=True).__class__ is not h5py.HardLink:
+            continue  # an entry is a group of the file itself
+        if tree.attr(name, "NX_class") != "NXentry":
             continue
-        definition = group["definition"][()] if "definition" in group else group.attrs.get("definition", "")
-        if _text(definition).strip() == "NXtomo":
+        ds = tree.get(f"{name}/definition")
+        definition = text(ds[()]) if isinstance(ds, h5py.Dataset) else tree.attr(name, "definition")
+        if definition.strip() == "NXtomo":
             found.append(name)
     if found:
         return found
-    return [e for e in _LEGACY_ENTRIES if e in f and any(f"{e}/{p}" in f for p in _DATA)]
+    return [e for e in _LEGACY_ENTRIES if tree.has(e) and any(tree.has(f"{e}/{p}") for p in _DATA)]
 
 
 def to_unit(value: Any, units: str | None, target: str, *, default: str, where: str) -> np.ndarray:
@@ -134,70 +127,101 @@ def to_unit(value: Any, units: str | None, target: str, *, default: str, where: 
     return np.asarray(value, dtype=np.float64) * float(factor / wanted[0])
 
 
-def read_h5_dataset(f: Any, path: Path, name: str, region: tuple[slice, ...] = ()) -> tuple[np.ndarray, str | None]:
-    """Dataset ``name`` of an open HDF5 file (only ``region`` of it, if given) and its ``units`` attribute.
-
-    ``units`` is None without one. Only the selected region is read from disk.
-
-    A virtual dataset (how ``nxtomo`` links the frames of the acquisition files) whose source
-    files are missing would read as its fill value (zeros): it is refused, naming the files.
-
-    Raises
-    ------
-    NanoctError
-        For a dataset that cannot be read (truncated file, broken link) or missing sources.
-    """
-    try:
-        ds = f[name]
-        if ds.is_virtual:
-            missing = sorted({s.file_name for s in ds.virtual_sources() if not _source_exists(s.file_name, path)})
-            if missing:
-                raise NanoctError(
-                    f"{path}:{name} is a virtual dataset whose source file(s) {', '.join(missing)} are missing "
-                    f"(looked next to {path.name}); copy them with the file, or convert it with the data included"
-                )
-        return np.asarray(ds[region] if region else ds[()]), (_text(ds.attrs["units"]) if "units" in ds.attrs else None)
-    except (OSError, KeyError, RuntimeError) as exc:
-        raise NanoctError(
-            f"{path}: cannot read {name} ({exc}); the file may be truncated or still being written - copy it again"
-        ) from None
-
-
-def _source_exists(name: str, path: Path) -> bool:
-    """Whether a virtual dataset's source file is where HDF5 looks for it (the file itself: ``.``)."""
-    if name == ".":
-        return True
-    prefix = os.environ.get("HDF5_VDS_PREFIX")
-    candidates = [Path(name), path.parent / name] + ([Path(prefix) / name] if prefix else [])
-    return any(c.is_file() for c in candidates)
-
-
-def _pixel_size(f: Any, path: Path, entry: str) -> tuple[list[float] | None, str | None]:
+def _pixel_size(tree: H5Tree, entry: str) -> tuple[list[float] | None, str | None]:
     for pattern in _PIXEL:
         names = [f"{entry}/{pattern.format(axis)}" for axis in ("x", "y")]
-        if names[0] in f:
+        if tree.has(names[0]):
             sizes = []
             for name in names:
-                if name not in f:
+                if not tree.has(name):
                     sizes.append(sizes[0])  # a square pixel when only x is given
                     continue
-                value, units = read_h5_dataset(f, path, name)
-                sizes.append(float(to_unit(value, units, "m", default="m", where=f"{path}:{name}").ravel()[0]))
+                value, units = tree.read(name)
+                sizes.append(float(to_unit(value, units, "m", default="m", where=f"{tree.path}:{name}").ravel()[0]))
             if all(np.isfinite(s) and s > 0 for s in sizes):
                 return sizes, names[0]
     return None, None
 
 
+def split_by_key(
+    data: np.ndarray, keys: np.ndarray, angles: np.ndarray, *, where: str, keys_name: str | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, list[str]]:
+    """Frames sorted by their NXtomo image key: projections with their angles, flats, darks.
+
+    Parameters
+    ----------
+    data : ndarray of shape (F, R, L)
+        Every frame.
+    keys : ndarray of shape (F,), int
+        0 projection, 1 flat, 2 dark, 3 invalid, -1 alignment (invalid and alignment frames
+        are left out).
+    angles : ndarray of shape (F,)
+        One angle per frame (any unit).
+    where, keys_name : str
+        The file and the key dataset, for messages.
+
+    Returns
+    -------
+    projections, angles, flats, darks, notes
+        ``flats`` / ``darks`` are None where the file has none; ``notes`` name the frames left out.
+
+    Raises
+    ------
+    NanoctError
+        Counts that differ, unknown keys, no projection.
+    """
+    keys, angles = np.asarray(keys).astype(int).ravel(), np.asarray(angles).ravel()
+    if keys.size != data.shape[0] or angles.size != data.shape[0]:
+        raise NanoctError(
+            f"{where}: {data.shape[0]} detector frames but {keys.size} image keys and {angles.size} angles; "
+            "give one key and one angle per frame (is the file complete?)"
+        )
+    known = (KEY_PROJECTION, KEY_FLAT, KEY_DARK, KEY_INVALID, KEY_ALIGNMENT)
+    unknown = sorted(set(np.unique(keys).tolist()) - set(known))
+    if unknown:
+        raise NanoctError(
+            f"{where}:{keys_name} has image key(s) {unknown}; NXtomo knows 0 projection, 1 flat, 2 dark, "
+            "3 invalid, -1 alignment"
+        )
+    proj = keys == KEY_PROJECTION
+    if not proj.any():
+        raise NanoctError(f"{where}: no projection frames (image key 0)")
+    notes = [
+        f"left out {n} {kind} frame(s) (image key {key})"
+        for kind, key in (("invalid", KEY_INVALID), ("alignment", KEY_ALIGNMENT))
+        if (n := int((keys == key).sum()))
+    ]
+    flats = data[keys == KEY_FLAT] if (keys == KEY_FLAT).any() else None
+    darks = data[keys == KEY_DARK] if (keys == KEY_DARK).any() else None
+    return data[proj], angles[proj], flats, darks, notes
+
+
+def _entry(tree: H5Tree, entry: str | None) -> str:
+    entries = nxtomo_entries(tree)
+    if entry is None:
+        if not entries:
+            raise NanoctError(
+                f"{tree.path}: no NXtomo entry (no group with NX_class=NXentry and definition=NXtomo, "
+                f"nor {', '.join(e + '/' + _DATA[0] for e in _LEGACY_ENTRIES)})"
+            )
+        if len(entries) > 1:
+            listed = ", ".join(entries)
+            raise NanoctError(f"{tree.path} has {len(entries)} NXtomo entries ({listed}); choose one with --entry NAME")
+        return entries[0]
+    if entry not in entries:
+        listed = ", ".join(entries) or "none"
+        raise NanoctError(f"--entry {entry!r}: no such NXtomo entry in {tree.path} (present: {listed})")
+    return entry
+
+
 def read_nxtomo(
-    path: Path, f: Any, entry: str | None = None, window: Callable[..., tuple[slice, slice]] | None = None
+    tree: H5Tree, entry: str | None = None, window: Callable[..., tuple[slice, slice]] | None = None
 ) -> NXtomoFrames:
     """Read the frames, keys, angles and pixel size of one NXtomo entry of an open file.
 
     Parameters
     ----------
-    path : Path
-        The file (for messages).
-    f : h5py.File
+    tree : H5Tree
         The open file.
     entry : str, optional
         Entry name; needed when the file has several NXtomo entries.
@@ -212,72 +236,33 @@ def read_nxtomo(
         frame count that differs between data, keys and angles, unknown image keys, angle
         units that are not angles; each message names the file and what to do.
     """
-    entries = nxtomo_entries(f)
-    if entry is None:
-        if not entries:
-            raise NanoctError(
-                f"{path}: no NXtomo entry (no group with NX_class=NXentry and definition=NXtomo, "
-                f"nor {', '.join(e + '/' + _DATA[0] for e in _LEGACY_ENTRIES)})"
-            )
-        if len(entries) > 1:
-            listed = ", ".join(entries)
-            raise NanoctError(f"{path} has {len(entries)} NXtomo entries ({listed}); choose one with --entry NAME")
-        entry = entries[0]
-    elif entry not in entries:
-        listed = ", ".join(entries) or "none"
-        raise NanoctError(f"--entry {entry!r}: no such NXtomo entry in {path} (present: {listed})")
-    data_name = next((f"{entry}/{p}" for p in _DATA if f"{entry}/{p}" in f), None)
+    path = tree.path
+    entry = _entry(tree, entry)
+    data_name = next((f"{entry}/{p}" for p in _DATA if tree.has(f"{entry}/{p}")), None)
     if data_name is None:
         raise NanoctError(f"{path}: entry {entry} has no detector data ({', '.join(_DATA)})")
-    angles_name = next((f"{entry}/{p}" for p in _ANGLES if f"{entry}/{p}" in f), None)
+    angles_name = next((f"{entry}/{p}" for p in _ANGLES if tree.has(f"{entry}/{p}")), None)
     if angles_name is None:
         raise NanoctError(f"{path}: entry {entry} has no rotation angles ({', '.join(_ANGLES)}); pass --angles FILE")
-    keys_name = next((f"{entry}/{p}" for p in _KEYS if f"{entry}/{p}" in f), None)
-    shape = f[data_name].shape
+    keys_name = next((f"{entry}/{p}" for p in _KEYS if tree.has(f"{entry}/{p}")), None)
+    shape = tree.dataset(data_name).shape
     if len(shape) != 3:
         raise NanoctError(f"{path}:{data_name} has shape {shape}; expected (frames, rows, columns)")
     region = (slice(None), *window(shape[1:])) if window is not None else ()
-    data = read_h5_dataset(f, path, data_name, region)[0].astype(np.float32, copy=False)
-    raw_angles, angle_units = read_h5_dataset(f, path, angles_name)
-    keys = np.zeros(data.shape[0], int)
-    if keys_name is not None:
-        keys = read_h5_dataset(f, path, keys_name)[0].astype(int).ravel()
-    raw_angles = raw_angles.ravel()
-    if keys.size != data.shape[0] or raw_angles.size != data.shape[0]:
-        raise NanoctError(
-            f"{path}: {data.shape[0]} detector frames but {keys.size} image keys and {raw_angles.size} angles; "
-            "NXtomo lists one key and one angle per frame (is the file complete?)"
-        )
-    known = (KEY_PROJECTION, KEY_FLAT, KEY_DARK, KEY_INVALID, KEY_ALIGNMENT)
-    unknown = sorted(set(np.unique(keys).tolist()) - set(known))
-    if unknown:
-        raise NanoctError(
-            f"{path}:{keys_name} has image key(s) {unknown}; NXtomo knows 0 projection, 1 flat, 2 dark, "
-            "3 invalid, -1 alignment"
-        )
-    proj = keys == KEY_PROJECTION
-    if not proj.any():
-        raise NanoctError(f"{path}: entry {entry} has no projection frames (image key 0)")
-    angles = to_unit(raw_angles[proj], angle_units, "radian", default="degree", where=f"{path}:{angles_name}")
-    pixel, pixel_name = _pixel_size(f, path, entry)
+    data = tree.read(data_name, region)[0].astype(np.float32, copy=False)
+    raw_angles, angle_units = tree.read(angles_name)
+    keys = tree.read(keys_name)[0] if keys_name is not None else np.zeros(data.shape[0], int)
+    proj, raw, flats, darks, notes = split_by_key(data, keys, raw_angles, where=str(path), keys_name=keys_name)
+    angles = to_unit(raw, angle_units, "radian", default="degree", where=f"{path}:{angles_name}")
+    pixel, pixel_name = _pixel_size(tree, entry)
     source = {
         "entry": entry,
         "data": data_name,
         "image_key": keys_name,
         "angle_units": angle_units or "degree (none given)",
         "detector_shape": list(shape[1:]),
-        "notes": [
-            f"left out {n} {kind} frame(s) (image key {key})"
-            for kind, key in (("invalid", KEY_INVALID), ("alignment", KEY_ALIGNMENT))
-            if (n := int((keys == key).sum()))
-        ],
+        "notes": notes,
     }
     if pixel is not None:
         source.update(raw_pixel_size_m=pixel, pixel_size_from=pixel_name)
-    return NXtomoFrames(
-        data[proj],
-        angles,
-        flats=data[keys == KEY_FLAT] if (keys == KEY_FLAT).any() else None,
-        darks=data[keys == KEY_DARK] if (keys == KEY_DARK).any() else None,
-        source=source,
-    )
+    return NXtomoFrames(proj, angles, flats=flats, darks=darks, source=source)

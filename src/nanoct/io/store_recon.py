@@ -111,6 +111,11 @@ class ReconstructionArrays:
         key = f"reconstructions/{name}"
         if key in self._group:
             old = self._group[key].attrs.get("params")
+            if old != params and not self.done(name).any():
+                # a run refused or interrupted before its first sample holds no result (its motion, if
+                # estimated, belongs to the old parameters): a rerun with other parameters replaces it
+                self.delete(name)
+                return self.prepare(name, params, shifts, uncertainty)
             if old != params:
                 raise StoreError(
                     f"{key} in {self.path} was made with other parameters ({old}); "

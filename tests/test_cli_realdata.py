@@ -1,0 +1,69 @@
+"""The measured scans of tests/data/realdata import with one command each, and a NeXus file goes from
+raw file to slices with one more."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nanoct.cli import run
+from nanoct.io.store import DataStore
+
+REAL = Path(__file__).resolve().parent / "data" / "realdata"
+I13 = REAL / "i13-24737-tiff"
+
+COMMANDS = {
+    "k11-nexus": ([str(REAL / "k11-18014-nexus" / "k11-18014.nxs")], (22, 3001, 26), "diamond"),
+    "i13-tiff": (
+        [
+            str(I13 / "tiffs"),
+            "--flats",
+            str(I13 / "flat_00001.tiff"),
+            "--darks",
+            str(I13 / "dark_00001.tiff"),
+            "--angles",
+            str(I13 / "angles.txt"),
+            "--angles-select",
+            "10:101",
+        ],
+        (135, 91, 160),
+        "tiff",
+    ),  # fmt: skip
+    "neutron-sinogram": (
+        [str(REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"), "--angles", "0:360"],
+        (1, 459, 503),
+        "tiff",
+    ),
+}
+
+
+@pytest.mark.parametrize("scan", list(COMMANDS))
+def test_each_real_scan_imports_with_one_command(scan, tmp_path, capsys):
+    argv, (slices, views, cols), fmt = COMMANDS[scan]
+    assert run(["import", *argv, "--out", str(tmp_path / "data")]) == 0
+    assert f"{slices} slice(s), {views} views x {cols} detector pixels" in capsys.readouterr().out
+    store = DataStore.open(tmp_path / "data")
+    assert store.meta["scan"]["format"] == fmt and store.n == slices
+    sino = store.read_array("sinograms", [0])[0]
+    assert sino.shape == (views, cols) and np.isfinite(sino).all()
+    assert run(["import", *argv, "--out", str(tmp_path / "again"), "-q"]) == 0
+    assert capsys.readouterr().out == ""
+
+
+def test_the_i13_angles_file_lists_more_values_than_projections(tmp_path, capsys):
+    argv = [str(I13 / "tiffs"), "--angles", str(I13 / "angles.txt"), "--out", str(tmp_path / "d")]
+    assert run(["import", *argv]) == 2
+    assert "111 angle(s) for 91 projection(s)" in capsys.readouterr().err
+
+
+def test_the_diamond_nexus_file_from_raw_file_to_slices(tmp_path, capsys):
+    nxs = REAL / "k11-18014-nexus" / "k11-18014.nxs"
+    argv = ["stack", str(nxs), "--store", str(tmp_path / "k11"), "--rows", "8:11", "-w", "0", "-q"]
+    assert run(argv) == 0
+    out = capsys.readouterr().out
+    assert "found by" in out and "3 of 3" in out and "motion" in out
+    assert run(["export", str(tmp_path / "k11"), "--name", "fbp_stack", "--out", str(tmp_path / "s.tif")]) == 0
+    assert run(["export", str(tmp_path / "k11"), "--name", "fbp_stack", "--out", str(tmp_path / "m.txt")]) == 0
+    assert np.loadtxt(tmp_path / "m.txt").shape == (3001, 2)
