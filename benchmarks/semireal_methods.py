@@ -62,7 +62,7 @@ from nanoct.recon.measured import air_level
 from nanoct.recon.resesop import resesop
 from nanoct.recon.shared import joint_shifts, remove_translation
 from nanoct.recon.stack import corrected_fbp, estimate_stack_motion, reproject
-from nanoct.recon.stack_batch import AUTO_ETA_FRACTION, shift_corrected
+from nanoct.workflows.stack import AUTO_ETA_FRACTION, shift_corrected
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "realdata" / "i13-24737-tiff"
 AXIS = 6.2
