@@ -47,6 +47,8 @@ from .result import ReconResult
 
 __all__ = [
     "BACKENDS",
+    "GPU_DEVICE",
+    "GPU_PAIRS",
     "INTERPOLATIONS",
     "GridrecParams",
     "GridrecPlan",
@@ -62,6 +64,8 @@ __all__ = [
 BACKENDS = ("auto", "finufft", "cufinufft")
 #: ``linear``: weighted as FBP's linear interpolation on the detector; ``sinc``: exact band-limited.
 INTERPOLATIONS = ("linear", "sinc")
+#: Pairs of slices per cufinufft call (the GPU is kept busy with a batch of transforms).
+GPU_PAIRS = 8
 #: Torch device of the ``cufinufft`` backend (a test runs that path on the CPU with a stand-in library).
 GPU_DEVICE = "cuda"
 
@@ -293,7 +297,8 @@ class GridrecPlan:
     filter, interpolation, eps, backend
         See :class:`GridrecParams`.
     threads : int, optional
-        Pairs of slices transformed at once, one thread each (default: the usable CPUs).
+        Pairs of slices transformed at once on the CPU, one thread each (default: the usable
+        CPUs); on the GPU at least :data:`GPU_PAIRS` pairs go in one call.
 
     Attributes
     ----------
@@ -363,7 +368,8 @@ class GridrecPlan:
             raise ValueError(f"{label} have shape {sino.shape[1:]} per slice, expected {self.geometry.sino_shape}")
         count = sino.shape[0]
         out = np.empty((count, self.geometry.n, self.geometry.n), dtype=np.float32)
-        step = 2 * self.threads  # slices per call: one pair per thread
+        # slices per call: one pair per thread on the CPU, at least 8 pairs per call on the GPU
+        step = 2 * (self.threads if self.backend == "finufft" else max(self.threads, GPU_PAIRS))
         for first in range(0, count, step):
             block = sino[first : first + step]
             packed = np.zeros((-(-block.shape[0] // 2), *block.shape[1:]), dtype=np.complex128)
