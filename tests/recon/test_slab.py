@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -117,3 +120,36 @@ def test_bad_input_and_other_parameters(tmp_path):
     reconstruct_slabs(scan, tmp_path / "a", rows=(0, 2), read=read, progress=False)
     with pytest.raises(NanoctError, match="other parameters"):
         reconstruct_slabs(scan, tmp_path / "a", rows=(0, 2), center_offset=2.0, read=read, progress=False)
+
+
+def _die_in_block_1(marker, out, source, setup, blocks, index):
+    """The task of a worker killed in the middle of block 1 (once): half its chunk written, no flag."""
+    if index == 1 and not os.path.exists(marker):
+        open(marker, "w").close()
+        r0, r1 = blocks[1]
+        zarr.open_group(out, mode="r+")["slices"][r0 - blocks[0][0] : r1 - blocks[0][0]] = 7.0
+        os._exit(1)
+    return slab._write_block(out, source, setup, blocks, index)
+
+
+@pytest.mark.slow
+def test_a_worker_killed_in_a_block_costs_that_block_only(tmp_path, monkeypatch):
+    """Local Dask cluster of 2 workers; one dies in block 1: every slice present, bytes of an undisturbed run."""
+    import cloudpickle
+
+    phi, data = _line_integrals()
+    scan, read = _write_scan(tmp_path, data, phi)
+    kwargs = {"center_offset": OFFSET, "block": 2, "read": read, "progress": False}
+    whole = reconstruct_slabs(scan, tmp_path / "whole", **kwargs)
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test module
+    try:
+        monkeypatch.setattr(slab, "_block_task", partial(_die_in_block_1, str(tmp_path / "died")))
+        killed = reconstruct_slabs(scan, tmp_path / "killed", workers=2, **kwargs)
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert (tmp_path / "died").exists()  # a worker did die
+    group = zarr.open_group(str(killed), mode="r")
+    assert group["done"][:].all() and np.isfinite(group["slices"][:]).all()
+    chunks = sorted(p.relative_to(whole) for p in (whole / "slices").rglob("*") if p.is_file())
+    assert len(chunks) == 5  # 4 chunks and the metadata
+    assert all((whole / c).read_bytes() == (killed / c).read_bytes() for c in chunks)

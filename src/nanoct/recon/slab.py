@@ -101,6 +101,11 @@ _PLAN: dict[tuple, Any] = {}  # this process's gridrec plan (one scan's geometry
 
 
 def _block_task(out: str, source: dict[str, Any], setup: dict[str, Any], blocks: list, index: int) -> int:
+    """One task: block ``index`` reconstructed and written (:func:`_write_block`)."""
+    return _write_block(out, source, setup, blocks, index)
+
+
+def _write_block(out: str, source: dict[str, Any], setup: dict[str, Any], blocks: list, index: int) -> int:
     """Reconstruct block ``index`` and write it (its chunk, then its flag)."""
     from .gridrec import GridrecPlan
 
