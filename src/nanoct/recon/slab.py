@@ -26,6 +26,7 @@ refused: choose another output or delete it).
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import uuid
 from functools import partial
@@ -40,7 +41,7 @@ from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..core.geometry import Geometry
 from ..io.scanio import line_integrals, read_scan
 
-__all__ = ["SLAB_FORMAT", "read_block", "reconstruct_slabs", "slab_blocks"]
+__all__ = ["SLAB_FORMAT", "read_block", "reconstruct_scan", "reconstruct_slabs", "slab_blocks"]
 
 #: Version of the output layout.
 SLAB_FORMAT = 1
@@ -130,7 +131,7 @@ def _digest(*arrays: np.ndarray | None) -> str:
     return h.hexdigest()[:16]
 
 
-def _open_output(out: Path, meta: dict[str, Any], n_slices: int, n: int, block: int, n_blocks: int) -> zarr.Group:
+def _open_output(out: Path, meta: dict[str, Any], shape: tuple[int, int, int], block: int, info: Any) -> zarr.Group:
     """The output group: created atomically (temporary sibling, then renamed), or reopened with the same parameters."""
     if out.exists():
         group = zarr.open_group(str(out), mode="r+")
@@ -140,7 +141,9 @@ def _open_output(out: Path, meta: dict[str, Any], n_slices: int, n: int, block: 
     tmp = out.parent / f".{out.name}.creating-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     group = zarr.open_group(str(tmp), mode="w")
     group.attrs["nanoct"] = meta
-    group.create_array("slices", shape=(n_slices, n, n), chunks=(block, n, n), dtype="float32", fill_value=np.nan)
+    group.attrs["info"] = json.loads(json.dumps(info))
+    n_blocks = -(-shape[0] // block)
+    group.create_array("slices", shape=shape, chunks=(block, *shape[1:]), dtype="float32", fill_value=np.nan)
     group.create_array("done", shape=(n_blocks,), chunks=(1,), dtype="bool", fill_value=False)
     os.replace(tmp, out)
     return zarr.open_group(str(out), mode="r+")
@@ -159,6 +162,7 @@ def reconstruct_slabs(
     workers: int = 0,
     scheduler: str | None = None,
     progress: bool = True,
+    info: Any = None,
 ) -> Path:
     """Reconstruct every detector row of a scan (or ``rows``) block by block into a Zarr group (resumable).
 
@@ -181,6 +185,8 @@ def reconstruct_slabs(
         ``flats``, ``darks``, ``entry``, ``is_line_integral``).
     workers, scheduler, progress
         See :func:`nanoct.core.fanout.run_tasks`; each worker runs one pair of slices per thread.
+    info : JSON-able, optional
+        Recorded with a new output as the attribute ``info`` (e.g. how the motion was found).
 
     Returns
     -------
@@ -217,7 +223,7 @@ def reconstruct_slabs(
         "geometry": geometry.to_dict(),
         "motion": _digest(*arrays),
     }
-    group = _open_output(Path(out), meta, stop - first, n_cols, block, len(blocks))
+    group = _open_output(Path(out), meta, (stop - first, n_cols, n_cols), block, info)
     done = np.asarray(group["done"][:])  # type: ignore[index]
     pending = [i for i in range(len(blocks)) if not done[i]]
     threads = worker_threads(workers) if workers and not scheduler else usable_cpus()
@@ -232,3 +238,55 @@ def reconstruct_slabs(
     task = partial(_block_task, str(Path(out)), source, setup, blocks)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=Path(out).name, progress=progress, unit="block")
     return Path(out)
+
+
+def reconstruct_scan(
+    scan: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    rows: tuple[int, int] | None = None,
+    motion_rows: int = 4,
+    center: float | None = None,
+    block: int = 16,
+    read: dict[str, Any] | None = None,
+    workers: int = 0,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> Path:
+    """A scan's motion and axis from a few rows, then every row block by block (:func:`reconstruct_slabs`).
+
+    Parameters
+    ----------
+    scan, out, rows, block, read, workers, scheduler, progress
+        See :func:`reconstruct_slabs`.
+    motion_rows : int
+        Detector rows, spread over the selection, read (only they) to estimate the horizontal
+        shifts and the axis (:func:`~nanoct.recon.stack.estimate_stack_motion`).
+    center : float, optional
+        Axis offset in detector columns, if known (else estimated with the motion).
+
+    Returns
+    -------
+    Path
+        The output group; its attribute ``info`` holds the shifts and axis used. A stopped run
+        resumes with them (they are not estimated again).
+    """
+    from .stack import estimate_stack_motion
+
+    out = Path(out)
+    info = dict(zarr.open_group(str(out), mode="r").attrs.get("info") or {}) if out.exists() else {}
+    if "shifts" not in info:
+        head = read_scan(scan, rows=slice(0, 1), **(read or {}))
+        n_rows, n_cols = (int(v) for v in head.source["detector_shape"])
+        first, stop = (0, n_rows) if rows is None else (int(rows[0]), int(rows[1]))
+        chosen = sorted({int(r) for r in np.linspace(first, max(first, stop - 1), max(1, motion_rows)).round()})
+        source = {"path": str(scan), "n_rows": n_rows, **(read or {})}
+        sinos = np.concatenate([read_block(source, (r, r + 1)) for r in chosen if 0 <= r < n_rows])
+        geometry = Geometry.from_angles(head.angles, n_cols, n_cols)
+        motion = estimate_stack_motion(geometry, sinos, center=center)
+        info = {"shifts": motion.shifts.tolist(), "center_offset": float(motion.center_offset),
+                "center_method": motion.center_method, "motion_rows": chosen}  # fmt: skip
+    return reconstruct_slabs(
+        scan, out, shifts=np.asarray(info["shifts"]), center_offset=info["center_offset"], rows=rows, block=block,
+        read=read, workers=workers, scheduler=scheduler, progress=progress, info=info,
+    )  # fmt: skip
