@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -172,29 +173,27 @@ def _polar_samples(geometry: Geometry, shifts: np.ndarray, period: int, interpol
 
 
 class _FinufftEngine:
-    """CPU: scipy FFTs and finufft type-1 plans (points set once per batch size).
+    """CPU: scipy FFTs and one single-threaded finufft type-1 plan per thread (points set once each).
 
-    A batch of ``P`` packed pairs is one finufft call with ``n_trans=P`` and each transform
-    spread by one thread (``spread_thread=2``): no two threads add into one grid, so the result
-    does not depend on thread timing (bit for bit the same on every run).
+    The pairs of a call are transformed side by side, one plan (and one thread) each: every
+    image is computed by the same single-threaded steps whatever the number of threads or pairs
+    per call, so the result is the same bit for bit on every run and every machine setting
+    (finufft's own multithreaded spreading adds into one grid in thread order).
     """
 
     def __init__(self, points: tuple, weights: np.ndarray, response: np.ndarray, n: int, eps: float) -> None:
         self.points, self.weights, self.n, self.eps, self.dtype = points, weights, n, eps, weights.dtype
         self.response = response.astype(weights.real.dtype)
-        self._plans: dict[int, Any] = {}
+        self._plans: list[Any] = []
 
-    def _plan(self, n_trans: int) -> Any:
-        if n_trans not in self._plans:
+    def _plan(self, index: int) -> Any:
+        while len(self._plans) <= index:
             import finufft
 
-            options = {"nthreads": n_trans, "spread_thread": 2} if n_trans > 1 else {"nthreads": 1}
-            plan = finufft.Plan(
-                1, (self.n, self.n), n_trans=n_trans, eps=self.eps, isign=1, dtype=np.dtype(self.dtype).name, **options
-            )
+            plan = finufft.Plan(1, (self.n, self.n), eps=self.eps, isign=1, dtype=np.dtype(self.dtype).name, nthreads=1)
             plan.setpts(*self.points)
-            self._plans[n_trans] = plan
-        return self._plans[n_trans]
+            self._plans.append(plan)
+        return self._plans[index]
 
     def __call__(self, packed: np.ndarray, filtered: bool = True) -> np.ndarray:
         """(P, K, L) complex views -> (P, N, N) complex images (real part one slice, imaginary part the other).
@@ -209,8 +208,11 @@ class _FinufftEngine:
             views = sfft.ifft(spectrum, axis=-1, workers=-1, overwrite_x=True)[..., :n_det]
         coefficients = sfft.fft(views, n=period, axis=-1, workers=-1)
         coefficients *= self.weights
-        out = self._plan(packed.shape[0]).execute(coefficients.reshape(packed.shape[0], -1))
-        return out.reshape(packed.shape[0], self.n, self.n)
+        plans = [self._plan(i) for i in range(packed.shape[0])]
+        if len(plans) == 1:
+            return plans[0].execute(coefficients[0].ravel())[None]
+        with ThreadPoolExecutor(len(plans)) as pool:  # finufft releases the GIL
+            return np.stack(list(pool.map(lambda i: plans[i].execute(coefficients[i].ravel()), range(len(plans)))))
 
 
 class _CufinufftEngine:
