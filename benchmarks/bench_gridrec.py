@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/bench_gridrec.py [--cols 1024 2048] [--views 1800] [--slices 4] [--repeat 3]
-        [--paper-slices 8] [--skip-paper] [--slab-rows 32 --slab-block 16 [--slab-only]]
+        [--paper-slices 8] [--skip-paper] [--times-only] [--slab-rows 32 --slab-block 16 [--slab-only]]
 
 For each size: a few slices of an analytic ellipse phantom (:func:`nanoct.sim.analytic.stack_phantom`,
 exact line integrals, 2 sub-samples per detector pixel) over 180 degrees, rotation axis 7.3 px
@@ -87,9 +87,9 @@ def _algotom(sino: np.ndarray, phi: np.ndarray, centre: float) -> np.ndarray:
     return rec.fbp_reconstruction(sino, centre, angles=phi, apply_log=False, gpu=False, filter_name=None, ratio=None)
 
 
-def _size(cols: int, views: int, slices: int, repeat: int, offset: float = 7.3) -> None:
+def _size(cols: int, views: int, slices: int, repeat: int, quality: bool = True, offset: float = 7.3) -> None:
+    """Times (and with ``quality`` nanoct's FBP and the PSNR) at one size."""
     from nanoct.core.geometry import Geometry
-    from nanoct.evaluation.metrics import psnr
     from nanoct.recon.gridrec import GridrecPlan, gridrec
     from nanoct.recon.stack import corrected_fbp
     from nanoct.recon.stack_batch import shift_corrected
@@ -98,9 +98,8 @@ def _size(cols: int, views: int, slices: int, repeat: int, offset: float = 7.3) 
     geometry = Geometry.from_angles(np.arange(views) * np.pi / views, cols, cols, center_offset=offset)
     t0 = time.perf_counter()
     phi, sino, truth = _scan(cols, views, slices, offset, d)
-    _, still, _ = _scan(cols, views, 2, offset, None)
     print(f"\n== {cols} columns, {views} views, {slices} slices (simulated in {time.perf_counter() - t0:.0f} s)")
-    t_fbp, fbp0 = _best(lambda: corrected_fbp(geometry, sino[0], d), repeat)
+    t_fbp, fbp0 = _best(lambda: corrected_fbp(geometry, sino[0], d), repeat) if quality else (float("nan"), None)
     corrected = shift_corrected(sino[0].astype(np.float64), d).astype(np.float32)
     t_alg, alg = _best(lambda: _algotom(corrected, phi, (cols - 1) / 2 + offset), repeat)
     t0 = time.perf_counter()
@@ -113,16 +112,28 @@ def _size(cols: int, views: int, slices: int, repeat: int, offset: float = 7.3) 
           f"(plan {t_plan:.2f} s once; one slice with its plan {t_single:.2f} s)")  # fmt: skip
     print(f"ratio algotom / gridrec: {t_alg / per_slice:.1f}x (target >= 6); nanoct FBP / gridrec: "
           f"{t_fbp / per_slice:.1f}x; with the plan in one call: {t_alg / t_single:.1f}x")  # fmt: skip
+    if quality:
+        _quality(geometry, sino, images, fbp0, truth, d, offset)
+        print(f"PSNR slice 0, motion: algotom FBP (views moved back, best orientation) "
+              f"{_psnr_any_orientation(alg, truth[0]):.3f} dB")  # fmt: skip
+
+
+def _quality(
+    geometry: Any, sino: np.ndarray, images: np.ndarray, fbp0: np.ndarray, truth: list, d: Any, offset: float
+) -> None:
+    """PSNR of nanoct's FBP and gridrec on the first two slices, with the motion and without (simulated again)."""
+    from nanoct.evaluation.metrics import psnr
+    from nanoct.recon.gridrec import GridrecPlan
+    from nanoct.recon.stack import corrected_fbp
+
+    _, still, _ = _scan(geometry.n_det, geometry.n_angles, 2, offset, None)
     for label, data, shifts, gimages in (("motion", sino, d, images), ("no motion", still, None, None)):
         gimages = GridrecPlan(geometry, shifts)(data[:2]) if gimages is None else gimages
         for i in range(2):
             ref = fbp0 if (i == 0 and shifts is not None) else corrected_fbp(geometry, data[i], shifts)
-            p_fbp = psnr(ref, truth[i])
-            p_grid = psnr(gimages[i], truth[i])
+            p_fbp, p_grid = psnr(ref, truth[i]), psnr(gimages[i], truth[i])
             print(f"PSNR slice {i}, {label}: nanoct FBP {p_fbp:.3f} dB, gridrec {p_grid:.3f} dB "
                   f"(difference {p_grid - p_fbp:+.3f} dB)")  # fmt: skip
-    p_alg = _psnr_any_orientation(alg, truth[0])
-    print(f"PSNR slice 0, motion: algotom FBP (views moved back, best orientation) {p_alg:.3f} dB")
 
 
 def _astra_fbp(geometry: Any, sino: np.ndarray) -> np.ndarray:
@@ -228,6 +239,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--paper-slices", type=int, default=8)
     parser.add_argument("--skip-paper", action="store_true")
+    parser.add_argument("--times-only", action="store_true", help="Skip nanoct's FBP and the PSNR (gridrec vs algotom)")
     parser.add_argument("--slab-rows", type=int, default=0, help="Also stream an NXtomo scan of this many rows")
     parser.add_argument("--slab-block", type=int, default=16)
     parser.add_argument("--slab-dir", type=Path, default=None, help="Where to write the scan (default: a temp dir)")
@@ -241,7 +253,7 @@ def main() -> None:
     if not (args.skip_paper or args.slab_only):
         _paper(args.paper_slices, args.repeat)
     for cols in [] if args.slab_only else args.cols:
-        _size(cols, args.views, args.slices, args.repeat)
+        _size(cols, args.views, args.slices, args.repeat, quality=not args.times_only)
     if args.slab_rows:
         with tempfile.TemporaryDirectory(dir=args.slab_dir) as folder:
             _slab(args.slab_rows, max(args.cols), args.views, args.slab_block, Path(folder))
