@@ -234,3 +234,17 @@ def test_gpu_path_with_a_stand_in_library(monkeypatch):
     np.testing.assert_allclose(gpu(sino), ref, atol=1e-5 * float(np.abs(ref).max()))
     result = gridrec(geometry, sino[0], shifts=d)
     assert result.params["engine"] == "gridrec/cufinufft stand-in"
+
+
+def test_single_slice_calls_reuse_the_last_plan(monkeypatch):
+    geometry, sino, _ = _scan(n=32, n_det=32, views=30, slices=2)
+    built = []
+    monkeypatch.setattr(gridrec_module, "GridrecPlan", lambda *a, **k: built.append(1) or GridrecPlan(*a, **k))
+    gridrec_module._CACHE.clear()
+    first = gridrec(geometry, sino[0]).image
+    np.testing.assert_array_equal(gridrec(geometry, sino[0]).image, first)
+    gridrec(geometry, sino[1])
+    assert len(built) == 1  # same geometry, shifts and parameters: one plan
+    gridrec(geometry, sino[0], shifts=np.ones(30))
+    gridrec(geometry, sino[0], filter="hann")
+    assert len(built) == 3

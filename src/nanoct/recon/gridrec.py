@@ -54,6 +54,7 @@ __all__ = [
     "GridrecParams",
     "GridrecPlan",
     "backend_label",
+    "cached_plan",
     "gpu_available",
     "gridrec",
     "gridrec_available",
@@ -383,6 +384,25 @@ class GridrecPlan:
         return out[0] if single else out
 
 
+_CACHE: dict[tuple, GridrecPlan] = {}
+
+
+def cached_plan(geometry: Geometry, shifts: np.ndarray | None = None, **params: Any) -> GridrecPlan:
+    """The :class:`GridrecPlan` of the last call with the same geometry, shifts and parameters, or a new one.
+
+    One plan is kept (the last), so a loop of single-slice calls on one geometry (the batch
+    runner, notebooks) builds it once. ``params`` are those of :class:`GridrecPlan`; the library
+    chosen by ``backend`` is part of the key.
+    """
+    d = None if shifts is None else np.asarray(shifts, dtype=np.float64)
+    backend = select_backend(params.get("backend", "auto"))
+    key = (geometry, None if d is None else d.tobytes(), tuple(sorted(params.items())), backend)
+    if key not in _CACHE:
+        _CACHE.clear()
+        _CACHE[key] = GridrecPlan(geometry, d, **params)
+    return _CACHE[key]
+
+
 def gridrec_slices(geometry: Geometry, sinograms: Any, shifts: Any = None, **params: Any) -> np.ndarray:
     """Reconstruct a stack of slices with one geometry and one per-view shift, two slices per transform.
 
@@ -434,6 +454,6 @@ def gridrec(op: Geometry | RayTransform, sino: Any, *, shifts: Any = None, **par
     if shifts is not None:
         shifts = check_array(shifts, "shifts", shape=(geometry.n_angles,), dtype=np.float64)
         dshift = shifts / geometry.det_spacing
-    plan = GridrecPlan(geometry, dshift, **params)
+    plan = cached_plan(geometry, dshift, **params)
     image = plan(sino)
     return ReconResult(image=image, params={"method": "gridrec", **params, "engine": backend_label(plan.backend)})
