@@ -24,7 +24,7 @@ orientation convention differs). Paper-parallel (255^2, 567 views, 363 detector 
 CPU FBP (``line`` projector) against gridrec per slice in a stack of ``--paper-slices``.
 
 ``--slab-rows R``: a synthetic NXtomo scan (``R`` rows between two analytic slices, the same
-motion, flats and darks) streamed through :func:`nanoct.recon.slab.reconstruct_scan` in a
+motion, flats and darks) streamed through :func:`nanoct.workflows.slabs.reconstruct_scan` in a
 child process: wall time (motion from 4 rows, every slice to Zarr) and the child's peak memory.
 """
 
@@ -105,7 +105,7 @@ def _size(cols: int, views: int, slices: int, repeat: int, quality: bool = True,
     from nanoct.core.geometry import Geometry
     from nanoct.recon.gridrec import GridrecPlan
     from nanoct.recon.stack import corrected_fbp
-    from nanoct.recon.stack_batch import shift_corrected
+    from nanoct.workflows.stack import shift_corrected
 
     d = _motion(views)
     geometry = Geometry.from_angles(np.arange(views) * np.pi / views, cols, cols, center_offset=offset)
@@ -200,7 +200,7 @@ def _paper(slices: int, repeat: int) -> None:
 _SLAB_RUN = """
 import sys, time, json
 from pathlib import Path
-from nanoct.recon.slab import reconstruct_scan
+from nanoct.workflows.slabs import reconstruct_scan
 t0 = time.perf_counter()
 out = reconstruct_scan(sys.argv[1], sys.argv[2], block=int(sys.argv[3]), progress=False)
 took = time.perf_counter() - t0

@@ -58,8 +58,9 @@ def _truth(views: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray
 def main() -> None:  # noqa: PLR0915 - one linear script
     from nanoct.core.geometry import Geometry
     from nanoct.evaluation.metrics import psnr
-    from nanoct.recon.center import fit_center
-    from nanoct.recon.stack import corrected_fbp, estimate_stack_motion
+    from nanoct.motion.center import fit_center
+    from nanoct.motion.stack import estimate_stack_motion
+    from nanoct.recon.stack import corrected_fbp
     from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phantom
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -133,8 +134,8 @@ def main() -> None:  # noqa: PLR0915 - one linear script
 
 def _model_benefit(cols: int, views: int) -> None:
     """Shift RMSE of the centroid estimate from one noisy slice, per view and with the smooth model (3, 3)."""
-    from nanoct.recon.center import centroid_motion
-    from nanoct.recon.motion_model import fit_motion_model
+    from nanoct.motion.center import centroid_motion
+    from nanoct.motion.model import fit_motion_model
     from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 
     phi, d = _truth(views, np.random.default_rng(0))

@@ -6,7 +6,7 @@ Usage::
 
 For analytic moving stacks (``nanoct.sim.analytic``: sizes, motion amplitudes and noise levels
 below) each slice is reconstructed with the motion given (``true``) and with the motion from
-:func:`nanoct.recon.stack.estimate_stack_motion` (``est``, axis given, its object translation
+:func:`nanoct.motion.stack.estimate_stack_motion` (``est``, axis given, its object translation
 aligned to the truth): motion-corrected FBP, Dremel with
 the shifts fixed, and RESESOP on the shift-corrected sinogram with these per-view levels
 (``r = |y_c - A x_0|``, ``x_0`` the corrected FBP of ``y_c``; ``r_c`` the same residual of the
@@ -29,11 +29,12 @@ import numpy as np
 
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import psnr
+from nanoct.motion.stack import estimate_stack_motion
 from nanoct.recon.dremel import dremel
 from nanoct.recon.resesop import resesop
-from nanoct.recon.stack import corrected_fbp, estimate_stack_motion, reproject
-from nanoct.recon.stack_batch import shift_corrected
+from nanoct.recon.stack import corrected_fbp, reproject
 from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phantom
+from nanoct.workflows.stack import shift_corrected
 
 #: (columns, views, drift amplitude in px, relative noise)
 STACKS = ((160, 240, 1.0, 0.0), (160, 240, 2.0, 0.005), (256, 384, 1.5, 0.02))

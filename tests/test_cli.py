@@ -65,6 +65,14 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
         "n",
         "psnr_values",
         "ssim_values",
+        "psnr_registered_mean",
+        "psnr_registered_std",
+        "ssim_registered_mean",
+        "ssim_registered_std",
+        "psnr_registered_values",
+        "ssim_registered_values",
+        "shift_values",
+        "shift_mean",
     }
     assert (d / "report" / "evaluation.md").is_file()
     run_dir = tmp_path / "run"

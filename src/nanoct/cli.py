@@ -728,7 +728,7 @@ def stack(
 ) -> None:
     """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable)."""
     from .io.store import DataStore
-    from .recon.stack_batch import reconstruct_stack
+    from .workflows.stack import reconstruct_stack
 
     if not (source / "zarr.json").is_file():
         if store_dir is None:

@@ -36,7 +36,8 @@ def test_mixing_and_tables():
     assert mix["unet"]["resesop"]["fbp"]["psnr_mean"] == 24
     table = format_table(results)
     assert table.index("**no post-processing**") < table.index("**+ cinn**") < table.index("**+ unet**")
-    assert "| fbp+unet | 22.00 ± 1.00 | 0.220 ± 0.010 | 3 |" in table
+    assert "| fbp+unet | 22.00 ± 1.00 | 0.220 ± 0.010 | – | – | - | 3 |" in table  # no registered scores given
+    assert "PSNR registered [dB]" in table and "Registered: the same after the best sub-pixel translation" in table
     text = format_mixing(mix)
     assert "| fbp | 22.00 ± 1.00 | 25.00 ± 1.00 |" in text  # row fbp: applied to fbp, resesop
 
@@ -179,7 +180,28 @@ def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp
     checks = check_conclusions(values, "parallel")
     beat = next(c for c in checks if c["comparisons"] and c["comparisons"][0]["label"] == "dremel > fbp")
     assert [c["verdict"] for c in beat["comparisons"] if c["label"] == "dremel > fbp"] == ["holds", "holds"]
+    for name in ("fbp", "dremel"):  # registered scores for every row, never below the plain ones
+        r = results[name]
+        lengths = {len(r[k]) for k in ("psnr_registered_values", "ssim_registered_values", "shift_values")}
+        assert lengths == {len(gts)}
+        assert all(a >= b for a, b in zip(r["psnr_registered_values"], r["psnr_values"]))
     _, js = write_report_tables(store, results, tmp_path, conclusions=checks, setting="parallel")
     payload = json.loads(js.read_text())
+    assert {"psnr_registered_mean", "ssim_registered_mean", "shift_mean"} <= set(payload["results"]["fbp"])
+    assert set(payload["gauge"]) == {"plain", "registered"}
+    md = (tmp_path / "evaluation.md").read_text()
+    assert "| dremel | " in md and "PSNR registered [dB]" in md
     assert payload["setting"] == "parallel" and payload["conclusions"][0]["id"] == checks[0]["id"]
     assert "The paper's conclusions (parallel)" in (tmp_path / "evaluation.md").read_text()
+
+
+def test_paper_comparison_keeps_the_papers_convention():
+    """The comparison with the paper uses the scores as reconstructed, not the registered ones, and says so."""
+    from nanoct.evaluation.paper import PAPER_GAUGE, format_comparison
+
+    scores = {**_scores(28.0), "psnr_registered_mean": 35.0, "psnr_registered_std": 1.0}
+    scores |= {"ssim_registered_mean": 0.9, "ssim_registered_std": 0.01}
+    text = format_comparison({"fbp": scores}, "parallel")
+    row = next(line for line in text.splitlines() if line.startswith("| fbp |"))
+    assert "28.00 ± 1.00" in row and "35.00" not in row
+    assert PAPER_GAUGE in text

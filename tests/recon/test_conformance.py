@@ -42,6 +42,8 @@ BAD: dict[str, list] = {
     "subpixel": ["no"],
     "fix_shifts": ["maybe", 2],
     "projector": ["gpu", 1],
+    "measured": ["yes", 1],
+    "pad": [-1, 2.5],
     "motion_slices": ["some", "-1", "1,x", ""],
     "shifts_from": ["/nonexistent/shifts.txt"],
     "eta": ["estimate", "estimate:reference", "guess", "estimate:residual=a/b"],

@@ -9,12 +9,12 @@ from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
 from nanoct.core.operators import RayTransform
 from nanoct.io.scanio import _axis_after
+from nanoct.motion.stack import estimate_stack_motion
 from nanoct.recon.fbp import fbp
 from nanoct.recon.stack import (
     bin_geometry,
     bin_sinograms,
     corrected_fbp,
-    estimate_stack_motion,
     reproject,
 )
 from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phantom

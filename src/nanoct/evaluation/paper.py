@@ -30,6 +30,7 @@ __all__ = [
     "INPUTS",
     "MODELS",
     "TABLES",
+    "PAPER_GAUGE",
     "PaperEntry",
     "PaperTable",
     "PaperValue",
@@ -522,6 +523,13 @@ def _fmt_gain(gain: dict[str, float | None] | None, metric: str) -> str:
     return "–" if value is None else f"{value:+.{2 if metric == 'psnr' else 3}f}"
 
 
+#: The convention of the comparison with the paper (said under every comparison table).
+PAPER_GAUGE = (
+    "Ours: the images as reconstructed, the paper's convention (no registration; `nanoct evaluate` also lists "
+    "the scores after the best sub-pixel translation)."
+)
+
+
 def format_comparison(results: dict[str, dict[str, Any]], setting: str, title: str = "", mixing: bool = False) -> str:
     """Markdown table of :func:`comparison_rows`: ours | paper | gain ours | gain paper, per metric.
 
@@ -545,6 +553,7 @@ def format_comparison(results: dict[str, dict[str, Any]], setting: str, title: s
             sources.append(row["paper"]["table"])
     if sources:
         lines += ["", "Paper values from: " + "; ".join(sources) + "."]
+    lines += ["", PAPER_GAUGE]
     return "\n".join(lines) + "\n"
 
 

@@ -470,10 +470,10 @@ def import_scan(
     center_offset : float or "auto"
         Rotation axis relative to the centre of the raw detector row, in raw detector pixels
         (TomoPy's ``center`` minus ``(L - 1) / 2``); converted to the cropped and binned
-        detector. ``"auto"``: estimated from up to 8 of the selected rows, from the views'
-        centroids (:func:`nanoct.recon.center.centroid_motion`, which the motion does not bias)
-        when the object stays on the detector, else from opposite views
-        (:func:`nanoct.recon.center.fit_center`, no motion assumed).
+        detector. ``"auto"``: estimated from 8 of the selected rows by every estimator that
+        applies, their median (:func:`nanoct.motion.axis.estimate_axis`: mirrored opposite
+        views, algotom's ``find_center_vo``, centroids after the open beam is removed); the
+        estimators' values are recorded in the store's ``scan["axis"]``.
     size : int, optional
         Reconstructed image size N (default: the number of detector columns after cropping
         and binning; one image pixel = one binned detector pixel).
@@ -507,8 +507,11 @@ def import_scan(
     kept, dropped = drop_bad_views(raw, drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
     left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
+    axis_record = None
     if center_offset == "auto":
-        center_offset = _auto_center(kept, n_cols, crop, tolerance)
+        shift, estimate = _auto_center(kept, n_cols, crop, tolerance)
+        center_offset = float(shift + estimate.offset)
+        axis_record = {**estimate.to_dict(), "offset_raw": center_offset}
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
@@ -530,6 +533,8 @@ def import_scan(
         "shared_motion": True,
         "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)],
     }
+    if axis_record is not None:
+        scan["axis"] = axis_record
     if left_out.size:  # shifts files keep one row per projection of the file (nabu's layout)
         scan.update(file_views=raw.n_views, left_out_views=left_out.tolist())
     if "raw_pixel_size_m" in raw.source:  # one stored detector pixel, after binning
@@ -544,23 +549,21 @@ def import_scan(
     return create_scan(out, geometry, stack, scan)
 
 
-def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> float:
-    """The axis offset (raw detector pixels) from up to 8 of the read rows: centroids, else opposite views."""
-    from ..recon.center import centroid_motion, fit_center
+def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> Any:
+    """The axis (raw detector pixels) from 8 of the read rows: :func:`nanoct.motion.axis.estimate_axis`."""
+    from ..motion.axis import axis_rows, estimate_axis
 
-    picked = np.unique(np.linspace(0, scan.projections.shape[1] - 1, 8).round().astype(int))
+    picked = axis_rows(scan.projections.shape[1])
     some = replace(
         scan,
         projections=scan.projections[:, picked],
         flats=None if scan.flats is None else scan.flats[:, picked],
         darks=None if scan.darks is None else scan.darks[:, picked],
     )
-    sinos = sinograms(line_integrals(some, tolerance=tolerance))
+    estimate = estimate_axis(sinograms(line_integrals(some, tolerance=tolerance)), scan.angles)
     first = crop[0] if crop is not None else 0
-    offset, _, spread = centroid_motion(sinos, scan.angles)  # from the centre of the kept columns
-    if spread > 0.01:  # the object leaves the detector: the centroids do not hold, use opposite views
-        offset = fit_center(sinos, scan.angles, max_offset=sinos.shape[2] / 4)
-    return float(first + (sinos.shape[2] - 1) / 2 + offset - (n_cols - 1) / 2)
+    n_kept = scan.projections.shape[2]
+    return first + (n_kept - 1) / 2 - (n_cols - 1) / 2, estimate
 
 
 def _angle_notes(angles: np.ndarray) -> list[str]:

@@ -1,7 +1,7 @@
 """An out-of-distribution statistic of the measured data: the scan's apparent motion, no network.
 
 The centroid of every view of a parallel-beam sinogram, minus its least-squares fit on
-``(1, cos phi, sin phi)`` (:func:`nanoct.recon.center.centroid_motion`), is the object's motion
+``(1, cos phi, sin phi)`` (:func:`nanoct.motion.center.centroid_motion`), is the object's motion
 along the detector per view. Two features describe it (:func:`scan_features`):
 
 - ``jitter``: the view-to-view noise, ``1.4826 * MAD(second differences) / sqrt(6)`` (the std of
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..io.store import DataStore
-from ..recon.center import centroid_motion
+from ..motion.center import centroid_motion
 
 __all__ = [
     "SCAN_REFERENCE_MAX",

@@ -82,7 +82,8 @@ from ..core.matrixfree import (
 )
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_bool, check_choice, check_float, check_int
-from .params import MethodParams
+from .measured import check_measured, solve_measured
+from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 from .rowaction import (
     check_row_action,
@@ -608,6 +609,16 @@ class DremelParams(MethodParams):
         Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
         computes them per view when the matrix would exceed 1 GB
         (:func:`~nanoct.recon.rowaction.resolve_projector`).
+    measured : {"auto", "on", "extend", "off"}, default "auto"
+        Measured-data treatment (:mod:`~nanoct.recon.measured`): per-view air level removed,
+        sinogram extended at the detector edges onto a larger grid, stop by the discrepancy
+        principle with the estimated noise. ``"auto"`` applies it when the detector edges are
+        not at zero (a measured scan); a simulation is reconstructed as given.
+        ``"extend"``: the same without removing an air level (an object wider than the
+        detector, open beam at zero).
+    pad : int, optional
+        Detector pixels added on each side for measured data (default a quarter of the
+        detector width; 0: no extension).
     """
 
     n_iter: int = 32
@@ -623,9 +634,14 @@ class DremelParams(MethodParams):
     subpixel: bool = False
     fix_shifts: bool = False
     projector: str = "auto"
+    measured: str = "auto"
+    pad: int | None = None
 
     def __post_init__(self) -> None:
         check_row_action(self)
+        measured, pad = check_measured(self.measured, self.pad)
+        self._set("measured", measured)
+        self._set("pad", pad)
         self._set(
             "shift_relaxation",
             check_float(self.shift_relaxation, "shift_relaxation", low=0.0, high=1.0, low_open=True),
@@ -649,6 +665,7 @@ def dremel(
     shifts0: Any = None,
     callback: Callable[[int, np.ndarray, np.ndarray], Any] | None = None,
     matrix: sp.csr_matrix | None = None,
+    stop_residual: float | None = None,
     **params: Any,
 ) -> ReconResult:
     """Dremel reconstruction with per-view object-shift estimation (the paper's Algorithm 1).
@@ -668,16 +685,22 @@ def dremel(
         True stops ("callback").
     matrix : scipy.sparse.csr_matrix, optional
         The system matrix (default :func:`nanoct.core.operators.system_matrix`).
+    stop_residual : float, optional
+        Stop (reason ``"discrepancy"``) after the first iteration whose recorded residual is
+        at most this value (the discrepancy principle). Default: none, or for measured data
+        (``measured``) the bound from the estimated noise
+        (:meth:`~nanoct.recon.measured.MeasuredData.discrepancy`).
     **params
         The method's parameters: :class:`DremelParams`.
 
     Returns
     -------
     ReconResult
-        ``image``; ``residuals`` per iteration; ``stop_reason`` ``"max_iter"`` or
-        ``"callback"``; ``motion``: the estimated object shift per view, shape (K,), float32,
-        in pixels along ``e_u = (cos phi_k, sin phi_k)``, same sign as ``t_k . e_u`` of the
-        true motion (see the module docstring).
+        ``image``; ``residuals`` per iteration; ``stop_reason`` ``"max_iter"``,
+        ``"discrepancy"`` or ``"callback"``; for measured data ``params["measured_data"]``;
+        ``motion``: the estimated object shift per view, shape (K,), float32, in pixels
+        along ``e_u = (cos phi_k, sin phi_k)``, same sign as ``t_k . e_u`` of the true motion
+        (see the module docstring).
 
     Notes
     -----
@@ -688,6 +711,16 @@ def dremel(
     so estimated shifts may differ from the true ones by such a term.
     """
     p = DremelParams.check(op, **params)
+    inner = {**params, "measured": "off", "pad": None}
+    measured = solve_measured(
+        lambda d, x, cb: dremel(
+            d.geometry, d.sinogram, x0=x, shifts0=shifts0, callback=cb, matrix=matrix,
+            stop_residual=d.discrepancy() if stop_residual is None else stop_residual, **inner,
+        ),
+        resolve_geometry(op), sino, p, x0=x0, callback=callback, matrix=matrix,
+    )  # fmt: skip
+    if measured is not None:
+        return measured
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:
@@ -735,6 +768,9 @@ def dremel(
                 residuals.append(float(_shifted_residual(mat.indptr, indices, mat.data, y, x, n_det, dshift, work[0])))
         else:
             residuals.append(math.sqrt(run))
+        if stop_residual is not None and residuals[-1] <= stop_residual:
+            stop = "discrepancy"
+            break
         if callback is not None and callback(it, x.reshape(geometry.image_shape), shifts.astype(np.float32)):
             stop = "callback"
             break

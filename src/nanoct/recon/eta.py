@@ -9,7 +9,11 @@ On a measured scan it has to be estimated. Two estimators:
     ``eta_k = scale * max_l |y_kl - (A x0)_kl|``. ``A x0`` stands in for ``y^eta``; the
     residual also holds the model's discretisation error and what ``x0`` got wrong, and
     ``scale`` (1 by default, or fitted on a simulated reference set with
-    :func:`fit_scale`) corrects its average bias.
+    :func:`fit_scale`) corrects its average bias. On measured data (an open beam not at zero,
+    :func:`~nanoct.recon.measured.looks_measured`) the air level is removed first and the
+    default scale is :data:`MEASURED_SCALE` = 0.5, the level ``nanoct stack`` uses for RESESOP
+    (chosen on simulated stacks, ``benchmarks/stack_eta.py``: half the largest residual per
+    view beat the whole on every stack).
 ``reference``
     From a simulated reference data set of the same geometry whose eta is known: a per-view
     statistic of its eta over samples (median by default). It assumes the scan's motion is
@@ -27,18 +31,32 @@ import numpy as np
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..core.operators import RayTransform, system_matrix
-from ..core.validation import check_array, check_float
+from ..core.validation import check_array, check_choice, check_float
+from .measured import MEASURED_MODES, air_level, looks_measured
 from .rowaction import resolve_projector
 
-__all__ = ["eta_from_reference", "eta_from_residual", "fit_scale"]
+__all__ = ["MEASURED_SCALE", "eta_from_reference", "eta_from_residual", "fit_scale"]
+
+#: Default ``scale`` of :func:`eta_from_residual` on measured data.
+MEASURED_SCALE = 0.5
 
 _STATISTICS = ("median", "mean", "max")
 
 
 def eta_from_residual(
-    geometry: Geometry, sinogram: Any, image: Any, *, scale: float = 1.0, projector: str | None = None
+    geometry: Geometry,
+    sinogram: Any,
+    image: Any,
+    *,
+    scale: float | None = None,
+    projector: str | None = None,
+    measured: str = "auto",
 ) -> np.ndarray:
     """``scale * max_l |y - A x0|`` per view, from a first reconstruction ``x0``.
+
+    For measured data the per-view air level (:func:`~nanoct.recon.measured.air_level`) is
+    removed from ``y`` first, as the reconstruction methods do, so that the open beam is not
+    counted as model error.
 
     Parameters
     ----------
@@ -49,19 +67,31 @@ def eta_from_residual(
     image : array_like of shape (N, N)
         First reconstruction ``x0`` (Dremel's is the intended one: it has the motion mostly
         corrected, so ``A x0`` is close to the unperturbed data).
-    scale : float
-        Factor on the residual's per-view maximum (>= 0).
+    scale : float, optional
+        Factor on the residual's per-view maximum (>= 0); default 1, or
+        :data:`MEASURED_SCALE` on measured data.
     projector : str, optional
         ASTRA projector of ``A`` (default: the one reconstructions use; where they trace their
         rays instead of holding the matrix, a parallel beam whose matrix would exceed
         :data:`~nanoct.recon.rowaction.AUTO_MATRIX_BYTES`, ASTRA projects without it).
+    measured : {"auto", "on", "extend", "off"}
+        Measured data (as the methods' parameter): ``"on"`` removes the air level; ``"auto"``
+        is ``"on"`` where :func:`~nanoct.recon.measured.looks_measured`, else ``"off"``;
+        ``"extend"`` keeps the air level but takes the measured default scale.
 
     Returns
     -------
     ndarray of shape (K,), float32
     """
-    y = check_array(sinogram, "sinogram", shape=geometry.sino_shape)
+    y = check_array(sinogram, "sinogram", shape=geometry.sino_shape).astype(np.float64)
     x = check_array(image, "image", shape=geometry.image_shape)
+    measured = check_choice(measured, "measured", MEASURED_MODES)
+    if measured == "auto":
+        measured = "on" if looks_measured(y) else "off"
+    if measured == "on":
+        y = y - air_level(y)[:, None]
+    if scale is None:
+        scale = 1.0 if measured == "off" else MEASURED_SCALE
     try:
         scale = check_float(scale, "eta scale", low=0.0)
     except ValueError as exc:
@@ -70,7 +100,7 @@ def eta_from_residual(
         model = RayTransform(geometry)(x)
     else:
         model = (system_matrix(geometry, projector) @ x.ravel()).reshape(geometry.sino_shape)
-    return (scale * np.abs(y.astype(np.float64) - model).max(axis=1)).astype(np.float32)
+    return (scale * np.abs(y - model).max(axis=1)).astype(np.float32)
 
 
 def eta_from_reference(etas: Any, *, statistic: str = "median") -> np.ndarray:

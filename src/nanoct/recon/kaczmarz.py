@@ -18,7 +18,8 @@ import scipy.sparse as sp
 from ..core.geometry import Geometry
 from ..core.matrixfree import RAY_ENTRIES_PER_N, ParallelRays, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
-from .params import MethodParams
+from .measured import check_measured, solve_measured
+from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 from .rowaction import (
     check_row_action,
@@ -115,6 +116,16 @@ class KaczmarzParams(MethodParams):
         Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
         computes them per view when the matrix would exceed 1 GB
         (:func:`~nanoct.recon.rowaction.resolve_projector`).
+    measured : {"auto", "on", "extend", "off"}, default "auto"
+        Measured-data treatment (:mod:`~nanoct.recon.measured`): per-view air level removed,
+        sinogram extended at the detector edges onto a larger grid, stop by the discrepancy
+        principle with the estimated noise. ``"auto"`` applies it when the detector edges are
+        not at zero (a measured scan); a simulation is reconstructed as given.
+        ``"extend"``: the same without removing an air level (an object wider than the
+        detector, open beam at zero).
+    pad : int, optional
+        Detector pixels added on each side for measured data (default a quarter of the
+        detector width; 0: no extension).
     """
 
     n_iter: int = 10
@@ -124,9 +135,14 @@ class KaczmarzParams(MethodParams):
     seed: int = 0
     residual: str = "exact"
     projector: str = "auto"
+    measured: str = "auto"
+    pad: int | None = None
 
     def __post_init__(self) -> None:
         check_row_action(self)
+        measured, pad = check_measured(self.measured, self.pad)
+        self._set("measured", measured)
+        self._set("pad", pad)
 
     def resolve(self, geometry: Geometry) -> dict[str, Any]:
         """The values for ``geometry`` (default relaxation from its number of views)."""
@@ -140,6 +156,7 @@ def kaczmarz(
     x0: Any = None,
     callback: Callable[[int, np.ndarray, None], Any] | None = None,
     matrix: sp.csr_matrix | None = None,
+    stop_residual: float | None = None,
     **params: Any,
 ) -> ReconResult:
     """Kaczmarz' method (ART) with the unperturbed system matrix.
@@ -161,16 +178,32 @@ def kaczmarz(
         ``"callback"``.
     matrix : scipy.sparse.csr_matrix, optional
         The system matrix (default :func:`nanoct.core.operators.system_matrix`), e.g. to reuse it.
+    stop_residual : float, optional
+        Stop (reason ``"discrepancy"``) after the first sweep whose recorded residual is at
+        most this value (the discrepancy principle). Default: none, or for measured data
+        (``measured``) the bound from the estimated noise
+        (:meth:`~nanoct.recon.measured.MeasuredData.discrepancy`).
     **params
         The method's parameters: :class:`KaczmarzParams`.
 
     Returns
     -------
     ReconResult
-        ``image`` (N, N) float32, ``residuals`` per sweep, ``stop_reason`` ``"max_iter"`` or
-        ``"callback"``, ``motion`` None.
+        ``image`` (N, N) float32, ``residuals`` per sweep, ``stop_reason`` ``"max_iter"``,
+        ``"discrepancy"`` or ``"callback"``, ``motion`` None; for measured data
+        ``params["measured_data"]`` says what was done.
     """
     p = KaczmarzParams.check(op, **params)
+    inner = {**params, "measured": "off", "pad": None}
+    measured = solve_measured(
+        lambda d, x, cb: kaczmarz(
+            d.geometry, d.sinogram, x0=x, callback=cb, matrix=matrix,
+            stop_residual=d.discrepancy() if stop_residual is None else stop_residual, **inner,
+        ),
+        resolve_geometry(op), sino, p, x0=x0, callback=callback, matrix=matrix,
+    )  # fmt: skip
+    if measured is not None:
+        return measured
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     n_det, omega = geometry.n_det, p["relaxation"]
     if isinstance(mat, ParallelRays):  # rays traced on the fly
@@ -199,6 +232,9 @@ def kaczmarz(
         if p["nonneg"]:
             clip_nonneg(x)
         residuals.append(float(exact_residual()) if p["residual"] == "exact" else math.sqrt(run))
+        if stop_residual is not None and residuals[-1] <= stop_residual:
+            stop = "discrepancy"
+            break
         if callback is not None and callback(it, x.reshape(geometry.image_shape), None):
             stop = "callback"
             break

@@ -59,7 +59,8 @@ from ..core.geometry import Geometry
 from ..core.matrixfree import RAY_ENTRIES_PER_N, ParallelRays, ray_dot, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float
-from .params import MethodParams
+from .measured import check_measured, solve_measured
+from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 from .rowaction import (
     check_projector,
@@ -344,8 +345,10 @@ class ResesopParams(MethodParams):
     eta_scale : float, default 1.0
         Factor on ``eta`` (the paper's 0.8 / 1.0 / 1.2 under-/over-estimation; also plays the
         role of the paper's ``rho``). Must be >= 0.
-    delta : float, default 0.0
-        Noise level per ray (the paper's data are noise-free: 0). Must be >= 0.
+    delta : float, optional
+        Noise level per ray, >= 0. Default 0 (the paper's data are noise-free), or for
+        measured data (``measured``) the estimated noise standard deviation
+        (:func:`~nanoct.recon.measured.noise_level`).
     tau : float, default 1.01
         Discrepancy factor, ``tau > 1`` (theory needs it; the paper does not give its value).
     stop_rule : {"sweep", "sticky"}, default "sweep"
@@ -356,6 +359,16 @@ class ResesopParams(MethodParams):
         Rays from the cached system matrix or computed per view (parallel beam); ``"auto"``
         computes them per view when the matrix would exceed 1 GB
         (:func:`~nanoct.recon.rowaction.resolve_projector`).
+    measured : {"auto", "on", "extend", "off"}, default "auto"
+        Measured-data treatment (:mod:`~nanoct.recon.measured`): per-view air level removed,
+        sinogram extended at the detector edges onto a larger grid, ``delta`` from the
+        estimated noise. ``"auto"`` applies it when the detector edges are not at zero (a
+        measured scan); a simulation is reconstructed as given.
+        ``"extend"``: the same without removing an air level (an object wider than the
+        detector, open beam at zero).
+    pad : int, optional
+        Detector pixels added on each side for measured data (default a quarter of the
+        detector width; 0: no extension).
     """
 
     n_iter: int = 20
@@ -364,15 +377,21 @@ class ResesopParams(MethodParams):
     seed: int = 0
     residual: str = "running"
     eta_scale: float = 1.0
-    delta: float = 0.0
+    delta: float | None = None
     tau: float = 1.01
     stop_rule: str = "sweep"
     projector: str = "auto"
+    measured: str = "auto"
+    pad: int | None = None
 
     def __post_init__(self) -> None:
         check_row_action(self)
         self._set("eta_scale", check_float(self.eta_scale, "eta_scale", low=0.0))
-        self._set("delta", check_float(self.delta, "delta", low=0.0))
+        if self.delta is not None:
+            self._set("delta", check_float(self.delta, "delta", low=0.0))
+        measured, pad = check_measured(self.measured, self.pad)
+        self._set("measured", measured)
+        self._set("pad", pad)
         # the discrepancy principle needs tau > 1
         self._set("tau", check_float(self.tau, "tau", low=1.0, low_open=True))
         self._set("stop_rule", check_choice(self.stop_rule, "stop_rule", STOP_RULES))
@@ -418,7 +437,7 @@ def resesop(
     -------
     ReconResult
         ``stop_reason`` is ``"discrepancy"``, ``"max_iter"`` or ``"callback"``;
-        ``params`` includes ``n_updates`` per sweep.
+        ``params`` includes ``n_updates`` per sweep, and for measured data ``measured_data``.
 
     Notes
     -----
@@ -429,8 +448,19 @@ def resesop(
     (Blanke et al. 2020). The ``x >= 0`` projection is one more convex set and keeps this.
     """
     p = ResesopParams.check(op, **params)
+    geometry = resolve_geometry(op)
+    inner = {**params, "measured": "off", "pad": None}
+    measured = solve_measured(
+        lambda d, x, cb: resesop(
+            d.geometry, d.sinogram, d.pad_eta(expand_eta(eta, geometry)), x0=x, callback=cb, matrix=matrix,
+            **{**inner, "delta": d.noise if p["delta"] is None else p["delta"]},
+        ),
+        geometry, sino, p, x0=x0, callback=callback, matrix=matrix,
+    )  # fmt: skip
+    if measured is not None:
+        return measured
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
-    width = (p["delta"] + p["eta_scale"] * expand_eta(eta, geometry)).ravel()
+    width = ((p["delta"] or 0.0) + p["eta_scale"] * expand_eta(eta, geometry)).ravel()
     free = isinstance(mat, ParallelRays)
     norms = None if free else row_norms_squared(mat)
     rng = np.random.default_rng(p["seed"])

@@ -15,8 +15,8 @@ deterministic the bytes written are those of an undisturbed run.
 Motion convention (``docs/conventions.md``, extended to the rows): the measured projection is
 ``p_k(u, z) = P_k(u + d_k, z + v_k)`` for the static object's projection ``P_k``, ``d_k`` in
 detector columns (as ``nanoct stack``'s shifts) and ``v_k`` in detector rows. The vertical shift
-is undone by linear interpolation along the rows (zero outside the detector); the horizontal one
-is a phase ramp inside gridrec.
+is undone by linear interpolation along the rows (the first and last rows repeat outside the
+detector); the horizontal one is a phase ramp inside gridrec.
 
 The output group holds ``slices`` (rows, N, N) float32 chunked by block, ``done`` (one flag per
 block) and the attribute ``nanoct`` with the parameters (a second run with other parameters is
@@ -41,7 +41,7 @@ from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..core.geometry import Geometry
 from ..io.scanio import line_integrals, read_scan
 
-__all__ = ["SLAB_FORMAT", "read_block", "reconstruct_scan", "reconstruct_slabs", "slab_blocks"]
+__all__ = ["SLAB_FORMAT", "read_block", "reconstruct_slabs", "slab_blocks"]
 
 #: Version of the output layout.
 SLAB_FORMAT = 1
@@ -52,21 +52,20 @@ def slab_blocks(first: int, stop: int, block: int) -> list[tuple[int, int]]:
     return [(r0, min(r0 + block, stop)) for r0 in range(first, stop, block)]
 
 
-def _unshift_rows(data: np.ndarray, vertical: np.ndarray, top: int, rows: tuple[int, int]) -> np.ndarray:
-    """Rows ``rows`` of the static projections from ``data`` (K, R', L) starting at detector row ``top``.
+def _unshift_rows(data: np.ndarray, vertical: np.ndarray, top: int, rows: tuple[int, int], n_rows: int) -> np.ndarray:
+    """Rows ``rows`` of the static projections from ``data`` (K, R', L), which starts at detector row ``top``.
 
-    Row ``z`` of view ``k`` is read at ``z - v_k`` (linear interpolation, zero outside ``data``).
+    Row ``z`` of view ``k`` is read at ``z - v_k``, linearly between the two rows around it; the
+    detector's first and last rows repeat outside it (as :func:`nanoct.workflows.stack.read_straight`).
     """
     z = np.arange(*rows, dtype=np.float64)
     out = np.empty((data.shape[0], z.size, data.shape[2]), dtype=np.float32)
+    last = max(data.shape[1] - 2, 0)
     for k, v in enumerate(vertical):
-        pos = z - v - top
-        lo = np.floor(pos).astype(int)
+        pos = np.clip(z - v, 0, n_rows - 1) - top
+        lo = np.clip(np.floor(pos).astype(int), 0, last)
         frac = (pos - lo)[:, None]
-        below = np.where((lo >= 0) & (lo < data.shape[1]), lo, -1)
-        above = np.where((lo + 1 >= 0) & (lo + 1 < data.shape[1]), lo + 1, -1)
-        padded = np.concatenate([data[k], np.zeros((1, data.shape[2]), np.float32)])  # index -1: zeros
-        out[k] = (1 - frac) * padded[below] + frac * padded[above]
+        out[k] = (1 - frac) * data[k, lo] + frac * data[k, np.minimum(lo + 1, data.shape[1] - 1)]
     return out
 
 
@@ -94,7 +93,7 @@ def read_block(source: dict[str, Any], rows: tuple[int, int], vertical: np.ndarr
     if vertical is None:
         block = data[:, rows[0] - top : rows[1] - top]
     else:
-        block = _unshift_rows(data, vertical, top, rows)
+        block = _unshift_rows(data, vertical, top, rows, int(source["n_rows"]))
     return np.ascontiguousarray(block.transpose(1, 0, 2))
 
 
@@ -238,55 +237,3 @@ def reconstruct_slabs(
     task = partial(_block_task, str(Path(out)), source, setup, blocks)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=Path(out).name, progress=progress, unit="block")
     return Path(out)
-
-
-def reconstruct_scan(
-    scan: str | os.PathLike[str],
-    out: str | os.PathLike[str],
-    *,
-    rows: tuple[int, int] | None = None,
-    motion_rows: int = 4,
-    center: float | None = None,
-    block: int = 16,
-    read: dict[str, Any] | None = None,
-    workers: int = 0,
-    scheduler: str | None = None,
-    progress: bool = True,
-) -> Path:
-    """A scan's motion and axis from a few rows, then every row block by block (:func:`reconstruct_slabs`).
-
-    Parameters
-    ----------
-    scan, out, rows, block, read, workers, scheduler, progress
-        See :func:`reconstruct_slabs`.
-    motion_rows : int
-        Detector rows, spread over the selection, read (only they) to estimate the horizontal
-        shifts and the axis (:func:`~nanoct.recon.stack.estimate_stack_motion`).
-    center : float, optional
-        Axis offset in detector columns, if known (else estimated with the motion).
-
-    Returns
-    -------
-    Path
-        The output group; its attribute ``info`` holds the shifts and axis used. A stopped run
-        resumes with them (they are not estimated again).
-    """
-    from .stack import estimate_stack_motion
-
-    out = Path(out)
-    info = dict(zarr.open_group(str(out), mode="r").attrs.get("info") or {}) if out.exists() else {}
-    if "shifts" not in info:
-        head = read_scan(scan, rows=slice(0, 1), **(read or {}))
-        n_rows, n_cols = (int(v) for v in head.source["detector_shape"])
-        first, stop = (0, n_rows) if rows is None else (int(rows[0]), int(rows[1]))
-        chosen = sorted({int(r) for r in np.linspace(first, max(first, stop - 1), max(1, motion_rows)).round()})
-        source = {"path": str(scan), "n_rows": n_rows, **(read or {})}
-        sinos = np.concatenate([read_block(source, (r, r + 1)) for r in chosen if 0 <= r < n_rows])
-        geometry = Geometry.from_angles(head.angles, n_cols, n_cols)
-        motion = estimate_stack_motion(geometry, sinos, center=center)
-        info = {"shifts": motion.shifts.tolist(), "center_offset": float(motion.center_offset),
-                "center_method": motion.center_method, "motion_rows": chosen}  # fmt: skip
-    return reconstruct_slabs(
-        scan, out, shifts=np.asarray(info["shifts"]), center_offset=info["center_offset"], rows=rows, block=block,
-        read=read, workers=workers, scheduler=scheduler, progress=progress, info=info,
-    )  # fmt: skip

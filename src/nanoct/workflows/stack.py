@@ -1,8 +1,14 @@
 """``nanoct stack``: one motion and axis for a whole measured stack, then every slice with them fixed.
 
-The motion and the rotation axis are estimated once from a few slices
-(:func:`~nanoct.recon.stack.estimate_stack_motion`), optionally replaced by a smooth model
-(:func:`~nanoct.recon.motion_model.fit_motion_model`), and recorded with the reconstruction
+The motion and the rotation axis are estimated once: the vertical shift per view from the row
+profiles of every slice (:func:`~nanoct.motion.vertical.vertical_shifts`, stacks of at least
+:data:`MIN_VERTICAL_SLICES` slices); the axis as the import estimated it, else from every axis
+estimator (:func:`~nanoct.motion.axis.estimate_axis`), so that ``import`` and ``stack`` give the
+same axis; the horizontal shift per view from a few slices, moved back vertically and with their
+open beam removed, by the views' centroids where air is seen around the object, else by Dremel
+and projection matching (:func:`~nanoct.motion.stack.estimate_stack_motion`, the axis held). The
+horizontal motion may be replaced by a smooth model (:func:`~nanoct.motion.model.fit_motion_model`).
+Both are recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
 then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
 per slice); a run that is stopped resumes where it was: the recorded motion is reused and the
@@ -28,11 +34,24 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
+from ..motion.axis import axis_rows, estimate_axis, remove_air
+from ..motion.center import centroid_motion
+from ..motion.model import fit_motion_model
+from ..motion.stack import estimate_stack_motion
+from ..motion.vertical import vertical_shifts
 from ..names import stack_name
-from .motion_model import fit_motion_model
-from .stack import corrected_fbp, estimate_stack_motion, reproject, with_center
+from ..recon.stack import corrected_fbp, reproject, with_center
 
-__all__ = ["FBP_ENGINES", "STACK_METHODS", "fbp_engine", "reconstruct_stack", "shift_corrected"]
+__all__ = [
+    "FBP_ENGINES",
+    "MIN_VERTICAL_SLICES",
+    "STACK_METHODS",
+    "fbp_engine",
+    "horizontal_motion",
+    "read_straight",
+    "reconstruct_stack",
+    "shift_corrected",
+]
 
 #: Reconstruction of each slice with the stack's motion: motion-corrected FBP, its Fourier-space
 #: form (gridrec), Dremel (SART view steps) with the motion held fixed, or RESESOP-Kaczmarz on
@@ -46,6 +65,10 @@ FBP_ENGINES = ("auto", "gridrec", "backprojection")
 #: (that residual also holds the FBP's own error; ``benchmarks/stack_eta.py`` measured 0.5
 #: against 1, 0.2, the RMS, the 90th percentile and the residual with the FBP's error removed).
 AUTO_ETA_FRACTION = 0.5
+
+#: Vertical motion is estimated from the row profiles of stacks of at least this many slices
+#: (a profile of fewer rows holds too little structure to register).
+MIN_VERTICAL_SLICES = 16
 
 
 def _check_eta(eta: Any, n_views: int) -> str | float | list[float]:
@@ -83,10 +106,18 @@ def shift_corrected(sinogram: np.ndarray, shifts: np.ndarray) -> np.ndarray:
 
 
 def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
-    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view."""
-    from .resesop import resesop
+    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view.
 
-    corrected = shift_corrected(sino.astype(np.float64), shifts)
+    A measured sinogram's air level (:func:`~nanoct.recon.measured.air_level`) is removed first, so
+    that the level is not taken for the model error.
+    """
+    from ..recon.measured import air_level, looks_measured
+    from ..recon.resesop import resesop
+
+    sino = sino.astype(np.float64)
+    if looks_measured(sino):
+        sino = sino - air_level(sino)[:, None]
+    corrected = shift_corrected(sino, shifts)
     if eta == "auto":
         start = corrected_fbp(geometry, corrected)
         levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(geometry, start)).max(axis=1)
@@ -112,29 +143,99 @@ def _motion_slices(store: DataStore, value: str | None) -> list[int]:
     return chosen
 
 
-def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
-    """Estimate the stack's motion and axis and record them with ``name``."""
-    slices = params["motion_slices"]
+def _profiles(store: DataStore, block: int = 32) -> np.ndarray:
+    """``(K, S)`` row profiles of the stack: each slice's sinogram summed over the detector."""
+    out = np.zeros((store.geometry.n_angles, store.n))
+    for first in range(0, store.n, block):
+        chosen = list(range(first, min(first + block, store.n)))
+        out[:, chosen] = store.read_array("sinograms", chosen).sum(axis=2).T
+    return out
+
+
+def read_straight(store: DataStore, indices: list[int], vertical: np.ndarray) -> np.ndarray:
+    """Sinograms of ``indices`` with every view moved back by its vertical shift, ``(len, K, L)``.
+
+    View ``k`` of slice ``s`` is read at row ``s - v_k`` of the stack (``m_k(z, x) = Q_k(z + v_k,
+    x)``), linearly between the two slices around it (the first and last slice repeat outside).
+    """
+    if not np.any(vertical):
+        return store.read_array("sinograms", indices)
+    out = np.empty((len(indices), store.geometry.n_angles, store.geometry.n_det), dtype=np.float32)
+    views = np.arange(store.geometry.n_angles)
+    for i, s in enumerate(indices):
+        z = np.clip(s - vertical, 0, store.n - 1)
+        lo = np.minimum(np.floor(z).astype(int), store.n - 2) if store.n > 1 else np.zeros(z.size, int)
+        frac = (z - lo)[:, None]
+        first, last = int(lo.min()), int(min(lo.max() + 1, store.n - 1))
+        block = store.read_array("sinograms", list(range(first, last + 1)))
+        below = block[lo - first, views]
+        above = block[np.minimum(lo + 1, store.n - 1) - first, views]
+        out[i] = (1 - frac) * below + frac * above
+    return out
+
+
+def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[float, dict[str, Any]]:
+    """:func:`~nanoct.motion.axis.estimate_axis` on the rows the import uses, every view moved back by its motion.
+
+    With the motion undone the estimators see a still object, so the axis goes with ``shifts``
+    (the centroid's, which have no constant); on a still scan it is the import's axis.
+    """
+    rows = [int(i) for i in axis_rows(store.n)]
+    straight = read_straight(store, rows, vertical)
+    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    estimate = estimate_axis(corrected, store.geometry.angles)
+    return estimate.offset, estimate.to_dict()
+
+
+def horizontal_motion(
+    store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The horizontal shift per view and the axis (``info["center_offset"]``) of a stack.
+
+    From the chosen slices, moved back vertically and with their open beam removed: the views'
+    centroids where air is seen around the object (the axis then from every estimator on the
+    rows the import uses, with the motion undone), else Dremel and projection matching
+    (:func:`~nanoct.motion.stack.estimate_stack_motion`).
+    """
+    geometry = store.geometry
+    clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
+    info: dict[str, Any] = {}
+    if air:
+        mass = clean.sum(axis=2).min(axis=1)
+        rows = mass > 0.2 * max(float(mass.max()), 0.0)
+        _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
+        if params["center"] == "auto":
+            center, info["axis"] = _axis(store, vertical, shifts)
+        else:
+            center = float(params["center"])
+        info.update(center_method="estimators" if params["center"] == "auto" else "given", horizontal_method="centroid")
+        info.update(center_offset=center, center_raw=center, mass_spread=spread, refine_steps=[])
+        return shifts, info
     stages = None if params["refine"] is None else 3 + len(params["refine"])
     with tqdm(total=stages, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
         motion = estimate_stack_motion(
-            store.geometry,
-            store.read_array("sinograms", slices),
+            geometry,
+            clean,
             binning=params["binning"],
             coarse_iter=params["coarse_iter"],
             refine=None if params["refine"] is None else tuple(params["refine"]),
-            center=None if params["center"] == "auto" else params["center"],
+            center=None if params["center"] == "auto" else float(params["center"]),
             progress=lambda stage: bar.update(),
         )
-    info: dict[str, Any] = {
-        "center_offset": motion.center_offset,
-        "center_raw": motion.center_raw,
-        "center_method": motion.center_method,
-        "mass_spread": motion.mass_spread,
-        "refine_steps": motion.steps,
-        "shift_rms": float(np.sqrt(np.mean(motion.shifts**2))),
-    }
-    shifts = motion.shifts
+    info.update(center_offset=motion.center_offset, center_raw=motion.center_raw, horizontal_method="matching")
+    info.update(center_method=motion.center_method, mass_spread=motion.mass_spread, refine_steps=motion.steps)
+    return motion.shifts, info
+
+
+def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
+    """Estimate the stack's vertical and horizontal motion and its axis, and record them with ``name``."""
+    vertical = np.zeros(store.geometry.n_angles)
+    if store.n >= MIN_VERTICAL_SLICES and store.done.all():
+        vertical = vertical_shifts(_profiles(store))
+    shifts, info = horizontal_motion(store, params, vertical, progress, name)
+    info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
+    info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
+    info["vertical"] = [float(v) for v in vertical]
     if params["model"] is not None:
         degree, harmonics = params["model"]
         model = fit_motion_model(shifts, store.geometry.angles, degree, harmonics)
@@ -145,17 +246,17 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
 
 
 def _reconstruct_slice(
-    path: str, name: str, method: str, center: float, eta: Any, shifts: np.ndarray, index: int
+    path: str, name: str, method: str, center: float, eta: Any, shifts: np.ndarray, vertical: np.ndarray, index: int
 ) -> int:
     store = open_cached(path)
     geometry = with_center(store.geometry, center)
-    sino = store.read_array("sinograms", [index])[0]
+    sino = read_straight(store, [index], vertical)[0]
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
     elif method == "resesop":
         image = _resesop_slice(geometry, sino, shifts, eta)
     else:
-        from .dremel import dremel
+        from ..recon.dremel import dremel
 
         shifts_obj = shifts * geometry.det_spacing / geometry.magnification  # detector px -> object px
         image = dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=True).image
@@ -177,7 +278,7 @@ def fbp_engine(choice: str = "auto") -> str:
     NanoctError
         For an unknown choice, or ``gridrec`` without a usable library.
     """
-    from .gridrec import gpu_available, gridrec_available, select_backend
+    from ..recon.gridrec import gpu_available, gridrec_available, select_backend
 
     if choice not in FBP_ENGINES:
         raise NanoctError(f"fbp engine {choice!r} is unknown; use one of {', '.join(FBP_ENGINES)}")
@@ -191,33 +292,36 @@ def fbp_engine(choice: str = "auto") -> str:
 _PLAN: dict[tuple, Any] = {}  # the last gridrec plan of this process (one stack's geometry and motion)
 
 
-def _gridrec_block(
-    path: str, name: str, center: float, shifts: np.ndarray, threads: int, blocks: list, block: int
-) -> int:
-    """Reconstruct one block of slices with gridrec (the plan kept for the next block) and write them."""
-    from .gridrec import GridrecPlan
+def _gridrec_block(path: str, name: str, center: float, motion: tuple, threads: int, blocks: list, block: int) -> int:
+    """Reconstruct one block of slices with gridrec (the plan kept for the next block) and write them.
 
+    ``motion`` is ``(shifts, vertical)``: the slices are read with every view moved back by its
+    vertical shift (:func:`read_straight`), the horizontal shifts are gridrec's phase ramps.
+    """
+    from ..recon.gridrec import GridrecPlan
+
+    shifts, vertical = motion
     indices = blocks[block]
     store = open_cached(path)
     key = (path, name, center, shifts.tobytes(), threads)
     if key not in _PLAN:
         _PLAN.clear()
         _PLAN[key] = GridrecPlan(with_center(store.geometry, center), shifts, threads=threads)
-    images = _PLAN[key](store.read_array("sinograms", indices))
+    images = _PLAN[key](read_straight(store, indices, vertical))
     for index, image in zip(indices, images):
         store.write_reconstruction(name, index, image, shifts.astype(np.float32))
     return block
 
 
-def _run_gridrec(store: DataStore, name: str, center: float, shifts: np.ndarray, pending: list[int], *run: Any) -> None:
-    """The pending slices in blocks of two per thread (``run``: workers, scheduler, progress)."""
-    from .gridrec import backend_label, select_backend
+def _run_gridrec(store: DataStore, name: str, center: float, motion: tuple, pending: list[int], *run: Any) -> None:
+    """The pending slices in blocks of two per thread (``motion``: shifts, vertical; ``run``: workers etc.)."""
+    from ..recon.gridrec import backend_label, select_backend
 
     workers, scheduler, progress = run
     threads = worker_threads(workers) if workers and not scheduler else usable_cpus()
     blocks = [pending[i : i + 2 * threads] for i in range(0, len(pending), 2 * threads)]
     _record_engine(store, name, backend_label(select_backend("auto")))
-    task = partial(_gridrec_block, str(store.path), name, center, shifts, threads, blocks)
+    task = partial(_gridrec_block, str(store.path), name, center, motion, threads, blocks)
     run_tasks(
         task, range(len(blocks)), workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="block"
     )
@@ -265,7 +369,7 @@ def reconstruct_stack(
     motion_slices : str, optional
         ``"auto"`` (default: up to 4 slices spread over the stack), ``"all"`` or ``"0,5,9"``.
     binning, coarse_iter, refine
-        See :func:`~nanoct.recon.stack.estimate_stack_motion`.
+        See :func:`~nanoct.motion.stack.estimate_stack_motion`.
     model : (int, int), optional
         Replace the estimate by its smooth model (polynomial degree, rotation harmonics).
     eta : "auto", float or array_like of shape (K,)
@@ -322,13 +426,14 @@ def reconstruct_stack(
         _estimate(store, name, params, progress)
     info = store.recons.motion_info(name)
     shifts = store.recons.shared_shifts(name).astype(np.float64)
+    vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
     pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
     center = float(info["center_offset"])
     if use_gridrec:
-        _run_gridrec(store, name, center, shifts, pending, workers, scheduler, progress)
+        _run_gridrec(store, name, center, (shifts, vertical), pending, workers, scheduler, progress)
         return name
     if method == "fbp":
         _record_engine(store, name, "backprojection")
-    task = partial(_reconstruct_slice, str(store.path), name, method, center, params.get("eta"), shifts)
+    task = partial(_reconstruct_slice, str(store.path), name, method, center, params.get("eta"), shifts, vertical)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
     return name

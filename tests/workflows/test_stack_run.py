@@ -10,10 +10,10 @@ from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import psnr
 from nanoct.io.store import DataStore, create_scan
-from nanoct.recon import stack_batch
-from nanoct.recon.stack import StackMotion, corrected_fbp, reproject
-from nanoct.recon.stack_batch import reconstruct_stack, shift_corrected
+from nanoct.recon.stack import corrected_fbp, reproject
 from nanoct.sim.analytic import ellipse_sinogram, rasterize_ellipses, stack_phantom
+from nanoct.workflows import stack as stack_batch
+from nanoct.workflows.stack import reconstruct_stack, shift_corrected
 
 L, K, S, OFFSET = 160, 240, 3, 1.8
 
@@ -83,8 +83,8 @@ def test_cli_stack_and_its_errors(store, tmp_path, capsys):
 
 def test_stack_resesop_with_the_true_motion_beats_uncorrected_fbp_and_resumes(store, monkeypatch):
     phi, d, constant = _truth()
-    motion = StackMotion(d - constant, OFFSET - constant, OFFSET, d, "given", 0.0)  # the object centred
-    monkeypatch.setattr(stack_batch, "estimate_stack_motion", lambda *a, **k: motion)
+    info = {"center_offset": OFFSET - constant}  # the object centred
+    monkeypatch.setattr(stack_batch, "horizontal_motion", lambda *a, **k: (d - constant, dict(info)))
     truth = [rasterize_ellipses(e, L, 4) for e in stack_phantom(L, S, seed=2)]
     sino = DataStore.open(store).read_array("sinograms", list(range(S)))
     geometry = Geometry.from_angles(phi, L, L, center_offset=OFFSET)
@@ -124,8 +124,8 @@ def test_stack_gridrec_matches_the_back_projection_and_records_its_engine(store,
     from nanoct.recon import gridrec as gridrec_module
 
     phi, d, constant = _truth()
-    motion = StackMotion(d - constant, OFFSET - constant, OFFSET, d, "given", 0.0)
-    monkeypatch.setattr(stack_batch, "estimate_stack_motion", lambda *a, **k: motion)
+    info = {"center_offset": OFFSET - constant}  # the object centred
+    monkeypatch.setattr(stack_batch, "horizontal_motion", lambda *a, **k: (d - constant, dict(info)))
     truth = [rasterize_ellipses(e, L, 4) for e in stack_phantom(L, S, seed=2)]
     data = DataStore.open(store)
     bp = data.read_reconstruction(

@@ -240,7 +240,7 @@ def centroid_motion(sinogram: Any, angles: Any) -> tuple[float, np.ndarray, floa
     mass_spread : float
         Largest relative spread (std / mean) over views of a slice's total line integral; the
         centroid is only right when it is small (the object never leaves the detector and the
-        flat-field correction holds): :func:`nanoct.recon.stack.estimate_stack_motion` uses it up to 1 %.
+        flat-field correction holds): :func:`nanoct.motion.stack.estimate_stack_motion` uses it up to 1 %.
     """
     sino = np.asarray(sinogram, dtype=np.float64)
     sino = sino[None] if sino.ndim == 2 else sino

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
-from nanoct.recon.center import (
+from nanoct.motion.center import (
     centroid_motion,
     fit_center,
     fourier_shift,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nanoct.recon.motion_model import fit_motion_model, motion_basis
+from nanoct.motion.model import fit_motion_model, motion_basis
 
 K = 900
 PHI = np.arange(K) * np.pi / K

@@ -1,0 +1,238 @@
+"""The rotation axis of a measured scan from several independent estimators, and their consensus.
+
+A measured scan rarely has air at zero absorbance: after flat/dark correction the open beam of
+Diamond I13-2 scan 24737 reads a transmission of about 0.67, an absorbance of about 0.4 over the
+whole detector. To a centroid that is an object as wide as the detector, centred on it, and it
+pulls every view's centroid (and so the axis) towards the detector centre; the mirror match of
+opposite views sees the same box. :func:`remove_air` therefore first fits each view's open beam
+to its air pixels (:func:`nanoct.preprocess.openbeam.estimate_open_beam`) and subtracts its
+absorbance; where no air is seen (an object wider than the field of view) the data are used as
+they are and the centroid is not trusted.
+
+The estimators (each in detector pixels from the detector centre, positive to the right):
+
+``mirror``
+    Every pair of views 180 degrees apart (first and last of a 180-degree scan, all pairs of a
+    360-degree or interlaced scan), the second mirrored and matched to the first by sub-pixel
+    cross-correlation (:func:`nanoct.motion.center.fit_center`).
+``vo``
+    Algotom's ``find_center_vo`` (Vo et al., Opt. Express 22, 19078, 2014: the double-wedge
+    energy of the sinogram joined to its mirror) on the views of one half turn, median over the
+    rows; only where the views cover at least 179 degrees.
+``centroid``
+    The constant of the least-squares fit of the views' centroids on ``(1, cos phi, sin phi)``
+    (:func:`nanoct.motion.center.centroid_motion`) over the rows that hold the object; trusted only
+    when the air was removed and the views' total mass varies by at most ``centroid_tolerance``.
+``sharpness``
+    Only when none of the above applies (a limited-angle tilt series): the offset that minimises
+    the total variation of Hann-filtered FBP slices normalised by their mean absolute value (a
+    wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel.
+
+The axis is the centroid's where it is trusted: of the four, only the centroid is not biased by
+motion (the fit on ``(1, cos phi, sin phi)`` separates the axis from the shifts, which it leaves
+without a constant), while the others assume a still object. Elsewhere it is the median of the
+estimators that apply. When the estimators differ by more than 0.5 pixel (the usual standard of a
+beamline's quality check) the estimate carries a warning: motion, or a wrong axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import NanoctError
+from ..core.geometry import Geometry
+from ..recon.stack import corrected_fbp
+from .center import centroid_motion, fit_center, opposite_pairs
+
+__all__ = ["AGREEMENT_PX", "AxisEstimate", "axis_rows", "estimate_axis", "remove_air"]
+
+#: Estimators further apart than this (pixels) make the estimate carry a warning.
+AGREEMENT_PX = 0.5
+
+
+@dataclass(frozen=True)
+class AxisEstimate:
+    """The axis and how it was found.
+
+    Attributes
+    ----------
+    offset : float
+        Rotation axis minus the detector centre (detector pixels): the median of ``used``.
+    estimates : dict of str to float
+        Every estimator that ran, with its value.
+    used : tuple of str
+        The estimators the axis comes from (the centroid alone where it is trusted, else the
+        median of the others).
+    notes : tuple of str
+        Why an estimator was left out, and a warning when the used ones disagree.
+    air_removed : bool
+        Whether an open beam was found and removed first.
+    """
+
+    offset: float
+    estimates: dict[str, float]
+    used: tuple[str, ...]
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    air_removed: bool = False
+
+    @property
+    def spread(self) -> float:
+        """Largest minus smallest of the used estimates (pixels)."""
+        values = [self.estimates[name] for name in self.used]
+        return float(max(values) - min(values)) if values else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready record (for a store's provenance)."""
+        return {
+            "offset": self.offset,
+            "estimates": dict(self.estimates),
+            "used": list(self.used),
+            "spread": self.spread,
+            "notes": list(self.notes),
+            "air_removed": self.air_removed,
+        }
+
+
+def axis_rows(n_rows: int, count: int = 8) -> np.ndarray:
+    """The rows (slices) the axis is estimated from: ``count`` spread evenly over the detector."""
+    return np.unique(np.linspace(0, n_rows - 1, min(count, n_rows)).round().astype(int))
+
+
+def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Line integrals ``(S, K, L)`` less each view's open-beam absorbance, where air is seen.
+
+    Returns the data unchanged and ``False`` when no air is found in some view.
+    """
+    from ..preprocess.openbeam import estimate_open_beam
+
+    sino = np.asarray(sinograms, dtype=np.float64)
+    projections = np.exp(-sino.transpose(1, 0, 2))  # (K, S, L) transmission
+    try:
+        beam = estimate_open_beam(projections)
+    except NanoctError:
+        return sino, False
+    fields = np.stack([beam.field(k) for k in range(projections.shape[0])])  # (K, S, L)
+    return sino + np.log(fields).transpose(1, 0, 2), True
+
+
+def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
+    """Algotom's ``find_center_vo`` on the views of one half turn, median over the rows."""
+    from algotom.prep.calculation import find_center_vo
+
+    order = np.argsort(phi)
+    start = phi[order[0]]
+    half = order[phi[order] < start + np.pi - 1e-6]
+    if np.ptp(phi[half]) < np.deg2rad(179.0) - np.pi / phi.size:
+        return None
+    n_det = sino.shape[2]
+    lo, hi = n_det / 2 - n_det / 4, n_det / 2 + n_det / 4
+    values = [find_center_vo(np.ascontiguousarray(row[half]), start=lo, stop=hi) - (n_det - 1) / 2 for row in sino]
+    return float(np.median(values))
+
+
+def _sharpness(sino: np.ndarray, phi: np.ndarray) -> float:
+    """The offset whose Hann FBP slices have the least normalised total variation."""
+    n_det = sino.shape[2]
+
+    def score(offset: float) -> float:
+        geometry = Geometry.from_angles(phi, n_det, n_det, center_offset=offset)
+        total = 0.0
+        for row in sino:
+            image = corrected_fbp(geometry, row, filter="hann").astype(np.float64)
+            tv = np.abs(np.diff(image, axis=0)).sum() + np.abs(np.diff(image, axis=1)).sum()
+            total += tv / max(np.abs(image).sum(), 1e-12)
+        return total
+
+    coarse = np.arange(-(n_det // 8), n_det // 8 + 1, 1.0)
+    best = coarse[int(np.argmin([score(c) for c in coarse]))]
+    fine = best + np.arange(-1.0, 1.0001, 0.1)
+    return float(fine[int(np.argmin([score(c) for c in fine]))])
+
+
+def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = 0.01) -> AxisEstimate:
+    """Rotation-axis offset from every estimator that applies (see the module docstring).
+
+    Parameters
+    ----------
+    sinograms : array_like of shape (S, K, L) or (K, L)
+        Line integrals of a few rows (e.g. :func:`axis_rows`).
+    angles : array_like of shape (K,)
+        View angles in radians.
+    centroid_tolerance : float
+        Largest relative spread of the views' mass for which the centroid is trusted.
+
+    Returns
+    -------
+    AxisEstimate
+
+    Raises
+    ------
+    NanoctError
+        For data that are not finite or shapes that do not match.
+    """
+    sino = np.asarray(sinograms, dtype=np.float64)
+    sino = sino[None] if sino.ndim == 2 else sino
+    phi = np.asarray(angles, dtype=np.float64)
+    if sino.ndim != 3 or sino.shape[1] != phi.size:
+        raise NanoctError(f"sinograms of shape {sino.shape} do not match {phi.size} angles")
+    if not np.isfinite(sino).all():
+        raise NanoctError("the sinograms hold NaN or infinite values; correct or drop those views first")
+    clean, air = remove_air(sino)
+    estimates: dict[str, float] = {}
+    notes: list[str] = []
+    used: list[str] = []
+    if opposite_pairs(phi)[0].size:
+        estimates["mirror"] = fit_center(clean, phi, max_offset=sino.shape[2] / 4)
+        used.append("mirror")
+    else:
+        notes.append("mirror: no two views 180 degrees apart")
+    vo = _vo(clean, phi)
+    if vo is None:
+        notes.append("vo: the views cover less than 180 degrees")
+    else:
+        estimates["vo"] = vo
+        used.append("vo")
+    _centroid(clean, phi, air, centroid_tolerance, estimates, used, notes)
+    if not used:
+        estimates["sharpness"] = _sharpness(clean[:4], phi)
+        used.append("sharpness")
+    chosen = ["centroid"] if "centroid" in used else used
+    offset = float(np.median([estimates[name] for name in chosen]))
+    result = AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
+    spread = float(np.ptp([estimates[name] for name in used]))
+    if spread > AGREEMENT_PX:
+        values = ", ".join(f"{name} {estimates[name]:+.2f}" for name in used)
+        notes.append(f"warning: the axis estimators disagree by {spread:.2f} px ({values}); motion or a wrong axis")
+        result = AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
+    return result
+
+
+def _centroid(
+    clean: np.ndarray,
+    phi: np.ndarray,
+    air: bool,
+    tolerance: float,
+    estimates: dict[str, float],
+    used: list[str],
+    notes: list[str],
+) -> None:
+    """The centroid estimate over the rows that hold the object; used when it can be trusted."""
+    mass = clean.sum(axis=2).min(axis=1)  # (S,): each row's smallest view mass
+    rows = mass > 0.2 * max(float(mass.max()), 0.0)
+    if not rows.any():
+        notes.append("centroid: no row holds an object")
+        return
+    offset, _, spread = centroid_motion(clean[rows], phi)
+    if not np.isfinite(spread):
+        notes.append("centroid: a view has no mass")
+        return
+    estimates["centroid"] = offset
+    if not air:
+        notes.append("centroid: not used (no air seen: the object may be wider than the field of view)")
+    elif spread > tolerance:
+        notes.append(f"centroid: not used (the views' mass varies by {spread:.1%}, above {tolerance:.0%})")
+    else:
+        used.append("centroid")

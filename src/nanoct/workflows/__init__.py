@@ -1,0 +1,1 @@
+"""Workflows above the solvers and the motion estimators: the whole-stack reconstruction."""

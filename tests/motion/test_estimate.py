@@ -1,0 +1,39 @@
+"""3-D motion of the real I13 scan with a known motion added: vertical, horizontal, axis, and the record."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from motion_cases import gauge_free_rms, known_motion, moved
+
+from nanoct.core.errors import NanoctError
+from nanoct.motion.estimate import estimate_motion
+
+
+def test_real_scan_with_added_motion_recovered_in_both_directions(i13):
+    li, angles = i13
+    horizontal, vertical = known_motion(angles)
+    result = estimate_motion(moved(li, horizontal, vertical), angles)
+    assert result.horizontal_method == "centroid" and result.axis.air_removed
+    assert gauge_free_rms(result.horizontal, horizontal, angles) <= 0.25
+    assert gauge_free_rms(result.vertical, vertical, angles, vertical=True) <= 0.25
+    still = estimate_motion(li, angles)  # the scan as measured: no motion worth the name, the axis as the estimators
+    assert np.sqrt(np.mean(still.vertical**2)) < 0.1 and abs(still.axis.offset - 6.2) <= 0.5
+
+
+@pytest.mark.slow
+def test_real_scan_wider_than_the_field_of_view(i13):
+    li, angles = i13
+    horizontal, vertical = known_motion(angles)
+    data = moved(li, horizontal, vertical)[:, 76:, 40:120]  # the container's walls cut: no air anywhere
+    result = estimate_motion(data, angles)
+    assert result.horizontal_method == "matching" and not result.axis.air_removed
+    assert gauge_free_rms(result.horizontal, horizontal, angles) <= 0.4
+    assert gauge_free_rms(result.vertical, vertical, angles, vertical=True) <= 0.25
+
+
+def test_estimate_motion_bad_input():
+    with pytest.raises(NanoctError, match="do not match"):
+        estimate_motion(np.zeros((4, 8, 8)), np.zeros(3))
+    with pytest.raises(NanoctError, match="horizontal estimator"):
+        estimate_motion(np.zeros((4, 8, 8)), np.zeros(4), horizontal="magic")
