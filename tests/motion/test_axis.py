@@ -93,3 +93,23 @@ def test_bad_input():
         estimate_axis(np.zeros((1, 9, 16)), angles)
     with pytest.raises(NanoctError, match="NaN"):
         estimate_axis(np.full((1, 10, 16), np.nan), angles)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 2.0])
+def test_axis_tilt_on_the_real_scan_rotated_on_the_detector(i13, tilt):
+    import scipy.ndimage as ndi
+
+    from nanoct.motion.axis import axis_tilt
+
+    li, angles = i13
+    data = np.stack([ndi.rotate(p, tilt, reshape=False, order=3, mode="nearest") for p in li]) if tilt else li
+    found = axis_tilt(data.transpose(1, 0, 2), angles)
+    assert found.tilt_deg == pytest.approx(tilt, abs=0.5)  # measured: 0.02 and 1.85 degrees
+    assert found.offset_at(67, li.shape[1]) == pytest.approx(6.3, abs=0.5)
+
+
+def test_axis_tilt_needs_opposite_views():
+    from nanoct.motion.axis import axis_tilt
+
+    with pytest.raises(NanoctError, match="180 degrees"):
+        axis_tilt(np.ones((8, 5, 16)), np.deg2rad(np.linspace(-50, 50, 5)))

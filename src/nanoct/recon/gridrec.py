@@ -139,10 +139,13 @@ def _filter_response(size: int, spacing: float, filter: str) -> np.ndarray:
     return response * spacing
 
 
-def _period(geometry: Geometry, shifts: np.ndarray) -> int:
-    """The Fourier period M (detector pixels) whose periodic copies of the detector miss every image pixel."""
+def _period(geometry: Geometry, shifts: np.ndarray, axis_range: float = 0.0) -> int:
+    """The Fourier period M (detector pixels) whose periodic copies of the detector miss every image pixel.
+
+    ``axis_range``: per-slice axis offsets within ``+-axis_range`` of the geometry's are allowed too.
+    """
     centre = (geometry.n_det - 1) / 2 + geometry.center_offset
-    reach = (geometry.n - 1) / 2 * np.sqrt(2.0) / geometry.det_spacing  # image half-diagonal, detector pixels
+    reach = (geometry.n - 1) / 2 * np.sqrt(2.0) / geometry.det_spacing + axis_range  # detector pixels
     top = centre - float(shifts.min()) + reach  # largest detector position an image pixel reads
     bottom = centre - float(shifts.max()) - reach  # smallest
     need = max(top, geometry.n_det - 1 - bottom, geometry.n_det) + 16  # + the interpolant's tails
@@ -196,20 +199,29 @@ class _FinufftEngine:
             self._plans.append(plan)
         return self._plans[index]
 
-    def __call__(self, packed: np.ndarray, filtered: bool = True) -> np.ndarray:
-        """(P, K, L) complex views -> (P, N, N) complex images (real part one slice, imaginary part the other).
-
-        ``filtered=False``: the views are already filtered (only the back projection is done).
-        """
-        n_det, pad, period = packed.shape[-1], self.response.size, self.weights.shape[1]
-        views = packed.astype(self.dtype, copy=False)
+    def _spectra(self, views: np.ndarray, filtered: bool) -> np.ndarray:
+        """(B, K, L) views -> (B, K, M) Fourier coefficients of the (filtered) views, period M."""
+        n_det, pad, period = views.shape[-1], self.response.size, self.weights.shape[1]
+        views = views.astype(self.dtype, copy=False)
         if filtered:
             spectrum = sfft.fft(views, n=pad, axis=-1, workers=-1)
             spectrum *= self.response
             views = sfft.ifft(spectrum, axis=-1, workers=-1, overwrite_x=True)[..., :n_det]
-        coefficients = sfft.fft(views, n=period, axis=-1, workers=-1)
+        return sfft.fft(views, n=period, axis=-1, workers=-1)
+
+    def __call__(self, block: np.ndarray, filtered: bool = True, ramps: np.ndarray | None = None) -> np.ndarray:
+        """(2P, K, L) real views -> (P, N, N) complex images (real part slice 2p, imaginary part slice 2p + 1).
+
+        ``filtered=False``: the views are already filtered (only the back projection is done).
+        ``ramps`` (2P, M): a phase ramp per slice (its own axis); the pairs are packed after it.
+        """
+        if ramps is None:  # pack first: one complex FFT per pair
+            coefficients = self._spectra(block[0::2] + 1j * block[1::2], filtered)
+        else:
+            spectra = self._spectra(block, filtered) * ramps.astype(self.dtype)[:, None, :]
+            coefficients = spectra[0::2] + 1j * spectra[1::2]
         coefficients *= self.weights
-        plans = [self._plan(i) for i in range(packed.shape[0])]
+        plans = [self._plan(i) for i in range(coefficients.shape[0])]
         if len(plans) == 1:
             return plans[0].execute(coefficients[0].ravel())[None]
         with ThreadPoolExecutor(len(plans)) as pool:  # finufft releases the GIL
@@ -239,14 +251,20 @@ class _CufinufftEngine:
             self._plans[n_trans] = plan
         return self._plans[n_trans]
 
-    def __call__(self, packed: np.ndarray, filtered: bool = True) -> np.ndarray:
-        """(P, K, L) complex views -> (P, N, N) complex images, computed on the device."""
-        fft, n_det, count = self.torch.fft, packed.shape[-1], packed.shape[0]
-        views = self.torch.as_tensor(packed.astype(self.dtype, copy=False), device=self.device)
+    def __call__(self, block: np.ndarray, filtered: bool = True, ramps: np.ndarray | None = None) -> np.ndarray:
+        """(2P, K, L) real views -> (P, N, N) complex images, computed on the device (see :class:`_FinufftEngine`)."""
+        fft, n_det = self.torch.fft, block.shape[-1]
+        views = self.torch.as_tensor(block.astype(self.dtype), device=self.device)
+        if ramps is None:
+            views = views[0::2] + 1j * views[1::2]
         if filtered:
             views = fft.ifft(fft.fft(views, n=self.response.numel(), dim=-1) * self.response, dim=-1)[..., :n_det]
-        coefficients = fft.fft(views, n=self.weights.shape[1], dim=-1) * self.weights
-        out = self._plan(count).execute(coefficients.reshape(count, -1).contiguous())
+        spectra = fft.fft(views, n=self.weights.shape[1], dim=-1)
+        if ramps is not None:
+            spectra = spectra * self.torch.as_tensor(ramps.astype(self.dtype), device=self.device)[:, None, :]
+            spectra = spectra[0::2] + 1j * spectra[1::2]
+        count = spectra.shape[0]
+        out = self._plan(count).execute((spectra * self.weights).reshape(count, -1).contiguous())
         return out.reshape(count, self.n, self.n).cpu().numpy()
 
 
@@ -302,6 +320,9 @@ class GridrecPlan:
     threads : int, optional
         Pairs of slices transformed at once on the CPU, one thread each (default: the usable
         CPUs); on the GPU at least :data:`GPU_PAIRS` pairs go in one call.
+    axis_range : float
+        Largest per-slice change of the axis offset (detector pixels) the calls may ask for
+        (``axis=``, e.g. a tilted axis); it lengthens the period by as much.
 
     Attributes
     ----------
@@ -321,13 +342,15 @@ class GridrecPlan:
         eps: float = 1e-5,
         backend: str = "auto",
         threads: int | None = None,
+        axis_range: float = 0.0,
     ) -> None:
         self.threads = usable_cpus() if threads is None else check_int(threads, "threads", 1)
+        self.axis_range = check_float(axis_range, "axis_range", low=0.0)
         params = GridrecParams.check(geometry, filter=filter, interpolation=interpolation, eps=eps, backend=backend)
         k = geometry.n_angles
         d = np.zeros(k) if shifts is None else check_array(shifts, "shifts", shape=(k,), dtype=np.float64)
         self.geometry, self.backend = geometry, select_backend(params["backend"])
-        self.period = _period(geometry, d)
+        self.period = _period(geometry, d, self.axis_range)
         dtype = np.complex64 if params["eps"] >= 1e-5 else np.complex128
         *points, weights = _polar_samples(geometry, d, self.period, params["interpolation"], dtype)
         pad = int(2 ** np.ceil(np.log2(2 * geometry.n_det)))
@@ -335,19 +358,22 @@ class GridrecPlan:
         engine = _CufinufftEngine if self.backend == "cufinufft" else _FinufftEngine
         self._engine = engine(tuple(points), weights, response, geometry.n, params["eps"])
 
-    def __call__(self, sinograms: Any) -> np.ndarray:
+    def __call__(self, sinograms: Any, axis: Any = None) -> np.ndarray:
         """Reconstruct slices, two per transform.
 
         Parameters
         ----------
         sinograms : array_like of shape (S, K, L) or (K, L)
             Line integrals of each slice; must be finite.
+        axis : array_like of shape (S,), optional
+            Each slice's axis offset minus the geometry's, in detector pixels, within
+            ``+-axis_range`` (a phase ramp per slice, applied before two slices share a transform).
 
         Returns
         -------
         ndarray of shape (S, N, N) or (N, N), float32
         """
-        return self._run(sinograms, "sinograms", filtered=True)
+        return self._run(sinograms, "sinograms", filtered=True, axis=axis)
 
     def backproject(self, views: Any) -> np.ndarray:
         """The weighted back projection ``sum_k w_k v_k(r . e_k / s + c - d_k)`` of views already filtered.
@@ -363,24 +389,35 @@ class GridrecPlan:
         """
         return self._run(views, "views", filtered=False)
 
-    def _run(self, data: Any, label: str, filtered: bool) -> np.ndarray:
+    def _ramps(self, axis: Any, count: int) -> np.ndarray | None:
+        """(S, M) phase ramps ``exp(2 pi i m a_s / M)`` of the per-slice axis offsets, or None."""
+        if axis is None:
+            return None
+        a = check_array(axis, "axis", shape=(count,), dtype=np.float64)
+        if np.abs(a).max(initial=0.0) > self.axis_range + 1e-9:
+            raise ValueError(f"axis offsets up to {np.abs(a).max():.3g} px exceed axis_range={self.axis_range:g}")
+        m = np.fft.fftfreq(self.period) * self.period
+        return np.exp(2j * np.pi * a[:, None] * m[None] / self.period)
+
+    def _run(self, data: Any, label: str, filtered: bool, axis: Any = None) -> np.ndarray:
         sino = np.asarray(data)
         single = sino.ndim == 2
         sino = check_array(sino[None] if single else sino, label, ndim=3, dtype=None)
         if sino.shape[1:] != self.geometry.sino_shape:
             raise ValueError(f"{label} have shape {sino.shape[1:]} per slice, expected {self.geometry.sino_shape}")
         count = sino.shape[0]
+        ramps = self._ramps(np.atleast_1d(axis) if axis is not None else None, count)
         out = np.empty((count, self.geometry.n, self.geometry.n), dtype=np.float32)
         # slices per call: one pair per thread on the CPU, at least 8 pairs per call on the GPU
         step = 2 * (self.threads if self.backend == "finufft" else max(self.threads, GPU_PAIRS))
         for first in range(0, count, step):
-            block = sino[first : first + step]
-            packed = np.zeros((-(-block.shape[0] // 2), *block.shape[1:]), dtype=np.complex128)
-            packed.real = block[0::2]
-            packed.imag[: block.shape[0] // 2] = block[1::2]
-            images = self._engine(packed, filtered)
-            out[first : first + block.shape[0] : 2] = images.real
-            out[first + 1 : first + block.shape[0] : 2] = images.imag[: block.shape[0] // 2]
+            stop = min(first + step, count)
+            block = np.zeros((stop - first + (stop - first) % 2, *sino.shape[1:]), dtype=sino.dtype)
+            block[: stop - first] = sino[first:stop]  # an odd count: a zero slice fills the last pair
+            part = None if ramps is None else np.concatenate([ramps[first:stop], ramps[:1]])[: block.shape[0]]
+            images = self._engine(block, filtered, part)
+            out[first:stop:2] = images.real
+            out[first + 1 : stop : 2] = images.imag[: (stop - first) // 2]
         return out[0] if single else out
 
 

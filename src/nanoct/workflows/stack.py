@@ -34,8 +34,8 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, estimate_axis, remove_air
-from ..motion.center import centroid_motion
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, remove_air
+from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.stack import estimate_stack_motion
 from ..motion.vertical import vertical_shifts
@@ -187,6 +187,27 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
     return estimate.offset, estimate.to_dict()
 
 
+def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
+    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone."""
+    if not opposite_pairs(store.geometry.angles)[0].size:
+        return {"tilt": {"note": "no views 180 degrees apart: the axis tilt is not estimated"}}
+    firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
+    rows = [int(r) for first in firsts for r in range(first, first + 4)]
+    straight = read_straight(store, rows, vertical)
+    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    try:
+        tilt = axis_tilt(corrected, store.geometry.angles, rows=rows, n_rows=store.n)
+    except NanoctError as exc:
+        return {"tilt": {"note": str(exc)}}
+    return {"tilt": {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual}}
+
+
+def slice_center(info: dict[str, Any], index: int, n_slices: int) -> float:
+    """The axis offset of slice ``index``: the stack's axis, moved along the tilt line where one was found."""
+    slope = info.get("tilt", {}).get("slope", 0.0)
+    return float(info["center_offset"] + slope * (index - (n_slices - 1) / 2))
+
+
 def horizontal_motion(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
 ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -233,6 +254,8 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
     if store.n >= MIN_VERTICAL_SLICES and store.done.all():
         vertical = vertical_shifts(_profiles(store))
     shifts, info = horizontal_motion(store, params, vertical, progress, name)
+    if params["center"] == "auto" and store.n >= MIN_VERTICAL_SLICES and store.done.all():
+        info.update(_tilt(store, vertical, shifts))
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     info["vertical"] = [float(v) for v in vertical]
@@ -246,10 +269,17 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
 
 
 def _reconstruct_slice(
-    path: str, name: str, method: str, center: float, eta: Any, shifts: np.ndarray, vertical: np.ndarray, index: int
+    path: str,
+    name: str,
+    method: str,
+    info: dict[str, Any],
+    eta: Any,
+    shifts: np.ndarray,
+    vertical: np.ndarray,
+    index: int,
 ) -> int:
     store = open_cached(path)
-    geometry = with_center(store.geometry, center)
+    geometry = with_center(store.geometry, slice_center(info, index, store.n))
     sino = read_straight(store, [index], vertical)[0]
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
@@ -292,28 +322,34 @@ def fbp_engine(choice: str = "auto") -> str:
 _PLAN: dict[tuple, Any] = {}  # the last gridrec plan of this process (one stack's geometry and motion)
 
 
-def _gridrec_block(path: str, name: str, center: float, motion: tuple, threads: int, blocks: list, block: int) -> int:
+def _gridrec_block(
+    path: str, name: str, info: dict[str, Any], motion: tuple, threads: int, blocks: list, block: int
+) -> int:
     """Reconstruct one block of slices with gridrec (the plan kept for the next block) and write them.
 
     ``motion`` is ``(shifts, vertical)``: the slices are read with every view moved back by its
-    vertical shift (:func:`read_straight`), the horizontal shifts are gridrec's phase ramps.
+    vertical shift (:func:`read_straight`), the horizontal shifts are gridrec's phase ramps, and
+    each slice's axis (:func:`slice_center`, along a tilted axis) a phase ramp of its own.
     """
     from ..recon.gridrec import GridrecPlan
 
     shifts, vertical = motion
     indices = blocks[block]
     store = open_cached(path)
-    key = (path, name, center, shifts.tobytes(), threads)
+    center = float(info["center_offset"])
+    axis = np.array([slice_center(info, i, store.n) - center for i in range(store.n)])
+    key = (path, name, center, shifts.tobytes(), axis.tobytes(), threads)
     if key not in _PLAN:
         _PLAN.clear()
-        _PLAN[key] = GridrecPlan(with_center(store.geometry, center), shifts, threads=threads)
-    images = _PLAN[key](read_straight(store, indices, vertical))
+        geometry = with_center(store.geometry, center)
+        _PLAN[key] = GridrecPlan(geometry, shifts, threads=threads, axis_range=float(np.abs(axis).max()))
+    images = _PLAN[key](read_straight(store, indices, vertical), axis=axis[indices] if axis.any() else None)
     for index, image in zip(indices, images):
         store.write_reconstruction(name, index, image, shifts.astype(np.float32))
     return block
 
 
-def _run_gridrec(store: DataStore, name: str, center: float, motion: tuple, pending: list[int], *run: Any) -> None:
+def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, pending: list[int], *run: Any) -> None:
     """The pending slices in blocks of two per thread (``motion``: shifts, vertical; ``run``: workers etc.)."""
     from ..recon.gridrec import backend_label, select_backend
 
@@ -321,7 +357,7 @@ def _run_gridrec(store: DataStore, name: str, center: float, motion: tuple, pend
     threads = worker_threads(workers) if workers and not scheduler else usable_cpus()
     blocks = [pending[i : i + 2 * threads] for i in range(0, len(pending), 2 * threads)]
     _record_engine(store, name, backend_label(select_backend("auto")))
-    task = partial(_gridrec_block, str(store.path), name, center, motion, threads, blocks)
+    task = partial(_gridrec_block, str(store.path), name, dict(info), motion, threads, blocks)
     run_tasks(
         task, range(len(blocks)), workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="block"
     )
@@ -428,12 +464,11 @@ def reconstruct_stack(
     shifts = store.recons.shared_shifts(name).astype(np.float64)
     vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
     pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
-    center = float(info["center_offset"])
     if use_gridrec:
-        _run_gridrec(store, name, center, (shifts, vertical), pending, workers, scheduler, progress)
+        _run_gridrec(store, name, info, (shifts, vertical), pending, workers, scheduler, progress)
         return name
     if method == "fbp":
         _record_engine(store, name, "backprojection")
-    task = partial(_reconstruct_slice, str(store.path), name, method, center, params.get("eta"), shifts, vertical)
+    task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
     return name

@@ -1,0 +1,63 @@
+"""`nanoct import` and `nanoct stack` on the real I13 scan: one axis, and a known 3-D motion recovered."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nanoct.cli import run
+from nanoct.io.store import DataStore
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "motion"))
+from motion_cases import gauge_free_rms, known_motion, moved  # noqa: E402
+
+I13 = Path(__file__).resolve().parents[1] / "data" / "realdata" / "i13-24737-tiff"
+
+
+def _angles(tmp_path):
+    path = tmp_path / "angles.txt"
+    np.savetxt(path, np.loadtxt(I13 / "angles.txt")[10:101])
+    return path
+
+
+def test_import_and_stack_give_the_same_axis_on_the_real_scan(tmp_path):
+    store = tmp_path / "store"
+    flats, darks = str(I13 / "flat_00001.tiff"), str(I13 / "dark_00001.tiff")
+    args = ["import", str(I13 / "tiffs"), "--out", str(store), "--angles", str(_angles(tmp_path)), "--flats", flats,
+            "--darks", darks, "--center-offset", "auto"]  # fmt: skip
+    assert run(args) == 0
+    data = DataStore.open(store)
+    axis = data.meta["scan"]["axis"]
+    assert abs(axis["offset"] - 6.2) <= 0.5 and set(axis["estimates"]) >= {"mirror", "vo"}
+    assert run(["stack", str(store), "--workers", "0", "-q"]) == 0
+    info = DataStore.open(store).recons.motion_info("fbp_stack")
+    assert info["center_offset"] == pytest.approx(data.geometry.center_offset, abs=0.1)  # import = stack
+    assert abs(info["tilt"]["tilt_deg"]) < 0.3 and np.sqrt(np.mean(np.square(info["vertical"]))) < 0.1
+
+
+def test_stack_recovers_a_known_3d_motion_added_to_the_real_scan(tmp_path, i13_line_integrals):
+    li, angles = i13_line_integrals
+    horizontal, vertical = known_motion(angles)
+    np.save(tmp_path / "moved.npy", moved(li, horizontal, vertical).astype(np.float32))
+    store = tmp_path / "store"
+    args = ["import", str(tmp_path / "moved.npy"), "--out", str(store), "--angles", str(_angles(tmp_path)),
+            "--line-integrals", "--center-offset", "auto"]  # fmt: skip
+    assert run(args) == 0
+    assert run(["stack", str(store), "--workers", "0", "-q"]) == 0
+    data = DataStore.open(store)
+    info = data.recons.motion_info("fbp_stack")
+    assert info["horizontal_method"] == "centroid" and info["vertical_method"] == "row profiles"
+    assert gauge_free_rms(np.asarray(info["vertical"]), vertical, angles, vertical=True) <= 0.25
+    assert gauge_free_rms(data.recons.shared_shifts("fbp_stack"), horizontal, angles) <= 0.25
+
+
+@pytest.fixture(scope="module")
+def i13_line_integrals(tmp_path_factory):
+    from nanoct.io.scanio import line_integrals, read_scan
+
+    path = _angles(tmp_path_factory.mktemp("angles"))
+    scan = read_scan(I13 / "tiffs", angles_file=path, flats=I13 / "flat_00001.tiff", darks=I13 / "dark_00001.tiff")
+    return line_integrals(scan).astype(np.float64), np.deg2rad(np.loadtxt(path))
