@@ -52,7 +52,10 @@ def test_reconstruct_command_hints_only_registered_methods():
     assert reconstruct_command("D", "resesop_est-residual_eta0.8") == (
         "nanoct reconstruct D --method resesop --eta estimate:residual --eta-scale 0.8"
     )
-    assert reconstruct_command("d", "sirt") == "nanoct reconstruct d --method <fbp|kaczmarz|dremel|resesop> --name sirt"
+    assert (
+        reconstruct_command("d", "sirt")
+        == "nanoct reconstruct d --method <fbp|gridrec|kaczmarz|dremel|resesop> --name sirt"
+    )
     assert reconstruct_command("d", "resesop_etaX").endswith("--name resesop_etaX")
     assert predict_command("d", "fbp+unet").startswith("'nanoct predict d --run RUN'")
     assert predict_command("d", "fbp") == "'nanoct reconstruct d --method fbp'"

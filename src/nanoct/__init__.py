@@ -16,7 +16,7 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
-_API = ("fbp", "kaczmarz", "dremel", "resesop", "make_geometry")
+_API = ("fbp", "gridrec", "kaczmarz", "dremel", "resesop", "make_geometry")
 
 __all__ = ["__version__", *_API, "Geometry"]
 

@@ -20,6 +20,8 @@ A disk of radius 20 and density 1, centred on the axis, seen by 90 parallel view
 >>> image = nanoct.fbp(sinogram, angles=angles).image
 >>> image.shape, round(float(image[32, 32]), 2)
 ((64, 64), 1.0)
+>>> round(float(nanoct.gridrec(sinogram, angles=angles).image[32, 32]), 2)  # the same FBP, in Fourier space
+1.0
 >>> result = nanoct.dremel(sinogram, angles=angles, n_iter=4)
 >>> result.motion.shape, result.stop_reason
 ((90,), 'max_iter')
@@ -41,7 +43,7 @@ from .core.geometry import Geometry
 from .recon.registry import method_spec
 from .recon.result import ReconResult
 
-__all__ = ["NanoctError", "dremel", "fbp", "kaczmarz", "make_geometry", "resesop"]
+__all__ = ["NanoctError", "dremel", "fbp", "gridrec", "kaczmarz", "make_geometry", "resesop"]
 
 
 def make_geometry(
@@ -128,6 +130,12 @@ def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
 
 
 fbp = _array_method("fbp", "Filtered back projection (:func:`nanoct.recon.fbp.fbp`; ``filter=``).")
+gridrec = _array_method(
+    "gridrec",
+    "FBP computed in Fourier space with a non-uniform FFT, parallel beam (:func:`nanoct.recon.gridrec.gridrec`; "
+    "``filter=``, ``interpolation=``); for many slices with one geometry use "
+    ":func:`nanoct.recon.gridrec.gridrec_slices`.",
+)
 kaczmarz = _array_method("kaczmarz", "Kaczmarz sweeps (:func:`nanoct.recon.kaczmarz.kaczmarz`; ``n_iter=``, ...).")
 dremel = _array_method(
     "dremel",

@@ -795,7 +795,7 @@ def stack(
     source: Path = typer.Argument(..., help="Data-set store, or a scan file to import into --store first."),
     store_dir: Path | None = typer.Option(None, "--store", help="With a scan file: the new data set to import into."),
     method: str = typer.Option(
-        "fbp", "--method", "-m", help="Each slice: fbp (motion-corrected) | dremel (fixed) | resesop (corrected data)."
+        "fbp", "--method", "-m", help="Each slice: fbp | gridrec (FBP in Fourier space) | dremel (fixed) | resesop."
     ),
     eta: str = typer.Option(
         "auto",

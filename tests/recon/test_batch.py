@@ -68,7 +68,7 @@ def _snapshot(path):
         ("fbp", {"filter": "gauss"}, r"--param filter .*ram-lak, hann"),
         ("resesop", {"eta_scale": -1.0}, r"--eta-scale .*\[0, inf\)"),
         ("dremel", {"n_iter": "many"}, "--param n_iter"),
-        ("sirt", {}, "--method 'sirt' is unknown; use one of fbp, kaczmarz, dremel, resesop"),
+        ("sirt", {}, "--method 'sirt' is unknown; use one of fbp, gridrec, kaczmarz, dremel, resesop"),
     ],
 )
 def test_bad_parameters_fail_before_any_work(tiny_store, monkeypatch, method, params, match):

@@ -47,6 +47,9 @@ BAD: dict[str, list] = {
     "motion_slices": ["some", "-1", "1,x", ""],
     "shifts_from": ["/nonexistent/shifts.txt"],
     "eta": ["estimate", "estimate:reference", "guess", "estimate:residual=a/b"],
+    "interpolation": ["cubic", 1],
+    "eps": [0.0, 0.5, NAN, "1e-6"],
+    "backend": ["opencl", None],
 }
 
 
@@ -56,6 +59,8 @@ def _is_iterative(name: str) -> bool:
 
 def _run(name, op, y, eta=None, **params):
     spec = method_spec(name)
+    if spec.parallel_only and getattr(op, "geometry", op).kind != "parallel":
+        pytest.skip(f"{name} handles parallel beam only")
     if spec.needs_eta:
         eta = np.zeros(y.shape[0]) if eta is None else eta
     return spec.run(op, y, eta if spec.needs_eta else None, **params)

@@ -117,3 +117,34 @@ def test_shift_corrected_moves_each_view_back():
     view[:, 5] = 1.0
     out = shift_corrected(view, np.array([2.0, -1.0]))  # read at u - d: the peak moves by +d
     assert out[0].argmax() == 7 and out[1].argmax() == 4
+
+
+def test_stack_gridrec_matches_the_back_projection_and_records_its_engine(store, monkeypatch):
+    """``--method gridrec`` (blocks of two slices per thread) and ``fbp``'s automatic engine, with provenance."""
+    from nanoct.recon import gridrec as gridrec_module
+
+    phi, d, constant = _truth()
+    info = {"center_offset": OFFSET - constant}  # the object centred
+    monkeypatch.setattr(stack_batch, "horizontal_motion", lambda *a, **k: (d - constant, dict(info)))
+    truth = [rasterize_ellipses(e, L, 4) for e in stack_phantom(L, S, seed=2)]
+    data = DataStore.open(store)
+    bp = data.read_reconstruction(
+        reconstruct_stack(store, engine="backprojection", name="bp", workers=0, progress=False)
+    )
+    assert data.recons.note("bp", "engine") == ["backprojection"]
+    for method in ("gridrec", "fbp"):  # fbp runs gridrec where finufft is importable
+        name = reconstruct_stack(store, method=method, workers=0, progress=False)
+        images = data.read_reconstruction(name)
+        assert data.recons.note(name, "engine")[0].startswith("gridrec/finufft")
+        for i in range(S):
+            assert np.linalg.norm(images[i] - bp[i]) < 0.1 * np.linalg.norm(bp[i])
+            assert abs(psnr(images[i], truth[i]) - psnr(bp[i], truth[i])) < 0.3
+        np.testing.assert_array_equal(data.read_shifts(name, [0])[0], data.read_shifts("bp", [0])[0])
+    # without a non-uniform FFT library: fbp falls back to the back projection, gridrec says what to install
+    monkeypatch.setattr(gridrec_module, "gridrec_available", lambda: False)
+    monkeypatch.setattr(gridrec_module, "gpu_available", lambda: False)
+    reconstruct_stack(store, name="fallback", workers=0, progress=False)
+    assert data.recons.note("fallback", "engine") == ["backprojection"]
+    with pytest.raises(NanoctError, match="pip install finufft"):
+        reconstruct_stack(store, method="gridrec", name="nothing", workers=0, progress=False)
+    assert "nothing" not in DataStore.open(store).recons.names()  # nothing written

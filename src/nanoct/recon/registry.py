@@ -70,6 +70,8 @@ class MethodSpec:
     batch_params : str, optional
         ``"module:Class"`` of the parameters the batch runner uses itself and does not pass to
         the solver (where eta or a shared motion comes from).
+    parallel_only : bool
+        The method handles parallel-beam geometries only.
     """
 
     name: str
@@ -79,6 +81,7 @@ class MethodSpec:
     needs_eta: bool = False
     estimates_motion: bool = False
     batch_params: str | None = None
+    parallel_only: bool = False
 
     def solver(self) -> Any:
         """The solver function (imported on first use)."""
@@ -172,6 +175,13 @@ METHODS: dict[str, MethodSpec] = {
     spec.name: spec
     for spec in (
         _spec("fbp", "fbp", "FbpParams", "filtered back projection (direct)"),
+        _spec(
+            "gridrec",
+            "gridrec",
+            "GridrecParams",
+            "FBP in Fourier space, non-uniform FFT (parallel beam)",
+            parallel_only=True,
+        ),
         _spec("kaczmarz", "kaczmarz", "KaczmarzParams", "Kaczmarz (ART) sweeps"),
         _spec(
             "dremel",

@@ -13,6 +13,13 @@ Both are recorded with the reconstruction
 then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
 per slice); a run that is stopped resumes where it was: the recorded motion is reused and the
 slices already written are skipped (each slice is written with its progress flag last).
+
+``--method gridrec`` reconstructs the slices in blocks (two slices per complex transform, one
+pair per thread) with :class:`~nanoct.recon.gridrec.GridrecPlan`, built once per process for
+the stack's motion. ``--method fbp`` does the same wherever gridrec is usable (``finufft``
+importable, or the GPU path), as its images match FBP's (``docs/gridrec.md``), and falls back to
+the pixel-driven :func:`~nanoct.recon.stack.corrected_fbp` otherwise; which one ran is recorded
+with the reconstruction (the note ``engine``, read with ``store.recons.note(name, "engine")``).
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..core.errors import NanoctError
-from ..core.fanout import run_tasks
+from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
@@ -36,17 +43,23 @@ from ..names import stack_name
 from ..recon.stack import corrected_fbp, reproject, with_center
 
 __all__ = [
+    "FBP_ENGINES",
     "MIN_VERTICAL_SLICES",
     "STACK_METHODS",
+    "fbp_engine",
     "horizontal_motion",
     "read_straight",
     "reconstruct_stack",
     "shift_corrected",
 ]
 
-#: Reconstruction of each slice with the stack's motion: motion-corrected FBP, Dremel (SART
-#: view steps) with the motion held fixed, or RESESOP-Kaczmarz on the shift-corrected sinogram.
-STACK_METHODS = ("fbp", "dremel", "resesop")
+#: Reconstruction of each slice with the stack's motion: motion-corrected FBP, its Fourier-space
+#: form (gridrec), Dremel (SART view steps) with the motion held fixed, or RESESOP-Kaczmarz on
+#: the shift-corrected sinogram.
+STACK_METHODS = ("fbp", "gridrec", "dremel", "resesop")
+
+#: How ``--method fbp`` runs: ``auto`` (gridrec where usable), ``gridrec`` or ``backprojection``.
+FBP_ENGINES = ("auto", "gridrec", "backprojection")
 
 #: The ``"auto"`` RESESOP level: this fraction of the corrected FBP's largest residual per view
 #: (that residual also holds the FBP's own error; ``benchmarks/stack_eta.py`` measured 0.5
@@ -281,6 +294,82 @@ def _reconstruct_slice(
     return index
 
 
+def fbp_engine(choice: str = "auto") -> str:
+    """How the stack's FBP runs: ``"gridrec"`` (Fourier space) or ``"backprojection"`` (pixel-driven).
+
+    Parameters
+    ----------
+    choice : {"auto", "gridrec", "backprojection"}
+        ``auto``: gridrec wherever a non-uniform FFT library is usable
+        (:func:`~nanoct.recon.gridrec.gridrec_available` or :func:`~nanoct.recon.gridrec.gpu_available`).
+
+    Raises
+    ------
+    NanoctError
+        For an unknown choice, or ``gridrec`` without a usable library.
+    """
+    from ..recon.gridrec import gpu_available, gridrec_available, select_backend
+
+    if choice not in FBP_ENGINES:
+        raise NanoctError(f"fbp engine {choice!r} is unknown; use one of {', '.join(FBP_ENGINES)}")
+    if choice == "gridrec":
+        select_backend("auto")  # raises where no library is usable
+    if choice == "auto":
+        return "gridrec" if gridrec_available() or gpu_available() else "backprojection"
+    return choice
+
+
+_PLAN: dict[tuple, Any] = {}  # the last gridrec plan of this process (one stack's geometry and motion)
+
+
+def _gridrec_block(
+    path: str, name: str, info: dict[str, Any], motion: tuple, threads: int, blocks: list, block: int
+) -> int:
+    """Reconstruct one block of slices with gridrec (the plan kept for the next block) and write them.
+
+    ``motion`` is ``(shifts, vertical)``: the slices are read with every view moved back by its
+    vertical shift (:func:`read_straight`), the horizontal shifts are gridrec's phase ramps, and
+    each slice's axis (:func:`slice_center`, along a tilted axis) a phase ramp of its own.
+    """
+    from ..recon.gridrec import GridrecPlan
+
+    shifts, vertical = motion
+    indices = blocks[block]
+    store = open_cached(path)
+    center = float(info["center_offset"])
+    axis = np.array([slice_center(info, i, store.n) - center for i in range(store.n)])
+    key = (path, name, center, shifts.tobytes(), axis.tobytes(), threads)
+    if key not in _PLAN:
+        _PLAN.clear()
+        geometry = with_center(store.geometry, center)
+        _PLAN[key] = GridrecPlan(geometry, shifts, threads=threads, axis_range=float(np.abs(axis).max()))
+    images = _PLAN[key](read_straight(store, indices, vertical), axis=axis[indices] if axis.any() else None)
+    for index, image in zip(indices, images):
+        store.write_reconstruction(name, index, image, shifts.astype(np.float32))
+    return block
+
+
+def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, pending: list[int], *run: Any) -> None:
+    """The pending slices in blocks of two per thread (``motion``: shifts, vertical; ``run``: workers etc.)."""
+    from ..recon.gridrec import backend_label, select_backend
+
+    workers, scheduler, progress = run
+    threads = worker_threads(workers) if workers and not scheduler else usable_cpus()
+    blocks = [pending[i : i + 2 * threads] for i in range(0, len(pending), 2 * threads)]
+    _record_engine(store, name, backend_label(select_backend("auto")))
+    task = partial(_gridrec_block, str(store.path), name, dict(info), motion, threads, blocks)
+    run_tasks(
+        task, range(len(blocks)), workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="block"
+    )
+
+
+def _record_engine(store: DataStore, name: str, label: str) -> None:
+    """Add ``label`` to the engines recorded with ``name`` (a resumed run may use another)."""
+    engines = list(store.recons.note(name, "engine") or [])
+    if label not in engines:
+        store.recons.set_note(name, "engine", [*engines, label])
+
+
 def reconstruct_stack(
     path: str | os.PathLike[str],
     *,
@@ -297,6 +386,7 @@ def reconstruct_stack(
     workers: int = 2,
     scheduler: str | None = None,
     progress: bool = True,
+    engine: str = "auto",
 ) -> str:
     """Estimate one motion and axis for a stack and reconstruct every slice with them (resumable).
 
@@ -304,8 +394,10 @@ def reconstruct_stack(
     ----------
     path : path
         Data-set store (an imported scan, or a simulated parallel-beam store).
-    method : {"fbp", "dremel", "resesop"}
-        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`). ``"resesop"`` runs
+    method : {"fbp", "gridrec", "dremel", "resesop"}
+        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`). ``"gridrec"``: FBP in
+        Fourier space (:class:`~nanoct.recon.gridrec.GridrecPlan`, slices in blocks of two per
+        thread); ``"fbp"`` runs it too where it is usable (``engine``). ``"resesop"`` runs
         :func:`~nanoct.recon.resesop.resesop` (20 sweeps at most, matrix-free rays for large
         slices) on the sinogram with every view moved back by its shift (:func:`shift_corrected`).
     center : float or "auto"
@@ -326,6 +418,9 @@ def reconstruct_stack(
         Delete an existing reconstruction of that name first (its motion too).
     workers, scheduler, progress
         See :func:`nanoct.core.fanout.run_tasks`.
+    engine : {"auto", "gridrec", "backprojection"}
+        How ``method="fbp"`` runs (:func:`fbp_engine`); recorded with the reconstruction as the
+        note ``engine`` (a list: a resumed run may add another).
 
     Returns
     -------
@@ -340,6 +435,9 @@ def reconstruct_stack(
     """
     if method not in STACK_METHODS:
         raise NanoctError(f"--method {method!r} is not a stack method; use one of {', '.join(STACK_METHODS)}")
+    use_gridrec = method == "gridrec" or (method == "fbp" and fbp_engine(engine) == "gridrec")
+    if method == "gridrec":
+        fbp_engine("gridrec")  # a usable library, checked before anything is written
     store = DataStore.open(path, mode="r+")
     if store.geometry.kind != "parallel":
         raise NanoctError(f"{store.path} is a fan-beam data set; nanoct stack handles parallel-beam scans")
@@ -366,15 +464,11 @@ def reconstruct_stack(
     shifts = store.recons.shared_shifts(name).astype(np.float64)
     vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
     pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
-    task = partial(
-        _reconstruct_slice,
-        str(store.path),
-        name,
-        method,
-        info,
-        params.get("eta"),
-        shifts,
-        vertical,
-    )
+    if use_gridrec:
+        _run_gridrec(store, name, info, (shifts, vertical), pending, workers, scheduler, progress)
+        return name
+    if method == "fbp":
+        _record_engine(store, name, "backprojection")
+    task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
     return name
