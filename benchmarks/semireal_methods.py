@@ -28,7 +28,7 @@ translation of the image onto the reference (:func:`nanoct.evaluation.metrics.re
 the gauge no data fix); ``--unregistered`` prints the plain scores too.
 
 Rows per slice: FBP of the moved data without correction, FBP with the known motion, FBP with
-the stack's motion (:func:`nanoct.recon.stack.estimate_stack_motion` on all chosen slices,
+the stack's motion (:func:`nanoct.motion.stack.estimate_stack_motion` on all chosen slices,
 axis given), Dremel with the defaults (``nanoct.dremel``), Dremel with the data as given
 (``dremel_off``: ``measured="off"``), RESESOP with eta estimated from Dremel's image
 (:func:`nanoct.recon.eta.eta_from_residual`: its default on measured data, half the largest
@@ -55,13 +55,14 @@ import nanoct
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import register
 from nanoct.io.scanio import line_integrals, read_scan
+from nanoct.motion.stack import estimate_stack_motion
 from nanoct.recon.dremel import DremelParams, dremel
 from nanoct.recon.eta import eta_from_residual
 from nanoct.recon.fbp import fbp
 from nanoct.recon.measured import air_level
 from nanoct.recon.resesop import resesop
 from nanoct.recon.shared import joint_shifts, remove_translation
-from nanoct.recon.stack import corrected_fbp, estimate_stack_motion, reproject
+from nanoct.recon.stack import corrected_fbp, reproject
 from nanoct.workflows.stack import AUTO_ETA_FRACTION, shift_corrected
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "realdata" / "i13-24737-tiff"
@@ -142,7 +143,7 @@ def stack_rows(g: Geometry, sino: np.ndarray, stack: np.ndarray, joint: np.ndarr
     ``dremel_joint``: Dremel with the joint motion held fixed (``nanoct reconstruct --method dremel``
     on an imported stack: :func:`nanoct.recon.shared.joint_shifts` over the chosen slices);
     ``dremel_stack`` / ``resesop_stack``: ``nanoct stack --method dremel|resesop`` with the motion
-    of :func:`nanoct.recon.stack.estimate_stack_motion` (RESESOP on the shift-corrected sinogram
+    of :func:`nanoct.motion.stack.estimate_stack_motion` (RESESOP on the shift-corrected sinogram
     with half the corrected FBP's largest residual per view as eta, the ``auto`` level).
     """
     y = sino.astype(np.float32)
