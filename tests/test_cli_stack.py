@@ -10,8 +10,8 @@ from scipy import ndimage
 from nanoct.cli import run
 from nanoct.core.errors import NanoctError
 from nanoct.io.store import DataStore
-from nanoct.recon import stack_batch
 from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
+from nanoct.workflows import stack as stack_batch
 
 L, K, S = 96, 120, 2
 
@@ -43,7 +43,7 @@ def test_one_command_from_the_raw_file_to_slices_and_the_motion_as_nabu_reads_it
     argv = ["stack", str(path), "--store", str(store), "--angles", "0:180", "--line-integrals", "-w", "0", "-q"]
     assert run(argv) == 0
     out = capsys.readouterr().out
-    for word in ("axis", "found by", "motion", f"{S} of {S}", "reconstructions/fbp_stack"):
+    for word in ("axis", "axis by", "motion", f"{S} of {S}", "reconstructions/fbp_stack"):
         assert word in out, out
     shifts = tmp_path / "shifts.txt"
     assert run(["export", str(store), "--name", "fbp_stack", "--out", str(shifts), "-q"]) == 0
@@ -62,14 +62,14 @@ def test_a_refused_stack_leaves_nothing_that_blocks_a_corrected_rerun(scan, tmp_
     path, _, _ = scan
     store = tmp_path / "store"
     assert run(["import", str(path), "--out", str(store), "--angles", "0:180", "--line-integrals", "-q"]) == 0
-    real = stack_batch.estimate_stack_motion
+    real = stack_batch.horizontal_motion
 
-    def refuse_auto(*args, center=None, **kwargs):
-        if center is None:
+    def refuse_auto(store, params, *args, **kwargs):
+        if params["center"] == "auto":
             raise NanoctError("the rotation axis cannot be determined from these views; give --center-offset")
-        return real(*args, center=center, **kwargs)
+        return real(store, params, *args, **kwargs)
 
-    monkeypatch.setattr(stack_batch, "estimate_stack_motion", refuse_auto)
+    monkeypatch.setattr(stack_batch, "horizontal_motion", refuse_auto)
     assert run(["stack", str(store), "-w", "0", "-q"]) == 2
     assert "cannot be determined" in capsys.readouterr().err
     assert run(["stack", str(store), "-w", "0", "-q"]) == 2  # the same rerun: refused for the same reason
@@ -87,6 +87,7 @@ def test_an_interrupted_stack_is_resumed_or_rerun_with_other_options(scan, tmp_p
         raise KeyboardInterrupt
 
     monkeypatch.setattr(stack_batch, "_reconstruct_slice", interrupted)
+    monkeypatch.setattr(stack_batch, "_gridrec_block", interrupted)  # --method fbp runs gridrec where it can
     assert run(["stack", str(store), "--center-offset", "0", "-w", "0", "-q"]) == 130
     monkeypatch.undo()
     assert run(["stack", str(store), "--center-offset", "0.5", "-w", "0", "-q"]) == 0  # corrected: runs

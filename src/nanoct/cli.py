@@ -83,6 +83,27 @@ TILT_AXIS = typer.Option("columns", "--tilt-axis", help="MRC: the tilt axis runs
 FLATS = typer.Option(None, "--flats", help="Flat fields (TIFF or .npy) for TIFF and .npy scans.")
 DARKS = typer.Option(None, "--darks", help="Dark fields (TIFF or .npy) for TIFF and .npy scans.")
 ENTRY = typer.Option(None, "--entry", help="NXtomo entry to read (when the file has several).")
+# corrections of measured projections (nanoct.preprocess, docs/corrections.md), all off by default
+OUTLIERS = typer.Option(
+    None, "--outliers", help="Replace outliers (zingers) beyond this many robust noise units (e.g. 5)."
+)
+OUTLIER_SIZE = typer.Option(3, "--outlier-size", help="Median window of the outlier filter (odd).")
+OUTLIER_KIND = typer.Option("both", "--outlier-kind", help="Outliers to replace: both | bright | dark.")
+OPEN_BEAM = typer.Option(
+    False, "--open-beam", help="Divide each view by its open beam fitted to air (beam decay, flat mismatch)."
+)
+AIR_COLUMNS = typer.Option(
+    None, "--air-columns", help="With --open-beam: columns seeing only air, FIRST:STOP[,FIRST:STOP]."
+)
+OPEN_BEAM_DEGREE = typer.Option("auto", "--open-beam-degree", help="Open-beam surface per view: auto | 0 | 1 | 2.")
+DELTA_BETA = typer.Option(None, "--delta-beta", help="Paganin phase retrieval: delta/beta (needs the next three).")
+ENERGY = typer.Option(None, "--energy-kev", help="Paganin: photon energy in keV.")
+DISTANCE = typer.Option(None, "--distance-m", help="Paganin: propagation distance in metres.")
+PIXEL = typer.Option(None, "--pixel-size-m", help="Paganin: detector pixel size in metres.")
+STRIPES = typer.Option(None, "--stripes", help="Ring/stripe removal (algotom): all | sorting | filtering | fitting.")
+STRIPE_PARAMS = typer.Option(
+    None, "--stripe-params", help="Stripe method parameters by algotom's names, e.g. snr=3,la_size=51."
+)
 ROWS = typer.Option(None, "--rows", help="Detector rows (slices) FIRST:STOP (default all).")
 CROP = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep.")
 LINE_INTEGRALS = typer.Option(
@@ -727,7 +748,7 @@ def import_(
         "0",
         "--center-offset",
         help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2), or auto "
-        "(from the views' centroids, or opposite views; see docs/measured_data.md).",
+        "(every estimator: opposite views, find_center_vo, centroids; see docs/measured_data.md).",
     ),
     size: int | None = typer.Option(
         None, "--size", help="Image size N (default: detector columns after crop/binning)."
@@ -739,6 +760,18 @@ def import_(
     drop_bad_views: bool = typer.Option(
         False, "--drop-bad-views", help="Leave out projections (and flats/darks) holding NaN or infinite values."
     ),
+    outliers: float | None = OUTLIERS,
+    outlier_size: int = OUTLIER_SIZE,
+    outlier_kind: str = OUTLIER_KIND,
+    open_beam: bool = OPEN_BEAM,
+    air_columns: str | None = AIR_COLUMNS,
+    open_beam_degree: str = OPEN_BEAM_DEGREE,
+    delta_beta: float | None = DELTA_BETA,
+    energy_kev: float | None = ENERGY,
+    distance_m: float | None = DISTANCE,
+    pixel_size_m: float | None = PIXEL,
+    stripes: str | None = STRIPES,
+    stripe_params: str | None = STRIPE_PARAMS,
     quiet: bool = QUIET_OUTPUT,
 ) -> None:
     """Import a measured parallel-beam scan: one sample per detector row, all sharing one motion.
@@ -749,9 +782,11 @@ def import_(
     from NXtomo or the MRC header. An HDF5 file of a known layout (NXtomo, Diamond's scan NeXus,
     Data Exchange) is read without options; any other with --data-path (and --image-key-path,
     --angles-path). External links and virtual datasets are followed only below the file's
-    folder (and --allow-outside folders). The data set has no ground truth: reconstruct it
-    (Dremel estimates one shift per view for the whole stack), post-process it with a
-    network trained on data simulated with its geometry, and export the images.
+    folder (and --allow-outside folders). Corrections (off by default, recorded with the data
+    set): outliers, the open beam from air, Paganin phase retrieval, stripe removal. The data
+    set has no ground truth: reconstruct it (Dremel estimates one shift per view for the whole
+    stack), post-process it with a network trained on data simulated with its geometry, and
+    export the images.
     """
     from .io.scanio import import_scan
 
@@ -759,14 +794,48 @@ def import_(
     options = _reader_options(
         data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
     )
+    corrections = _corrections(
+        outliers, outlier_size, outlier_kind, open_beam, air_columns, open_beam_degree,
+        (delta_beta, energy_kev, distance_m, pixel_size_m), stripes, stripe_params,
+    )  # fmt: skip
     store = import_scan(
         src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
         is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
         crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset),
         size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views, options=options,
+        corrections=corrections,
     )  # fmt: skip
     if not quiet:
         _echo_import(store)
+
+
+def _corrections(
+    outliers: float | None,
+    outlier_size: int,
+    outlier_kind: str,
+    open_beam: bool,
+    air_columns: str | None,
+    open_beam_degree: str,
+    paganin: tuple[float | None, float | None, float | None, float | None],
+    stripes: str | None,
+    stripe_params: str | None,
+) -> Any:
+    """The :class:`~nanoct.preprocess.pipeline.Corrections` the import flags ask for (None: none)."""
+    from .preprocess import Corrections, parse_columns, parse_stripe_params
+
+    delta_beta, energy, distance, pixel = paganin
+    degree: int | str = (
+        open_beam_degree
+        if open_beam_degree == "auto"
+        else _parse_ints(open_beam_degree, "--open-beam-degree", low=0)[0]
+    )
+    corrections = Corrections(
+        outliers=outliers, outlier_size=outlier_size, outlier_kind=outlier_kind, open_beam=open_beam,
+        air_columns=None if air_columns is None else parse_columns(air_columns), open_beam_degree=degree,
+        delta_beta=delta_beta, energy_kev=energy, distance_m=distance, pixel_size_m=pixel, stripes=stripes,
+        stripe_params={} if stripe_params is None else parse_stripe_params(stripe_params),
+    )  # fmt: skip
+    return None if corrections == Corrections() else corrections
 
 
 def _echo_import(store: Any) -> None:
@@ -828,14 +897,27 @@ def stack(
     rows: str | None = ROWS,
     crop: str | None = CROP,
     entry: str | None = ENTRY,
+    outliers: float | None = OUTLIERS,
+    outlier_size: int = OUTLIER_SIZE,
+    outlier_kind: str = OUTLIER_KIND,
+    open_beam: bool = OPEN_BEAM,
+    air_columns: str | None = AIR_COLUMNS,
+    open_beam_degree: str = OPEN_BEAM_DEGREE,
+    delta_beta: float | None = DELTA_BETA,
+    energy_kev: float | None = ENERGY,
+    distance_m: float | None = DISTANCE,
+    pixel_size_m: float | None = PIXEL,
+    stripes: str | None = STRIPES,
+    stripe_params: str | None = STRIPE_PARAMS,
     workers: int = WORKERS,
     scheduler: str | None = SCHEDULER,
     quiet: bool = QUIET,
 ) -> None:
     """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable).
 
-    Given a scan file and --store, imports it first with the reading options of 'nanoct import'
-    (--format, --angles, --data-path ...; the axis is then estimated here, not at import).
+    Given a scan file and --store, imports it first with the reading and correction options of
+    'nanoct import' (--format, --angles, --data-path, --open-beam, --stripes ...; the axis is then
+    estimated here, not at import).
     Ends with a summary: the axis and how it was found, the range of the motion, and where the
     slices are.
     """
@@ -851,25 +933,56 @@ def stack(
         options = _reader_options(
             data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
         )
+        corrections = _corrections(
+            outliers, outlier_size, outlier_kind, open_beam, air_columns, open_beam_degree,
+            (delta_beta, energy_kev, distance_m, pixel_size_m), stripes, stripe_params,
+        )  # fmt: skip
         source = import_scan(
             source, store_dir, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
             is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
-            crop=_parse_range(crop, "--crop", ","), entry=entry, options=options,
+            crop=_parse_range(crop, "--crop", ","), entry=entry, options=options, corrections=corrections,
         ).path  # fmt: skip
-    smooth = None if model is None else _parse_ints(model, "--model", low=0)
-    if smooth is not None and len(smooth) != 2:
-        raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
-        binning=binning, coarse_iter=coarse_iter, model=smooth, eta=_parse_eta(eta),
+        binning=binning, coarse_iter=coarse_iter, model=_parse_model(model), eta=_parse_eta(eta),
         refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
     typer.echo(_stack_summary(DataStore.open(source), written))
 
 
+def _parse_model(model: str | None) -> tuple[int, ...] | None:
+    """``--model DEGREE,HARMONICS``."""
+    smooth = None if model is None else _parse_ints(model, "--model", low=0)
+    if smooth is not None and len(smooth) != 2:
+        raise NanoctError(f"--model {model!r}: give DEGREE,HARMONICS, e.g. 3,3")
+    return smooth
+
+
 def _how_found(method: str | None) -> str:
-    return "as given (--center-offset)" if method == "given" else f"found by {method or 'an unrecorded method'}"
+    if method == "given":
+        return "as given (--center-offset)"
+    if method == "estimators":
+        return "from every axis estimator on the motion-corrected views"
+    return f"found by {method or 'an unrecorded method'}"
+
+
+def _motion_lines(info: dict[str, Any]) -> list[str]:
+    """The summary's lines on the axis estimators, the vertical motion and the axis tilt."""
+    lines = []
+    axis = info.get("axis") or {}
+    if axis.get("estimates"):
+        values = ", ".join(f"{k} {v:+.2f}" for k, v in axis["estimates"].items())
+        lines.append(f"  axis by  {values} px; used: {', '.join(axis.get('used', []))}")
+        lines += [f"  {note}" for note in axis.get("notes", []) if note.startswith("warning")]
+    vertical = info.get("vertical")
+    if vertical is not None and any(vertical):
+        lines.append(f"  vertical {min(vertical):+.3f} to {max(vertical):+.3f} px ({info.get('vertical_method')})")
+    tilt = info.get("tilt") or {}
+    if "tilt_deg" in tilt:
+        lines.append(f"  tilt     {tilt['tilt_deg']:+.3f} degrees of the axis on the detector")
+    lines.append(f"  shifts   by {info.get('horizontal_method', 'an unrecorded method')}")
+    return lines
 
 
 def _stack_summary(store: Any, name: str) -> str:
@@ -890,9 +1003,7 @@ def _stack_summary(store: Any, name: str) -> str:
         size = (scan.get("pixel_size_m") or [None])[0]
         nm = f" ({shifts.min() * size * 1e9:+.4g} to {shifts.max() * size * 1e9:+.4g} nm)" if size else ""
         lines.append(f"  motion   {shifts.min():+.3f} to {shifts.max():+.3f} px over {shifts.size} views{nm}")
-    for key in ("estimators", "agreement", "agreed"):
-        if key in info:
-            lines.append(f"  {key:8s} {info[key]}")
+    lines += _motion_lines(info)
     done = int(store.reconstruction_done(name).sum())
     lines.append(
         f"  slices   {done} of {store.n} in {store.path}/reconstructions/{name}; "

@@ -52,6 +52,9 @@ def test_stack_recovers_a_known_3d_motion_added_to_the_real_scan(tmp_path, i13_l
     assert info["horizontal_method"] == "centroid" and info["vertical_method"] == "row profiles"
     assert gauge_free_rms(np.asarray(info["vertical"]), vertical, angles, vertical=True) <= 0.25
     assert gauge_free_rms(data.recons.shared_shifts("fbp_stack"), horizontal, angles) <= 0.25
+    assert run(["export", str(store), "--name", "fbp_stack", "--out", str(tmp_path / "shifts.txt"), "-q"]) == 0
+    table = np.loadtxt(tmp_path / "shifts.txt")
+    assert gauge_free_rms(-table[:, 1], vertical, angles, vertical=True) <= 0.25  # nabu's sign
 
 
 @pytest.fixture(scope="module")
@@ -61,3 +64,11 @@ def i13_line_integrals(tmp_path_factory):
     path = _angles(tmp_path_factory.mktemp("angles"))
     scan = read_scan(I13 / "tiffs", angles_file=path, flats=I13 / "flat_00001.tiff", darks=I13 / "dark_00001.tiff")
     return line_integrals(scan).astype(np.float64), np.deg2rad(np.loadtxt(path))
+
+
+def test_the_vertical_motion_goes_into_nabus_file(tmp_path):
+    from nanoct.io.scanio import write_shifts
+
+    path = write_shifts(tmp_path / "s.txt", [0.5, -0.25], vertical=[1.0, -2.0])
+    assert np.loadtxt(path).tolist() == [[-0.5, -1.0], [0.25, 2.0]]  # nabu's sign: displacement of the projection
+    assert np.loadtxt(write_shifts(tmp_path / "z.txt", [0.5, -0.25]))[:, 1].tolist() == [0.0, 0.0]

@@ -469,6 +469,7 @@ def import_scan(
     entry: str | None = None,
     drop_bad: bool = False,
     options: ReaderOptions | None = None,
+    corrections: Any = None,
 ) -> Any:
     """Import a measured parallel-beam scan into a new data set, one sample per detector row.
 
@@ -510,6 +511,10 @@ def import_scan(
     options : ReaderOptions, optional
         HDF5 dataset paths, angle units, MRC tilt axis, folders links may read (recorded with
         the import as ``scan["reader"]`` when any differs from the default).
+    corrections : Corrections, optional
+        Corrections of the projections (:class:`nanoct.preprocess.Corrections`: outliers, open
+        beam, Paganin, stripes), applied to the selected rows and columns before binning and
+        before the axis is estimated; recorded as ``scan["corrections"]``.
 
     Returns
     -------
@@ -533,9 +538,10 @@ def import_scan(
     kept, dropped = drop_bad_views(raw, drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
     left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
+    lines, notes = _corrected(kept, tolerance, corrections)
     axis_record = None
     if center_offset == "auto":
-        shift, estimate = _auto_center(kept, n_cols, crop, tolerance)
+        shift, estimate = _auto_center(lines, kept.angles, n_cols, crop)
         center_offset = float(shift + estimate.offset)
         axis_record = {**estimate.to_dict(), "offset_raw": center_offset}
     first, stop = crop if crop is not None else (0, n_cols)
@@ -557,8 +563,10 @@ def import_scan(
         "flats": 0 if kept.flats is None else int(kept.flats.shape[0]),
         "darks": 0 if kept.darks is None else int(kept.darks.shape[0]),
         "shared_motion": True,
-        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)],
+        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles), *notes],
     }
+    if corrections is not None:
+        scan["corrections"] = corrections.to_dict()
     if axis_record is not None:
         scan["axis"] = axis_record
     if options is not None and options != ReaderOptions():
@@ -573,25 +581,27 @@ def import_scan(
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
             return store  # the same import again: nothing to do
-    stack = sinograms(line_integrals(kept, tolerance=tolerance), binning=binning)
-    return create_scan(out, geometry, stack, scan)
+    return create_scan(out, geometry, sinograms(lines, binning=binning), scan)
 
 
-def _auto_center(scan: RawScan, n_cols: int, crop: tuple[int, int] | None, tolerance: float) -> Any:
-    """The axis (raw detector pixels) from 8 of the read rows: :func:`nanoct.motion.axis.estimate_axis`."""
+def _corrected(scan: RawScan, tolerance: float, corrections: Any) -> tuple[np.ndarray, list[str]]:
+    """Line integrals of the scan, with ``corrections`` applied (and what they noted)."""
+    lines = line_integrals(scan, tolerance=tolerance)
+    if corrections is None:
+        return lines, []
+    from ..preprocess import apply_corrections
+
+    result = apply_corrections(lines, corrections, kind="line_integrals")
+    return result.line_integrals, list(result.notes)
+
+
+def _auto_center(lines: np.ndarray, angles: np.ndarray, n_cols: int, crop: tuple[int, int] | None) -> Any:
+    """The axis from 8 of the read rows (:func:`nanoct.motion.axis.estimate_axis`) and the raw shift of its origin."""
     from ..motion.axis import axis_rows, estimate_axis
 
-    picked = axis_rows(scan.projections.shape[1])
-    some = replace(
-        scan,
-        projections=scan.projections[:, picked],
-        flats=None if scan.flats is None else scan.flats[:, picked],
-        darks=None if scan.darks is None else scan.darks[:, picked],
-    )
-    estimate = estimate_axis(sinograms(line_integrals(some, tolerance=tolerance)), scan.angles)
+    estimate = estimate_axis(sinograms(lines[:, axis_rows(lines.shape[1])]), angles)
     first = crop[0] if crop is not None else 0
-    n_kept = scan.projections.shape[2]
-    return first + (n_kept - 1) / 2 - (n_cols - 1) / 2, estimate
+    return first + (lines.shape[2] - 1) / 2 - (n_cols - 1) / 2, estimate
 
 
 def _angle_notes(angles: np.ndarray) -> list[str]:

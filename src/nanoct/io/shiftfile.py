@@ -31,13 +31,15 @@ def write_shifts(
     pixel_size_m: float | None = None,
     notes: list[str] | None = None,
     left_out: Any = (),
+    vertical: Any = None,
 ) -> Path:
     """Per-view shifts as nabu's ``translation_movements_file``, atomically.
 
     One row ``horizontal vertical`` per view, in detector pixels, loadable with
     ``np.loadtxt`` into shape ``(K, 2)`` (nabu's reader): ``horizontal = -shifts`` (the
     displacement of the projection along increasing detector columns, nabu's sign; see the
-    module docstring), ``vertical = 0`` (nanoct estimates no vertical motion). Comment lines
+    module docstring), ``vertical = -v`` (the displacement along increasing detector rows of a
+    view measured as ``m_k(z, x) = Q_k(z + v_k, x + d_k)``; 0 where not estimated). Comment lines
     (``#``) say so; with ``pixel_size_m`` each row ends with a comment giving the horizontal
     value in nanometres.
 
@@ -54,6 +56,8 @@ def write_shifts(
         Size of one detector pixel at the sample, in metres.
     notes : list of str, optional
         More comment lines (e.g. why an import left views out).
+    vertical : array_like of shape (K,), optional
+        nanoct's vertical shift ``v_k`` per view (detector rows; :mod:`nanoct.motion.vertical`).
     left_out : sequence of int
         Rows of projections the data set does not hold (views an import left out): the file
         still has one row per projection of the scan, as nabu expects; these rows get the
@@ -82,10 +86,15 @@ def write_shifts(
         raise NanoctError(f"left-out rows {skipped.tolist()} do not fit {rows} projections; nothing was written")
     present = np.setdiff1d(np.arange(rows), skipped)
     horizontal = np.interp(np.arange(rows), present, -values) + 0.0  # + 0.0: no "-0.000000"
+    up = np.zeros(values.size) if vertical is None else np.asarray(vertical, dtype=np.float64).ravel()
+    if up.shape != values.shape or not np.isfinite(up).all():
+        raise NanoctError(f"{up.size} vertical shifts for {values.size} views, or not finite; nothing was written")
+    down = np.interp(np.arange(rows), present, -up) + 0.0
     lines = [
         f"# {SHIFTS_HEADER}: nabu translation_movements_file, one row per projection, detector pixels",
         "# horizontal = displacement of the projection towards higher detector columns (nabu's sign);",
-        "# nanoct's object shift t.e_u (Dremel) is -horizontal; vertical: not estimated (0)",
+        "# nanoct's object shift t.e_u (Dremel) is -horizontal; vertical likewise towards higher rows"
+        + ("" if vertical is not None else " (not estimated: 0)"),
     ]
     if pixel_size_m is not None:
         lines.append(f"# pixel size {pixel_size_m * 1e9:.6g} nm; the comment after each row: horizontal in nm")
@@ -97,11 +106,11 @@ def write_shifts(
             "# angles_deg" + (" (rows not left out)" if skipped.size else "") + " "
             + " ".join(f"{a:.6f}" for a in np.rad2deg(np.asarray(angles).ravel()))
         )  # fmt: skip
-    for k, h in enumerate(horizontal):
+    for k, (h, v) in enumerate(zip(horizontal, down)):
         comments = ([f"{h * pixel_size_m * 1e9:.3f} nm"] if pixel_size_m is not None else []) + (
             [LEFT_OUT] if k in skipped else []
         )
-        lines.append(f"{h:.6f} 0.000000" + (f"  # {'; '.join(comments)}" if comments else ""))
+        lines.append(f"{h:.6f} {v:.6f}" + (f"  # {'; '.join(comments)}" if comments else ""))
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
@@ -195,8 +204,9 @@ def write_stack_shifts(store: Any, name: str, out: str | os.PathLike[str]) -> Pa
     A stack result keeps one motion for all slices, ``d_k`` in the data set's detector pixels
     with the sign of Dremel's shifts (view ``k`` is read at ``u - d_k``,
     :func:`nanoct.recon.stack.corrected_fbp`): the rows are ``horizontal = -d_k`` times the
-    import's binning (raw detector pixels), one per projection of the scan file (views the import
-    left out interpolated, as :func:`write_shifts` does).
+    import's binning (raw detector pixels), and ``vertical = -v_k`` (the stack's vertical motion,
+    0 where it was not estimated), one per projection of the scan file (views the import left out
+    interpolated, as :func:`write_shifts` does).
 
     Parameters
     ----------
@@ -216,9 +226,14 @@ def write_stack_shifts(store: Any, name: str, out: str | os.PathLike[str]) -> Pa
         return None
     scan = store.meta.get("scan") or {}
     pixel = scan.get("raw_pixel_size_m")
+    binning = int(scan.get("binning") or 1)
+    kept = scan.get("rows") or [0, (scan.get("detector_shape") or [store.n])[0]]
+    rows_binned = binning if kept[1] - kept[0] >= binning else 1  # the import bins rows where there are enough
+    vertical = store.recons.motion_info(name).get("vertical")
     return write_shifts(
         out,
-        np.asarray(shifts, dtype=np.float64) * int(scan.get("binning") or 1),
+        np.asarray(shifts, dtype=np.float64) * binning,
+        vertical=None if vertical is None else np.asarray(vertical, dtype=np.float64) * rows_binned,
         angles=store.geometry.angles,
         pixel_size_m=None if pixel is None else float(pixel[0]),
         notes=[f"motion of the stack result {name} (nanoct stack)"]
