@@ -51,3 +51,11 @@ def test_limited_angle_tilt_series_with_jumps_between_frames():
     assert result.record["prealign"] and result.axis.used == ("sharpness",)
     assert gauge_free_rms(result.horizontal, horizontal, angles) < 1.0  # measured 0.44 px (vertical 0.014)
     assert gauge_free_rms(result.vertical, vertical, angles, vertical=True) < 1.0
+
+
+def test_top_level_names():
+    import nanoct
+    from nanoct.motion.axis import estimate_axis
+
+    assert nanoct.estimate_motion is estimate_motion and nanoct.estimate_axis is estimate_axis
+    assert {"estimate_motion", "estimate_axis"} <= set(nanoct.__all__)
