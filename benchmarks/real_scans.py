@@ -274,7 +274,12 @@ def motion_case(
     record(
         "motion", f"{name}: horizontal estimator (moved; unmoved)", f"{est.horizontal_method}; {ref.horizontal_method}"
     )
-    record("motion", f"{name}: axis of moved (unmoved)", f"{est.axis.offset:+.2f} ({ref.axis.offset:+.2f})")
+    values = ", ".join(f"{key} {value:+.2f}" for key, value in est.axis.estimates.items())
+    record(
+        "motion",
+        f"{name}: axis of moved (unmoved)",
+        f"{est.axis.offset:+.2f} ({ref.axis.offset:+.2f}); moved: {values}",
+    )
     record("motion", f"{name}: own motion of the unmoved scan (RMS h, v)",
            f"{gauge_free_rms(ref.horizontal, phi, True):.3f}, {gauge_free_rms(ref.vertical, phi, False):.3f}",
            "", seconds_ref)  # fmt: skip
@@ -413,6 +418,9 @@ def picture(png: Path, volumes: list[np.ndarray], row: int) -> None:
     fig.tight_layout()
     fig.savefig(png, dpi=72)
     plt.close(fig)
+    from PIL import Image
+
+    Image.open(png).convert("L").save(png, optimize=True)  # grey levels only: a small file
 
 
 def main() -> None:
