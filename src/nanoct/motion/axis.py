@@ -47,10 +47,23 @@ from ..core.geometry import Geometry
 from ..recon.stack import corrected_fbp
 from .center import centroid_motion, fit_center, opposite_pairs
 
-__all__ = ["AGREEMENT_PX", "AxisEstimate", "AxisTilt", "axis_rows", "axis_tilt", "estimate_axis", "remove_air"]
+__all__ = [
+    "AGREEMENT_PX",
+    "MAX_AIR_FRACTION",
+    "AxisEstimate",
+    "AxisTilt",
+    "axis_rows",
+    "axis_tilt",
+    "estimate_axis",
+    "remove_air",
+]
 
 #: Estimators further apart than this (pixels) make the estimate carry a warning.
 AGREEMENT_PX = 0.5
+
+#: Where more than this fraction of a view's pixels reads as air, the "air" is taken for a flat,
+#: low-contrast object (a crop inside the sample, Diamond K11 18014: every pixel within the band).
+MAX_AIR_FRACTION = 0.9
 
 
 @dataclass(frozen=True)
@@ -104,7 +117,8 @@ def axis_rows(n_rows: int, count: int = 8) -> np.ndarray:
 def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
     """Line integrals ``(S, K, L)`` less each view's open-beam absorbance, where air is seen.
 
-    Returns the data unchanged and ``False`` when no air is found in some view.
+    Returns the data unchanged and ``False`` when no air is found in some view, or when in the
+    median view more than :data:`MAX_AIR_FRACTION` of the pixels read as air.
     """
     from ..preprocess.openbeam import estimate_open_beam
 
@@ -113,6 +127,8 @@ def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
     try:
         beam = estimate_open_beam(projections)
     except NanoctError:
+        return sino, False
+    if np.median(beam.air_fraction) > MAX_AIR_FRACTION:  # a flat, low-contrast object is not air
         return sino, False
     fields = np.stack([beam.field(k) for k in range(projections.shape[0])])  # (K, S, L)
     return sino + np.log(fields).transpose(1, 0, 2), True
