@@ -140,7 +140,7 @@ def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
 
     order = np.argsort(phi)
     start = phi[order[0]]
-    half = order[phi[order] < start + np.pi - 1e-6]
+    half = order[phi[order] <= start + np.pi + 1e-6]  # the view at 180 degrees included
     if np.ptp(phi[half]) < np.deg2rad(179.0) - np.pi / phi.size:
         return None
     n_det = sino.shape[2]
