@@ -36,7 +36,6 @@ from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
-from ..motion.estimate import TRUNCATED_SPREAD
 from ..motion.model import fit_motion_model
 from ..motion.stack import estimate_stack_motion
 from ..motion.vertical import vertical_shifts
@@ -215,8 +214,7 @@ def horizontal_motion(
     """The horizontal shift per view and the axis (``info["center_offset"]``) of a stack.
 
     From the chosen slices, moved back vertically and with their open beam removed: the views'
-    centroids where air is seen around the object or the views' mass varies by at most
-    :data:`~nanoct.motion.estimate.TRUNCATED_SPREAD` (the axis then from every estimator on the
+    centroids where air is seen around the object (the axis then from every estimator on the
     rows the import uses, with the motion undone), else Dremel and projection matching
     (:func:`~nanoct.motion.stack.estimate_stack_motion`).
     """
@@ -226,7 +224,7 @@ def horizontal_motion(
     mass = clean.sum(axis=2).min(axis=1)
     rows = mass > 0.2 * max(float(mass.max()), 0.0)
     _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
-    if air or spread <= TRUNCATED_SPREAD:
+    if air:
         if params["center"] == "auto":
             center, info["axis"] = _axis(store, vertical, shifts)
         else:
