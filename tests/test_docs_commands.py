@@ -160,9 +160,9 @@ def _rewrite(argv: list[str], root: Path) -> list[str]:
         words[i] = str(min(int(words[i]), MAX_SAMPLES))
     if words[0] in ("reproduce", "scaling") and "--plan" not in words:
         words.append("--plan")
-    # the vendored real scans from the repository; absolute paths (alone or after "=") inside the document's folder
-    words = [str(ROOT / w) if w.startswith("tests/data/") else w for w in words]
-    return [re.sub(r"(^|=)/(?!/)", lambda m: f"{m.group(1)}{root}/", w) if "/" in w else w for w in words]
+    # absolute paths (alone or after "=") inside the document's folder; the vendored real scans from the repository
+    words = [re.sub(r"(^|=)/(?!/)", lambda m: f"{m.group(1)}{root}/", w) if "/" in w else w for w in words]
+    return [str(ROOT / w) if w.startswith("tests/data/") else w for w in words]
 
 
 def _write_scan_nxs(path: Path) -> None:

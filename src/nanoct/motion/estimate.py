@@ -51,8 +51,6 @@ __all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_nei
 HORIZONTAL_ESTIMATORS = ("auto", "centroid", "matching")
 
 
-
-
 @dataclass
 class Motion3D:
     """The motion of a scan and how it was found.
