@@ -328,6 +328,13 @@ def predict(
     levels: str = typer.Option(
         "0.68,0.9,0.95", "--levels", help="Invertible nets: interval levels (nominal coverage), comma-separated."
     ),
+    tile: int | None = typer.Option(
+        None,
+        "--tile",
+        help="Predict in overlapping tiles of this size (0: the size the network was trained on), blended "
+        "smoothly: images of any size in bounded memory.",
+    ),
+    tile_overlap: int = typer.Option(16, "--tile-overlap", help="With --tile: pixels shared by neighbouring tiles."),
     quiet: bool = QUIET,
 ) -> None:
     """Post-process reconstructions/<input> with a trained network.
@@ -360,6 +367,8 @@ def predict(
         reconstruct_kwargs=kwargs or None,
         calibrate=not no_calibrate,
         levels=tuple(_parse_levels(levels)),
+        tile=tile,
+        overlap=tile_overlap,
     )
     typer.echo(f"wrote reconstructions/{name}")
 
