@@ -206,6 +206,18 @@ def test_support_threshold_recovers_the_object(rng):
     assert (found & true).sum() / (found | true).sum() > 0.98
     with pytest.raises(ValueError, match="no support"):
         fit_support_threshold(image, np.zeros_like(truth), 2)
+    # an object seen only at its rim (a std that is large at edges): filling the holes recovers its inside
+    rim_image = np.where(truth & ~_interior(truth, 2), 1.0, 0.0)
+    assert support_of(rim_image, 0.5, 2).sum() < support_mask(truth, 2).sum()
+    np.testing.assert_array_equal(support_of(rim_image, 0.5, 2, fill=True), support_mask(truth, 2))
+    np.testing.assert_array_equal(support_of(rim_image[0], 0.5, 2, fill=True), support_mask(truth[0], 2))
+
+
+def _interior(mask, r):
+    """Pixels farther than ``r`` from the mask's edge (erosion by a square)."""
+    from scipy import ndimage
+
+    return np.stack([ndimage.binary_erosion(m, structure=np.ones((2 * r + 1, 2 * r + 1))) for m in mask])
 
 
 def test_masked_image_miscoverage_and_risk_control(rng):

@@ -83,13 +83,17 @@ def _check_groups(entry, err, std, gts):
     from scipy import ndimage
 
     rule, cuts = entry["support"], entry["cuts"]
-    assert rule["source"] == "std" and rule["radius"] == 2
+    assert rule["source"] == "std" and rule["radius"] == 2 and rule["fill"] is True
     disk = np.add.outer(np.arange(-2, 3) ** 2, np.arange(-2, 3) ** 2) <= 4
-    support = np.stack([ndimage.binary_dilation(s > rule["threshold"], structure=disk) for s in std])
+
+    def support_at(t):
+        return np.stack([ndimage.binary_dilation(ndimage.binary_fill_holes(s > t), structure=disk) for s in std])
+
+    support = support_at(rule["threshold"])
     truth = np.stack([ndimage.binary_dilation(g > 0, structure=disk) for g in gts])
     iou = (support & truth).sum() / (support | truth).sum()
     for t in np.quantile(std, np.linspace(0.5, 0.995, 64)):  # the threshold of the best match
-        other = np.stack([ndimage.binary_dilation(s > t, structure=disk) for s in std])
+        other = support_at(t)
         assert (other & truth).sum() / (other | truth).sum() <= iou + 1e-12
     np.testing.assert_allclose(cuts, np.quantile(std[support], [0.2, 0.4, 0.6, 0.8]), rtol=1e-5)
     labels = np.where(support, 1 + np.searchsorted(cuts, std, side="right"), 0)

@@ -26,6 +26,7 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 from scipy.optimize import brentq
 from scipy.stats import binom
 
@@ -299,16 +300,23 @@ def rcps_multiplier(
     return float(grid[hi])
 
 
-def support_of(image: np.ndarray, threshold: float, radius: int) -> np.ndarray:
-    """The object's support as seen at prediction time: ``image > threshold`` dilated by a disk of ``radius`` px.
+def support_of(image: np.ndarray, threshold: float, radius: int, fill: bool = False) -> np.ndarray:
+    """The object's support as seen at prediction time: ``image > threshold`` (with ``fill``, its holes
+    filled, :func:`scipy.ndimage.binary_fill_holes`, per image) dilated by a disk of ``radius`` px.
 
     ``image`` is one image (H, W) or a stack (n, H, W) of what the prediction delivers (its std or
     its mean); no ground truth is involved.
     """
-    return support_mask(np.asarray(image) > threshold, radius)
+    above = np.asarray(image) > threshold
+    if fill:
+        above = np.stack([ndimage.binary_fill_holes(a) for a in above.reshape(-1, *above.shape[-2:])])
+        above = above.reshape(np.shape(image))
+    return support_mask(above, radius)
 
 
-def fit_support_threshold(image: np.ndarray, truth_support: np.ndarray, radius: int, n_candidates: int = 64) -> float:
+def fit_support_threshold(
+    image: np.ndarray, truth_support: np.ndarray, radius: int, n_candidates: int = 64, fill: bool = False
+) -> float:
     """The threshold of :func:`support_of` whose support best matches ``truth_support`` (largest IoU).
 
     Candidates: ``n_candidates`` quantiles of ``image`` between its 50th and 99.5th percentiles.
@@ -324,7 +332,7 @@ def fit_support_threshold(image: np.ndarray, truth_support: np.ndarray, radius: 
         raise ValueError("no support to match: the truth's support is empty or the image is constant")
     best, best_iou = float("nan"), -1.0
     for t in np.unique(np.quantile(image, np.linspace(0.5, 0.995, n_candidates))):
-        s = support_of(image, float(t), radius)
+        s = support_of(image, float(t), radius, fill)
         iou = float((s & truth).sum() / (s | truth).sum())
         if iou > best_iou:
             best, best_iou = float(t), iou
@@ -334,8 +342,8 @@ def fit_support_threshold(image: np.ndarray, truth_support: np.ndarray, radius: 
 def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None) -> np.ndarray:
     """Group of each pixel under a group-conditional calibration: 0 = background, k = 1..K the object's k-th std bin.
 
-    ``groups["support"]`` = {``source``: "std" or "mean", ``threshold``, ``radius``} defines the
-    support (:func:`support_of` of the std, or of ``image`` = the prediction's mean);
+    ``groups["support"]`` = {``source``: "std" or "mean", ``threshold``, ``radius``, ``fill``} defines
+    the support (:func:`support_of` of the std, or of ``image`` = the prediction's mean);
     ``groups["cuts"]`` are the K - 1 std cut points on the support (:func:`fit_group_cuts`).
 
     Raises
@@ -347,7 +355,9 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
     if rule["source"] == "mean" and image is None:
         raise ValueError("this calibration's support is defined on the prediction's mean: pass the mean")
     src = std if rule["source"] == "std" else image
-    support = support_of(np.asarray(src, np.float64), float(rule["threshold"]), int(rule["radius"]))
+    support = support_of(
+        np.asarray(src, np.float64), float(rule["threshold"]), int(rule["radius"]), rule.get("fill", False)
+    )
     bins = 1 + np.searchsorted(np.asarray(groups["cuts"], np.float64), np.asarray(std, np.float64), side="right")
     return np.where(support, bins, 0).astype(np.int64)
 

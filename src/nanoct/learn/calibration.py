@@ -186,19 +186,19 @@ def ood_p_values(values: np.ndarray, reference: list[float] | np.ndarray) -> np.
     return (1.0 + above) / (ref.size + 1.0)
 
 
-def _support_rule(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, source: str) -> dict[str, Any]:
+def _support_rule(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, source: str, fill: bool) -> dict[str, Any]:
     """The prediction-time support (:func:`nanoct.evaluation.conformal.support_of` of the std or of the
-    mean, dilated by the evaluation's support radius) whose threshold best matches the validation
-    images' true support (:func:`nanoct.evaluation.metrics.support_mask`, largest IoU)."""
+    mean, holes filled with ``fill``, dilated by the evaluation's support radius) whose threshold
+    best matches the validation images' true support (:func:`nanoct.evaluation.metrics.support_mask`, largest IoU)."""
     if source not in SUPPORT_SOURCES:
         raise NanoctError(f"support source {source!r} must be one of {', '.join(SUPPORT_SOURCES)}")
     image = stds if source == "std" else means
-    threshold = fit_support_threshold(image, support_mask(gts), SUPPORT_RADIUS)
-    return {"source": source, "threshold": threshold, "radius": SUPPORT_RADIUS}
+    threshold = fit_support_threshold(image, support_mask(gts), SUPPORT_RADIUS, fill=fill)
+    return {"source": source, "threshold": threshold, "radius": SUPPORT_RADIUS, "fill": fill}
 
 
 def _level_fit(
-    err: np.ndarray, stds: np.ndarray, level: float, delta: float, groups: dict[str, Any], labels: np.ndarray
+    err: np.ndarray, stds: np.ndarray, means: np.ndarray, level: float, delta: float, groups: dict[str, Any]
 ) -> dict[str, Any]:
     """One level: the pooled one-multiplier intervals (for comparison) and the group-conditional ones (delivered)."""
     width_map = fit_width_map(err, stds, level)
@@ -215,8 +215,8 @@ def _level_fit(
         "rcps_multiplier": rcps,
         "val_coverage": float(np.mean(err <= q * scaled)),
     }
-    grouped = groups | fit_group_intervals(err, stds, labels, level, delta)
-    half = half_width_of(stds, {"groups": grouped})
+    grouped = groups | fit_group_intervals(err, stds, group_labels(stds, groups, means), level, delta)
+    half = half_width_of(stds, {"groups": grouped}, image=means)
     group_rcps = grouped["rcps_multipliers"]
     return {
         "groups": grouped,
@@ -236,6 +236,7 @@ def fit_intervals(
     delta: float = DEFAULT_DELTA,
     edge_sigma: float = EDGE_SIGMA,
     support_source: str = DEFAULT_SUPPORT_SOURCE,
+    fill_holes: bool = True,
 ) -> dict[str, Any]:
     """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
 
@@ -275,13 +276,12 @@ def fit_intervals(
     fitted: dict[str, Any] = {}
     edge_fit: dict[str, float] = {}
     try:
-        rule = _support_rule(np.asarray(means, np.float64), stds, np.asarray(gts), support_source)
+        rule = _support_rule(np.asarray(means, np.float64), stds, np.asarray(gts), support_source, fill_holes)
         image = stds if support_source == "std" else means
-        cuts = fit_group_cuts(stds, support_of(image, rule["threshold"], rule["radius"]), OBJECT_WIDTH_BINS)
+        cuts = fit_group_cuts(stds, support_of(image, rule["threshold"], rule["radius"], fill_holes), OBJECT_WIDTH_BINS)
         groups = {"support": rule, "cuts": cuts}
-        labels = group_labels(stds, groups, means)
         for level in levels:
-            fitted[level_key(level)] = _level_fit(err, stds, level, delta, groups, labels)
+            fitted[level_key(level)] = _level_fit(err, stds, means, level, delta, groups)
             edge_fit[level_key(level)] = conformal_multiplier(err, edges, level)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
