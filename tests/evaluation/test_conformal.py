@@ -172,7 +172,12 @@ def test_group_conditional_intervals_cover_every_group_where_one_multiplier_does
     assert min(per_group_pooled) < 0.8  # the object's narrowest fifth
     assert per_group == pytest.approx([0.9] * 6, abs=0.015)
     assert all(0.8 < c < 0.9 for c in fit["guaranteed_coverage"])  # the per-image bound, below the level
-    assert fit["val_coverage"] == pytest.approx([0.9] * 6, abs=0.005)
+    assert fit["val_coverage"] == pytest.approx([0.9] * 6, abs=0.005) and not any(fit["pooled"])
+    # a group without validation pixels takes the multiplier of all pixels
+    few = fit_group_intervals(err, std, np.where(labels == 5, 4, labels), 0.9)
+    assert few["pooled"] == [False] * 5 + [True] and few["n_pixels"][5] == 0 and few["val_coverage"][5] is None
+    both = np.where(labels > 0, apply_width_map(std, few["maps"][1]), apply_width_map(std, few["maps"][0]))
+    assert few["multipliers"][5] == conformal_multiplier(err, both, 0.9)
 
 
 def test_group_conditional_coverage_is_within_the_finite_sample_bound(rng):

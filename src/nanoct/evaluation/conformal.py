@@ -401,7 +401,12 @@ def _region_maps(err: np.ndarray, std: np.ndarray, on_object: np.ndarray, level:
 
 
 def fit_group_intervals(
-    err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: float, delta: float = DEFAULT_DELTA
+    err: np.ndarray,
+    std: np.ndarray,
+    labels: np.ndarray,
+    level: float,
+    delta: float = DEFAULT_DELTA,
+    n_groups: int = OBJECT_WIDTH_BINS + 1,
 ) -> dict[str, Any]:
     """Group-conditional (Mondrian) split-conformal intervals of one level on validation outputs (n, H, W).
 
@@ -420,38 +425,42 @@ def fit_group_intervals(
     risk-controlling multiplier (:func:`rcps_multiplier` with the group's mask; None where the
     images are too few).
 
+    A group with too few validation pixels for the level (``(n_g + 1) level > n_g``, e.g. none)
+    gets the multiplier of all pixels (``pooled`` True for it): its guarantee is then only the
+    marginal one over all pixels.
+
     Returns
     -------
     dict
         ``maps`` (background, object), ``multipliers``, ``rcps_multipliers``,
-        ``guaranteed_coverage``, ``val_coverage`` and ``n_pixels``, lists over the groups.
+        ``guaranteed_coverage``, ``val_coverage``, ``n_pixels`` and ``pooled``, lists over the groups.
 
     Raises
     ------
     ValueError
-        If a group has too few pixels for the level, or no positive finite multiplier.
+        If there is no positive finite multiplier.
     """
     err, std = np.abs(np.asarray(err, np.float64)), np.asarray(std, np.float64)
     labels = np.asarray(labels)
-    n_groups = int(labels.max()) + 1
     maps = _region_maps(err, std, labels > 0, level)
     base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
-    q, rcps = [], []
+    q, rcps, pooled = [], [], []
     for g in range(n_groups):
         m = labels == g
-        if not m.any():
-            raise ValueError(f"no validation pixel in group {g} of the calibration")
-        q.append(conformal_multiplier(err[m], base[m], level))
+        pooled.append(math.ceil((int(m.sum()) + 1) * level) > int(m.sum()))
+        q.append(conformal_multiplier(err, base, level) if pooled[-1] else conformal_multiplier(err[m], base[m], level))
         try:
             rcps.append(rcps_multiplier(err, base, level, delta, mask=m))
         except ValueError:
             rcps.append(None)
     half = np.asarray(q)[labels] * base
+    sizes = [int((labels == g).sum()) for g in range(n_groups)]
     return {
         "maps": maps,
         "multipliers": q,
         "rcps_multipliers": rcps,
         "guaranteed_coverage": group_guaranteed_coverage(err, half, labels, n_groups, delta),
-        "val_coverage": [float(np.mean(err[labels == g] <= half[labels == g])) for g in range(n_groups)],
-        "n_pixels": [int((labels == g).sum()) for g in range(n_groups)],
+        "val_coverage": [float(np.mean((err <= half)[labels == g])) if n else None for g, n in enumerate(sizes)],
+        "n_pixels": sizes,
+        "pooled": pooled,
     }
