@@ -342,9 +342,10 @@ def predict(
     Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
     nets), or <input>+<model>@<train input> when applied to another input than it was
     trained on (the paper's input-mixing tables). The stored std of invertible nets is the
-    network's own; intervals mean +- multiplier x std^e, one multiplier per level, are fitted once
-    on the validation split of the data it was trained on (split conformal, with the coverage
-    guaranteed with probability 90 %) and stored with the result (export them with
+    network's own; intervals mean +- multiplier x g(std), one multiplier per level and group
+    (background, and the five std fifths of the object's support), are fitted once on the
+    validation split of the data it was trained on (group-conditional split conformal, with the
+    coverage guaranteed with probability 90 %) and stored with the result (export them with
     'nanoct export --interval'). Images whose std level is above the validation split's, or
     whose sinogram shows more apparent motion than the training scans, are reported as out of
     distribution (docs/uncertainty.md).

@@ -2,14 +2,17 @@
 
 The std of a conditional invertible network (over M latent samples) ranks the pixels by how
 uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
-split of the data set and input the network was trained on (the test split is never read),
-per interval level a strictly increasing width map of the std and a multiplier are fitted
-(:func:`fit_intervals`): the interval of level ``p`` is ``mean +- multiplier_p * g_p(std)``,
-``g_p`` the ``p`` quantile of |error| given the std (monotone, binned in the std:
-:func:`nanoct.evaluation.conformal.fit_width_map`), the multiplier by split-conformal prediction,
-stated with the coverage that holds with probability ``1 - delta`` (Hoeffding-Bentkus,
-risk-controlling prediction sets; :mod:`nanoct.evaluation.conformal`). The half-width is
-strictly increasing in the std, so it keeps the network's ranking of the pixels exactly. On
+split of the data set and input the network was trained on (the test split is never read), the
+pixels are put in groups computable at prediction time (the background, and the five std fifths
+of the object's support, the support being the std above a threshold with its holes filled,
+dilated by 2 px), and per interval level a strictly increasing width map of the std per region
+and a split-conformal multiplier per group are fitted (:func:`fit_intervals`,
+:func:`nanoct.evaluation.conformal.fit_group_intervals`): the interval of level ``p`` at a pixel
+of group G is ``mean +- q_{p,G} * g_{p,R}(std)``, with the guarantee stated per group (coverage
+at least ``p`` for exchangeable pixels of the group; the per-image coverage that holds with
+probability ``1 - delta``, Hoeffding-Bentkus, risk-controlling prediction sets). The pooled
+one-multiplier calibration is kept for comparison. Within a group the half-width is strictly
+increasing in the std, so it keeps the network's ranking of the group's pixels exactly. On
 the same validation outputs the multipliers of the edge baseline
 (:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
 validation images' std level and the apparent-motion scores of the train and validation

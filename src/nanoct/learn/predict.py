@@ -3,14 +3,16 @@
 The result goes to ``reconstructions/<input>+<model>`` when the input is the method the
 network was trained on, and to ``reconstructions/<input>+<model>@<train_input>`` when a
 network trained on one method is applied to another (the paper's input-mixing tables).
-Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
-latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
-not depend on batching or on interruptions. The stored std is the network's own (raw) std;
-the calibration fitted on the validation split (:mod:`nanoct.learn.calibration`: one multiplier
-per interval level) is stored with the parameters, so the interval of level p is
-``mean +- multiplier_p * stored std``, and images whose std level is unlike the validation
-split's, or whose sinogram shows more apparent motion than the training scans, are flagged (a
-warning, and the note ``ood`` of the result: :func:`ood_check`).
+With ``tile``, images of any size are predicted in overlapping tiles of the size the network was
+trained on (:mod:`nanoct.learn.tiling`). Networks that return a pixel-wise standard deviation
+also write ``uncertainty/<name>``; their latent samples for sample ``i`` are drawn from a
+generator seeded with ``i``, so results do not depend on batching or on interruptions. The
+stored std is the network's own (raw) std; the calibration fitted on the validation split
+(:mod:`nanoct.learn.calibration`: per interval level a multiplier per group of pixels, the
+background and the std fifths of the object) is stored with the parameters (the half-width:
+:func:`nanoct.learn.calibration.half_width`), and images whose std level is unlike the
+validation split's, or whose sinogram shows more apparent motion than the training scans, are
+flagged (a warning, and the note ``ood`` of the result: :func:`ood_check`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
