@@ -391,6 +391,13 @@ def predict(
     levels: str = typer.Option(
         "0.68,0.9,0.95", "--levels", help="Invertible nets: interval levels (nominal coverage), comma-separated."
     ),
+    tile: int | None = typer.Option(
+        None,
+        "--tile",
+        help="Predict in overlapping tiles of this size (0: the size the network was trained on), blended "
+        "smoothly: images of any size in bounded memory.",
+    ),
+    tile_overlap: int = typer.Option(16, "--tile-overlap", help="With --tile: pixels shared by neighbouring tiles."),
     quiet: bool = QUIET,
 ) -> None:
     """Post-process reconstructions/<input> with a trained network.
@@ -398,9 +405,10 @@ def predict(
     Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
     nets), or <input>+<model>@<train input> when applied to another input than it was
     trained on (the paper's input-mixing tables). The stored std of invertible nets is the
-    network's own; intervals mean +- multiplier x std^e, one multiplier per level, are fitted once
-    on the validation split of the data it was trained on (split conformal, with the coverage
-    guaranteed with probability 90 %) and stored with the result (export them with
+    network's own; intervals mean +- multiplier x g(std), one multiplier per level and group
+    (background, and the five std fifths of the object's support), are fitted once on the
+    validation split of the data it was trained on (group-conditional split conformal, with the
+    coverage guaranteed with probability 90 %) and stored with the result (export them with
     'nanoct export --interval'). Images whose std level is above the validation split's, or
     whose sinogram shows more apparent motion than the training scans, are reported as out of
     distribution (docs/uncertainty.md).
@@ -423,6 +431,8 @@ def predict(
         reconstruct_kwargs=kwargs or None,
         calibrate=not no_calibrate,
         levels=tuple(_parse_levels(levels)),
+        tile=tile,
+        overlap=tile_overlap,
     )
     typer.echo(f"wrote reconstructions/{name}")
 

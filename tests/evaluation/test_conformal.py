@@ -10,7 +10,11 @@ import pytest
 from nanoct.evaluation.conformal import (
     apply_width_map,
     conformal_multiplier,
+    fit_group_cuts,
+    fit_group_intervals,
+    fit_support_threshold,
     fit_width_map,
+    group_guaranteed_coverage,
     guaranteed_coverage,
     half_width_of,
     hb_upper_bound,
@@ -18,7 +22,9 @@ from nanoct.evaluation.conformal import (
     level_key,
     rcps_multiplier,
     scores,
+    support_of,
 )
+from nanoct.evaluation.metrics import support_mask
 
 
 def test_conformal_multiplier_is_the_order_statistic(rng):
@@ -117,3 +123,115 @@ def test_width_map_evens_out_coverage_and_keeps_the_ranking(rng):
     assert apply_width_map(np.array([0.0]), m)[0] == 0.0
     with pytest.raises(ValueError, match="fewer than two distinct"):
         fit_width_map(err, np.full(std.size, 0.5), 0.9)
+
+
+def _object_data(n, rng, size=24):
+    """Images with a disk object: on the background |err| follows the std, on the object the error has a
+    floor (0.02 + std), so one pooled calibration leaves the object's narrowest std fifth under-covered."""
+    yy, xx = np.mgrid[:size, :size] - size / 2
+    support = np.broadcast_to(xx**2 + yy**2 <= 8**2, (n, size, size))
+    std = np.where(support, rng.uniform(0.01, 0.1, support.shape), rng.uniform(0.005, 0.03, support.shape))
+    err = rng.normal(size=std.shape) * np.where(support, 0.02 + std, std)
+    return err, std, support
+
+
+def _labels(std, support, cuts):
+    return np.where(support, 1 + np.searchsorted(cuts, std, side="right"), 0)
+
+
+def test_group_conditional_intervals_cover_every_group_where_one_multiplier_does_not(rng):
+    err, std, support = _object_data(200, rng)
+    cuts = fit_group_cuts(std, support)
+    assert len(cuts) == 4 and np.all(np.diff(cuts) > 0)
+    labels = _labels(std, support, cuts)
+    assert np.bincount(labels[support])[1:] == pytest.approx([support.sum() / 5] * 5, rel=0.01)
+    fit = fit_group_intervals(err, std, labels, 0.9)
+    entry = {"groups": {"support": {"source": "std", "threshold": 0.0, "radius": 0}, "cuts": cuts} | fit}
+    fresh_err, fresh_std, fresh_support = _object_data(400, rng)
+    fresh_labels = _labels(fresh_std, fresh_support, cuts)
+    # the half-width by hand: the group's multiplier times its region's width map
+    base = np.where(
+        fresh_labels > 0, apply_width_map(fresh_std, fit["maps"][1]), apply_width_map(fresh_std, fit["maps"][0])
+    )
+    expected = np.asarray(fit["multipliers"])[fresh_labels] * base
+    entry["groups"]["support"] = {"source": "mean", "threshold": 0.5, "radius": 0}  # the true support, given
+    half = half_width_of(fresh_std, entry, image=fresh_support.astype(float))
+    np.testing.assert_allclose(half, expected)
+    with pytest.raises(ValueError, match="pass the mean"):
+        half_width_of(fresh_std, entry)
+    # within each group the half-width increases with the std
+    for g in range(6):
+        order = np.argsort(fresh_std[fresh_labels == g])
+        assert np.all(np.diff(half[fresh_labels == g][order]) > 0)
+    pooled_map = fit_width_map(err, std, 0.9)
+    q = conformal_multiplier(err, apply_width_map(std, pooled_map), 0.9)
+    pooled = q * apply_width_map(fresh_std, pooled_map)
+    inside, inside_pooled = np.abs(fresh_err) <= half, np.abs(fresh_err) <= pooled
+    per_group = [inside[fresh_labels == g].mean() for g in range(6)]
+    per_group_pooled = [inside_pooled[fresh_labels == g].mean() for g in range(6)]
+    assert min(per_group_pooled) < 0.8  # the object's narrowest fifth
+    assert per_group == pytest.approx([0.9] * 6, abs=0.015)
+    assert all(0.8 < c < 0.9 for c in fit["guaranteed_coverage"])  # the per-image bound, below the level
+    assert fit["val_coverage"] == pytest.approx([0.9] * 6, abs=0.005) and not any(fit["pooled"])
+    # a group without validation pixels takes the multiplier of all pixels
+    few = fit_group_intervals(err, std, np.where(labels == 5, 4, labels), 0.9)
+    assert few["pooled"] == [False] * 5 + [True] and few["n_pixels"][5] == 0 and few["val_coverage"][5] is None
+    both = np.where(labels > 0, apply_width_map(std, few["maps"][1]), apply_width_map(std, few["maps"][0]))
+    assert few["multipliers"][5] == conformal_multiplier(err, both, 0.9)
+
+
+def test_group_conditional_coverage_is_within_the_finite_sample_bound(rng):
+    """Over many calibration sets, each group's expected coverage of fresh pixels lies in
+    [level, level + 1 / (n_g + 1)] (up to the width maps being fitted on the same pixels)."""
+    level, trials, covered, sizes = 0.9, 300, [], []
+    cuts = None
+    for _ in range(trials):
+        err, std, support = _object_data(6, rng)
+        cuts = fit_group_cuts(std, support) if cuts is None else cuts  # fixed groups across trials
+        labels = _labels(std, support, cuts)
+        fit = fit_group_intervals(err, std, labels, level)
+        fe, fs, fsup = _object_data(4, rng)
+        fl = _labels(fs, fsup, cuts)
+        base = np.where(fl > 0, apply_width_map(fs, fit["maps"][1]), apply_width_map(fs, fit["maps"][0]))
+        inside = np.abs(fe) <= np.asarray(fit["multipliers"])[fl] * base
+        covered.append([inside[fl == g].mean() for g in range(6)])
+        sizes.append(fit["n_pixels"])
+    mean, n_g = np.mean(covered, axis=0), np.min(sizes, axis=0)
+    assert np.all(mean >= level - 0.01), mean
+    assert np.all(mean <= level + 1 / (n_g + 1) + 0.01), (mean, n_g)
+
+
+def test_support_threshold_recovers_the_object(rng):
+    yy, xx = np.mgrid[:32, :32] - 16
+    truth = np.broadcast_to((np.abs(xx) < 9) & (np.abs(yy) < 6), (5, 32, 32))
+    image = np.where(truth, rng.uniform(0.3, 1.0, truth.shape), rng.uniform(0.0, 0.1, truth.shape))
+    t = fit_support_threshold(image, support_mask(truth, 2), 2)
+    assert 0.1 <= t < 0.4  # between the background's values and most of the object's
+    found, true = support_of(image, t, 2), support_mask(truth, 2)
+    assert (found & true).sum() / (found | true).sum() > 0.98
+    with pytest.raises(ValueError, match="no support"):
+        fit_support_threshold(image, np.zeros_like(truth), 2)
+    # an object seen only at its rim (a std that is large at edges): filling the holes recovers its inside
+    rim_image = np.where(truth & ~_interior(truth, 2), 1.0, 0.0)
+    assert support_of(rim_image, 0.5, 2).sum() < support_mask(truth, 2).sum()
+    np.testing.assert_array_equal(support_of(rim_image, 0.5, 2, fill=True), support_mask(truth, 2))
+    np.testing.assert_array_equal(support_of(rim_image[0], 0.5, 2, fill=True), support_mask(truth[0], 2))
+
+
+def _interior(mask, r):
+    """Pixels farther than ``r`` from the mask's edge (erosion by a square)."""
+    from scipy import ndimage
+
+    return np.stack([ndimage.binary_erosion(m, structure=np.ones((2 * r + 1, 2 * r + 1))) for m in mask])
+
+
+def test_masked_image_miscoverage_and_risk_control(rng):
+    err, std = rng.normal(size=(4, 5, 6)), np.ones((4, 5, 6))
+    mask = np.zeros(err.shape, bool)
+    mask[:3, :2] = True  # the last image has no masked pixel: left out
+    got = image_miscoverage(err, std, [1.0], mask)
+    assert got.shape == (3, 1)
+    assert got[:, 0].tolist() == pytest.approx([np.mean(np.abs(err[i, :2]) > 1.0) for i in range(3)])
+    assert group_guaranteed_coverage(err, std, mask.astype(int), 2, 0.1)[1] == pytest.approx(
+        1 - hb_upper_bound(float(got.mean()), 3, 0.1)
+    )

@@ -12,7 +12,7 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
-from nanoct.evaluation.conformal import apply_width_map, fit_width_map
+from nanoct.evaluation.conformal import apply_width_map, fit_width_map, group_labels
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
@@ -73,13 +73,42 @@ def _copy(setup, tmp_path):
     return tmp_path / "data", tmp_path / "run"
 
 
+def _order_statistic(scores: np.ndarray, key: str) -> float:
+    ratio = np.sort(np.asarray(scores).ravel())
+    return float(ratio[int(np.ceil((ratio.size + 1) * float(key))) - 1])
+
+
+def _check_groups(entry, err, std, gts):
+    """The support rule and the object's std fifths, recomputed by hand; returns the pixels' groups."""
+    from scipy import ndimage
+
+    rule, cuts = entry["support"], entry["cuts"]
+    assert rule["source"] == "std" and rule["radius"] == 2 and rule["fill"] is True
+    disk = np.add.outer(np.arange(-2, 3) ** 2, np.arange(-2, 3) ** 2) <= 4
+
+    def support_at(t):
+        return np.stack([ndimage.binary_dilation(ndimage.binary_fill_holes(s > t), structure=disk) for s in std])
+
+    support = support_at(rule["threshold"])
+    truth = np.stack([ndimage.binary_dilation(g > 0, structure=disk) for g in gts])
+    iou = (support & truth).sum() / (support | truth).sum()
+    for t in np.quantile(std, np.linspace(0.5, 0.995, 64)):  # the threshold of the best match
+        other = support_at(t)
+        assert (other & truth).sum() / (other | truth).sum() <= iou + 1e-12
+    np.testing.assert_allclose(cuts, np.quantile(std[support], [0.2, 0.4, 0.6, 0.8]), rtol=1e-5)
+    labels = np.where(support, 1 + np.searchsorted(cuts, std, side="right"), 0)
+    for fit in entry["levels"].values():
+        assert fit["groups"]["n_pixels"] == np.bincount(labels.ravel(), minlength=6).tolist()
+    return labels
+
+
 @pytest.mark.slow
 def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeypatch):
     path, run = _copy(setup, tmp_path)
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 6 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 7 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -92,16 +121,24 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
         stds.append(std[0, 0].numpy().astype(np.float64))
     err, std = np.stack(errs), np.stack(stds)
     assert list(entry["levels"]) == ["0.68", "0.9", "0.95"]
+    labels = _check_groups(entry, err, std, store.read_phantoms(val))
     for key, fit in entry["levels"].items():
+        pooled = fit["pooled"]  # the one-multiplier calibration, kept for comparison
         ref = fit_width_map(err, std, float(key))
-        np.testing.assert_allclose(fit["map"]["std"], ref["std"], rtol=1e-4)
-        np.testing.assert_allclose(fit["map"]["width"], ref["width"], rtol=1e-3)
-        ratio = np.sort((err / apply_width_map(std, fit["map"])).ravel())
-        k = int(np.ceil((ratio.size + 1) * float(key)))  # the split-conformal order statistic
-        assert fit["multiplier"] == pytest.approx(ratio[k - 1], rel=1e-4)
-        half = fit["multiplier"] * apply_width_map(std, fit["map"])
+        np.testing.assert_allclose(pooled["map"]["std"], ref["std"], rtol=1e-4)
+        np.testing.assert_allclose(pooled["map"]["width"], ref["width"], rtol=1e-3)
+        assert pooled["multiplier"] == pytest.approx(_order_statistic(err / apply_width_map(std, pooled["map"]), key))
+        assert fit["multiplier"] == pooled["multiplier"]
+        # the delivered intervals: per group, the split-conformal order statistic of its region's map
+        groups = fit["groups"]
+        maps = [fit_width_map(err[region], std[region], float(key)) for region in (labels == 0, labels > 0)]
+        base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
+        for g, q in enumerate(groups["multipliers"]):
+            assert q == pytest.approx(_order_statistic(err[labels == g] / base[labels == g], key), rel=1e-3)
+        half = np.asarray(groups["multipliers"])[labels] * base
         assert fit["val_coverage"] == pytest.approx(np.mean(err <= half), abs=2e-3)
-        assert fit["val_coverage"] >= float(key) - 2e-3
+        for g, cov in enumerate(groups["val_coverage"]):
+            assert float(key) - 2e-3 <= cov == pytest.approx(np.mean(err[labels == g] <= half[labels == g]), abs=2e-3)
         assert 0 <= fit["guaranteed_coverage"] < fit["val_coverage"]  # three images: a weak guarantee
         assert fit["rcps_multiplier"] is None  # too few images for any guarantee at these levels
     assert entry["ood"]["val"] == pytest.approx(sorted(std.mean(axis=(1, 2))), rel=1e-5)
@@ -145,7 +182,7 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
         x = store.read_reconstruction("fbp", [int(i)])[0]
         store._group["reconstructions/fbp"][int(i)] = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
-    new, old = changed["levels"]["0.9"]["map"]["width"], before["levels"]["0.9"]["map"]["width"]
+    new, old = changed["levels"]["0.9"]["pooled"]["map"]["width"], before["levels"]["0.9"]["pooled"]["map"]["width"]
     assert new != pytest.approx(old, rel=1e-3)
 
 
@@ -162,14 +199,18 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     store = DataStore.open(path)
     test = store.indices("test")
     params = store.reconstruction_params(name)
-    assert entry["format"] == 6 and params["calibration"] == entry
+    assert entry["format"] == CALIBRATION_FORMAT and params["calibration"] == entry
     assert "calibration" not in store.reconstruction_params("raw")
     raw, stored = store.read_uncertainty("raw", test), store.read_uncertainty(name, test)
     np.testing.assert_array_equal(stored, raw)
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
-    for one_raw, one_stored in zip(raw, stored):  # within an image the delivered map ranks as the raw std
-        half = half_width(params, one_stored, 0.9)
-        assert spearmanr(one_raw.ravel(), half.ravel()).statistic == pytest.approx(1.0, abs=1e-12)
+    groups = params["calibration"]["levels"]["0.9"]["groups"]
+    for one_raw, one_stored in zip(raw, stored):  # within each group the delivered map ranks as the raw std
+        half, labels = half_width(params, one_stored, 0.9), group_labels(one_stored, groups)
+        for g in np.unique(labels):
+            if (labels == g).sum() > 2:
+                rho = spearmanr(one_raw[labels == g], half[labels == g]).statistic
+                assert rho == pytest.approx(1.0, abs=1e-12)
     # export --interval writes exactly these half-widths
     from nanoct.cli import run as cli
 

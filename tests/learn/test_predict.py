@@ -139,3 +139,37 @@ def test_bad_input(setup, tmp_path):
     reconstruct_dataset(no_test, "fbp", workers=0, progress=False)
     with pytest.raises(NanoctError, match="test split .* has no samples"):
         predict(no_test, run, progress=False)
+
+
+def test_tiled_prediction(setup, tmp_path):
+    """--tile: one tile of the trained size is the untiled prediction; a larger slice (127 px for a network
+    trained on 63 px) is predicted in tiles, as predict_tiled stitches them; untiled it is refused."""
+    from nanoct.learn.tiling import predict_tiled
+
+    path, run = setup
+    assert predict(path, run, progress=False, name="tiled", tile=0) == "tiled"
+    store = DataStore.open(path)
+    test = store.indices("test")
+    np.testing.assert_allclose(
+        store.read_reconstruction("tiled", test), store.read_reconstruction("fbp+unet", test), atol=1e-6
+    )
+    assert store.reconstruction_params("tiled")["tiling"] == {"size": 63, "overlap": 16, "margin": 2}
+    big = tmp_path / "big"
+    generate_dataset(big, get_preset("small-parallel"), 2, seed=1, workers=0, progress=False, split_fractions=(0, 0, 1))
+    reconstruct_dataset(big, "fbp", workers=0, progress=False)
+    with pytest.raises(NanoctError, match=r"trained on 63x63 images.*--tile 0"):
+        predict(big, run, progress=False)
+    assert predict(big, run, progress=False, tile=0, overlap=20) == "fbp+unet"
+    big_store = DataStore.open(big)
+    out = big_store.read_reconstruction("fbp+unet", [0])[0]
+    model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
+
+    def network(x, seed):
+        with torch.no_grad():
+            return model(torch.from_numpy(x)[:, None])[:, 0].numpy(), None
+
+    expected, _ = predict_tiled(big_store.read_reconstruction("fbp", [0])[0], network, 63, overlap=20, margin=2)
+    assert out.shape == (127, 127)
+    np.testing.assert_allclose(out, expected, atol=1e-5)
+    with pytest.raises(NanoctError, match="overlap"):
+        predict(big, run, progress=False, tile=0, overlap=40, name="bad")

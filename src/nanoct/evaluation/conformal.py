@@ -26,12 +26,22 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 from scipy.optimize import brentq
 from scipy.stats import binom
+
+from .metrics import support_mask
 
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_LEVELS",
+    "OBJECT_WIDTH_BINS",
+    "fit_group_cuts",
+    "fit_group_intervals",
+    "fit_support_threshold",
+    "group_guaranteed_coverage",
+    "group_labels",
+    "support_of",
     "WIDTH_MAP_BINS",
     "WIDTH_MAP_MIN_SLOPE",
     "apply_width_map",
@@ -52,6 +62,8 @@ DEFAULT_LEVELS = (0.68, 0.90, 0.95)
 DEFAULT_DELTA = 0.1
 #: Equal-count bins of the std in which :func:`fit_width_map` takes the quantile of |err|.
 WIDTH_MAP_BINS = 20
+#: Equal-count std bins of the object's support in the group-conditional calibration (its fifths).
+OBJECT_WIDTH_BINS = 5
 #: Smallest slope of a width map in log(std) -> log(width); it keeps the map strictly increasing.
 WIDTH_MAP_MIN_SLOPE = 0.05
 
@@ -162,23 +174,44 @@ def apply_width_map(std: np.ndarray, width_map: dict[str, list[float]]) -> np.nd
     return np.where(pos, np.exp(out), 0.0)
 
 
-def half_width_of(std: np.ndarray, entry: dict[str, Any], multiplier: str = "multiplier") -> np.ndarray:
-    """Half-width ``entry[multiplier] * g(std)`` of a calibrated interval; g = ``entry["map"]``
-    (:func:`apply_width_map`) where the entry has one, else the identity."""
+def half_width_of(
+    std: np.ndarray, entry: dict[str, Any], multiplier: str = "multiplier", image: np.ndarray | None = None
+) -> np.ndarray:
+    """Half-width of a calibrated interval at ``std`` (float64, the shape of ``std``).
+
+    With ``entry["groups"]`` (a group-conditional calibration, :func:`fit_group_intervals`): each
+    pixel's group (:func:`group_labels`, from the std, or from ``image`` = the prediction's mean
+    where the support is defined on the mean), and the group's multiplier (``multiplier`` =
+    ``"multiplier"``: split conformal; ``"rcps_multiplier"``: risk control) times its region's
+    width map. Otherwise ``entry[multiplier] * g(std)``, g = ``entry["map"]``
+    (:func:`apply_width_map`) where the entry has one, else the identity.
+    """
+    groups = entry.get("groups")
+    if groups:
+        labels = group_labels(std, groups, image)
+        q = np.asarray(groups[f"{multiplier}s"], dtype=np.float64)[labels]
+        maps = groups["maps"]
+        return q * np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     base = apply_width_map(std, entry["map"]) if entry.get("map") else np.asarray(std, dtype=np.float64)
     return float(entry[multiplier]) * base
 
 
-def image_miscoverage(err: np.ndarray, std: np.ndarray, multipliers: np.ndarray) -> np.ndarray:
+def image_miscoverage(
+    err: np.ndarray, std: np.ndarray, multipliers: np.ndarray, mask: np.ndarray | None = None
+) -> np.ndarray:
     """Fraction of each image's pixels with ``|err| > multiplier * std``: shape (n_images, n_multipliers).
 
-    ``err`` and ``std`` are stacks (n, H, W) (or (n, P) pixels per image).
+    ``err`` and ``std`` are stacks (n, H, W) (or (n, P) pixels per image). With ``mask`` (same
+    shape) only the masked pixels count, and images without a masked pixel are left out.
     """
     s = scores(err, std)
-    s = np.sort(s.reshape(s.shape[0], -1), axis=1)
+    s = s.reshape(s.shape[0], -1)
+    keep = np.ones(s.shape, bool) if mask is None else np.asarray(mask, bool).reshape(s.shape)
+    rows = [np.sort(row[k]) for row, k in zip(s, keep) if k.any()]
     lam = np.asarray(multipliers, dtype=np.float64).ravel()
-    inside = np.stack([np.searchsorted(row, lam, side="right") for row in s])
-    return 1.0 - inside / s.shape[1]
+    if not rows:
+        return np.empty((0, lam.size))
+    return np.stack([1.0 - np.searchsorted(row, lam, side="right") / row.size for row in rows])
 
 
 def hb_upper_bound(risk: float, n: int, delta: float) -> float:
@@ -221,14 +254,20 @@ def guaranteed_coverage(err: np.ndarray, std: np.ndarray, multiplier: float, del
 
 
 def rcps_multiplier(
-    err: np.ndarray, std: np.ndarray, level: float, delta: float = DEFAULT_DELTA, n_grid: int = 2000
+    err: np.ndarray,
+    std: np.ndarray,
+    level: float,
+    delta: float = DEFAULT_DELTA,
+    n_grid: int = 2000,
+    mask: np.ndarray | None = None,
 ) -> float:
     """Smallest multiplier whose intervals cover ``level`` of a new image's pixels with probability ``1 - delta``.
 
     The candidates are ``n_grid`` quantiles of the pooled scores ``|err| / std`` above the
     ``level`` quantile, and their maximum; the loss of an image (:func:`image_miscoverage`) does not
     increase with the multiplier, so the smallest candidate whose Hoeffding-Bentkus bound is at
-    most ``1 - level`` is the RCPS choice (Angelopoulos et al. 2022).
+    most ``1 - level`` is the RCPS choice (Angelopoulos et al. 2022). With ``mask`` the loss of an
+    image is that of its masked pixels (a group's guarantee), over the images that have some.
 
     Raises
     ------
@@ -238,11 +277,12 @@ def rcps_multiplier(
     """
     level_key(level)
     s = scores(err, std)
+    s = s if mask is None else s[np.asarray(mask, bool)]
     finite = s[np.isfinite(s)]
     if finite.size == 0:
         raise ValueError("the std is zero on every pixel with an error: no multiplier covers anything")
     grid = np.unique(np.quantile(finite, np.linspace(level, 1.0, n_grid), method="inverted_cdf"))
-    losses = image_miscoverage(err, std, grid)
+    losses = image_miscoverage(err, std, grid, mask)
     n, risk = losses.shape[0], losses.mean(axis=0)
 
     def ok(j: int) -> bool:
@@ -258,3 +298,169 @@ def rcps_multiplier(
         mid = (lo + hi) // 2
         lo, hi = (lo, mid) if ok(mid) else (mid, hi)
     return float(grid[hi])
+
+
+def support_of(image: np.ndarray, threshold: float, radius: int, fill: bool = False) -> np.ndarray:
+    """The object's support as seen at prediction time: ``image > threshold`` (with ``fill``, its holes
+    filled, :func:`scipy.ndimage.binary_fill_holes`, per image) dilated by a disk of ``radius`` px.
+
+    ``image`` is one image (H, W) or a stack (n, H, W) of what the prediction delivers (its std or
+    its mean); no ground truth is involved.
+    """
+    above = np.asarray(image) > threshold
+    if fill:
+        above = np.stack([ndimage.binary_fill_holes(a) for a in above.reshape(-1, *above.shape[-2:])])
+        above = above.reshape(np.shape(image))
+    return support_mask(above, radius)
+
+
+def fit_support_threshold(
+    image: np.ndarray, truth_support: np.ndarray, radius: int, n_candidates: int = 64, fill: bool = False
+) -> float:
+    """The threshold of :func:`support_of` whose support best matches ``truth_support`` (largest IoU).
+
+    Candidates: ``n_candidates`` quantiles of ``image`` between its 50th and 99.5th percentiles.
+
+    Raises
+    ------
+    ValueError
+        If ``truth_support`` is empty or ``image`` is constant.
+    """
+    image = np.asarray(image, np.float64)
+    truth = np.asarray(truth_support, bool)
+    if not truth.any() or image.min() == image.max():
+        raise ValueError("no support to match: the truth's support is empty or the image is constant")
+    best, best_iou = float("nan"), -1.0
+    for t in np.unique(np.quantile(image, np.linspace(0.5, 0.995, n_candidates))):
+        s = support_of(image, float(t), radius, fill)
+        iou = float((s & truth).sum() / (s | truth).sum())
+        if iou > best_iou:
+            best, best_iou = float(t), iou
+    return best
+
+
+def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None) -> np.ndarray:
+    """Group of each pixel under a group-conditional calibration: 0 = background, k = 1..K the object's k-th std bin.
+
+    ``groups["support"]`` = {``source``: "std" or "mean", ``threshold``, ``radius``, ``fill``} defines
+    the support (:func:`support_of` of the std, or of ``image`` = the prediction's mean);
+    ``groups["cuts"]`` are the K - 1 std cut points on the support (:func:`fit_group_cuts`).
+
+    Raises
+    ------
+    ValueError
+        If the support is defined on the mean and ``image`` is not given.
+    """
+    rule = groups["support"]
+    if rule["source"] == "mean" and image is None:
+        raise ValueError("this calibration's support is defined on the prediction's mean: pass the mean")
+    src = std if rule["source"] == "std" else image
+    support = support_of(
+        np.asarray(src, np.float64), float(rule["threshold"]), int(rule["radius"]), rule.get("fill", False)
+    )
+    bins = 1 + np.searchsorted(np.asarray(groups["cuts"], np.float64), np.asarray(std, np.float64), side="right")
+    return np.where(support, bins, 0).astype(np.int64)
+
+
+def fit_group_cuts(std: np.ndarray, support: np.ndarray, n_bins: int = OBJECT_WIDTH_BINS) -> list[float]:
+    """The ``n_bins - 1`` std quantiles of the support's pixels that split it into equal-count bins."""
+    s = np.asarray(std, np.float64)[np.asarray(support, bool)]
+    if s.size < n_bins:
+        raise ValueError(f"{s.size} support pixels are too few for {n_bins} width bins")
+    return np.quantile(s, np.arange(1, n_bins) / n_bins).tolist()
+
+
+def group_guaranteed_coverage(
+    err: np.ndarray, half: np.ndarray, labels: np.ndarray, n_groups: int, delta: float = DEFAULT_DELTA
+) -> list[float | None]:
+    """Per group, the per-image coverage of ``|err| <= half`` that holds with probability ``1 - delta``.
+
+    The loss of an image is the fraction of its pixels of the group outside the interval; one minus
+    :func:`hb_upper_bound` of the mean loss over the images that have pixels of the group (None for
+    a group no image has). Stacks (n, H, W).
+    """
+    out: list[float | None] = []
+    outside = np.abs(err) > half
+    for g in range(n_groups):
+        m = labels == g
+        losses = [outside[i][m[i]].mean() for i in range(len(m)) if m[i].any()]
+        out.append(None if not losses else 1.0 - hb_upper_bound(float(np.mean(losses)), len(losses), delta))
+    return out
+
+
+def _region_maps(err: np.ndarray, std: np.ndarray, on_object: np.ndarray, level: float) -> list[dict[str, list[float]]]:
+    """Width maps (:func:`fit_width_map`) of the background and of the object; a region too small or
+    too uniform for a map of its own gets the map of all pixels."""
+    maps = []
+    for region in (~on_object, on_object):
+        try:
+            maps.append(fit_width_map(err[region], std[region], level))
+        except ValueError:
+            maps.append(fit_width_map(err, std, level))
+    return maps
+
+
+def fit_group_intervals(
+    err: np.ndarray,
+    std: np.ndarray,
+    labels: np.ndarray,
+    level: float,
+    delta: float = DEFAULT_DELTA,
+    n_groups: int = OBJECT_WIDTH_BINS + 1,
+) -> dict[str, Any]:
+    """Group-conditional (Mondrian) split-conformal intervals of one level on validation outputs (n, H, W).
+
+    ``labels`` (:func:`group_labels`): 0 = background, 1..K = the object's std bins. A width map
+    (:func:`fit_width_map`) is fitted per region (background, object) and a split-conformal
+    multiplier of it per group: the ``ceil((n_g + 1) level)``-th smallest score of the group's
+    n_g pixels. Within each group the half-width is strictly increasing in the std; across the
+    object's bins it steps by the ratio of their multipliers (no running maximum: it would widen the
+    wider bins beyond their level).
+
+    Guarantee, per group g: a new pixel of group g exchangeable with the group's validation pixels
+    is covered with probability in ``[level, level + 1 / (n_g + 1))`` (the width maps are fitted on
+    the same pixels, a data-dependent choice of score of 20 knots per region). Over images (the pixels of one image are
+    dependent): ``guaranteed_coverage``, the per-image coverage of the group's pixels that holds
+    with probability ``1 - delta`` (:func:`group_guaranteed_coverage`), and the group's
+    risk-controlling multiplier (:func:`rcps_multiplier` with the group's mask; None where the
+    images are too few).
+
+    A group with too few validation pixels for the level (``(n_g + 1) level > n_g``, e.g. none)
+    gets the multiplier of all pixels (``pooled`` True for it): its guarantee is then only the
+    marginal one over all pixels.
+
+    Returns
+    -------
+    dict
+        ``maps`` (background, object), ``multipliers``, ``rcps_multipliers``,
+        ``guaranteed_coverage``, ``val_coverage``, ``n_pixels`` and ``pooled``, lists over the groups.
+
+    Raises
+    ------
+    ValueError
+        If there is no positive finite multiplier.
+    """
+    err, std = np.abs(np.asarray(err, np.float64)), np.asarray(std, np.float64)
+    labels = np.asarray(labels)
+    maps = _region_maps(err, std, labels > 0, level)
+    base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
+    q, rcps, pooled = [], [], []
+    for g in range(n_groups):
+        m = labels == g
+        pooled.append(math.ceil((int(m.sum()) + 1) * level) > int(m.sum()))
+        q.append(conformal_multiplier(err, base, level) if pooled[-1] else conformal_multiplier(err[m], base[m], level))
+        try:
+            rcps.append(rcps_multiplier(err, base, level, delta, mask=m))
+        except ValueError:
+            rcps.append(None)
+    half = np.asarray(q)[labels] * base
+    sizes = [int((labels == g).sum()) for g in range(n_groups)]
+    return {
+        "maps": maps,
+        "multipliers": q,
+        "rcps_multipliers": rcps,
+        "guaranteed_coverage": group_guaranteed_coverage(err, half, labels, n_groups, delta),
+        "val_coverage": [float(np.mean((err <= half)[labels == g])) if n else None for g, n in enumerate(sizes)],
+        "n_pixels": sizes,
+        "pooled": pooled,
+    }

@@ -162,7 +162,7 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
         levels = (params.get("calibration") or {}).get("levels") or {}
         level = "0.9" if "0.9" in levels else next(iter(levels), None)
         if level is not None:
-            std = half_width(params, std, float(level))
+            std = half_width(params, std, float(level), mean=reco)
         err = np.abs(reco - gt)
         top = float(max(err.max(), std.max())) or 1.0
         if input_name in present and input_name != name:
@@ -206,13 +206,14 @@ def reliability_diagram(
     axes = fig.subplots(len(kinds), len(panels), squeeze=False, sharex=True, sharey=True)
     for col, (title, names) in enumerate(panels.items()):
         for name in names:
-            err = np.abs(store.read_reconstruction(name, indices) - gts)
+            mean = store.read_reconstruction(name, indices)
+            err = np.abs(mean - gts)
             std = store.read_uncertainty(name, indices).astype(np.float64)
             line = axes[0, col].plot(levels, reliability(err, std, levels), marker=".", label=name)[0]
             params = store.reconstruction_params(name)
             cal = (params.get("calibration") or {}).get("levels") or {}
             nominal = [float(k) for k in cal]
-            observed = [float(np.mean(err <= half_width(params, std, float(k)))) for k in cal]
+            observed = [float(np.mean(err <= half_width(params, std, float(k), mean=mean))) for k in cal]
             axes[1, col].plot(nominal, observed, marker="o", color=line.get_color(), label=name)
             guaranteed = [v["guaranteed_coverage"] for v in cal.values()]
             axes[1, col].plot(nominal, guaranteed, ls="none", marker="o", mfc="none", color=line.get_color())

@@ -2,14 +2,17 @@
 
 The std of a conditional invertible network (over M latent samples) ranks the pixels by how
 uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
-split of the data set and input the network was trained on (the test split is never read),
-per interval level a strictly increasing width map of the std and a multiplier are fitted
-(:func:`fit_intervals`): the interval of level ``p`` is ``mean +- multiplier_p * g_p(std)``,
-``g_p`` the ``p`` quantile of |error| given the std (monotone, binned in the std:
-:func:`nanoct.evaluation.conformal.fit_width_map`), the multiplier by split-conformal prediction,
-stated with the coverage that holds with probability ``1 - delta`` (Hoeffding-Bentkus,
-risk-controlling prediction sets; :mod:`nanoct.evaluation.conformal`). The half-width is
-strictly increasing in the std, so it keeps the network's ranking of the pixels exactly. On
+split of the data set and input the network was trained on (the test split is never read), the
+pixels are put in groups computable at prediction time (the background, and the five std fifths
+of the object's support, the support being the std above a threshold with its holes filled,
+dilated by 2 px), and per interval level a strictly increasing width map of the std per region
+and a split-conformal multiplier per group are fitted (:func:`fit_intervals`,
+:func:`nanoct.evaluation.conformal.fit_group_intervals`): the interval of level ``p`` at a pixel
+of group G is ``mean +- q_{p,G} * g_{p,R}(std)``, with the guarantee stated per group (coverage
+at least ``p`` for exchangeable pixels of the group; the per-image coverage that holds with
+probability ``1 - delta``, Hoeffding-Bentkus, risk-controlling prediction sets). The pooled
+one-multiplier calibration is kept for comparison. Within a group the half-width is strictly
+increasing in the std, so it keeps the network's ranking of the group's pixels exactly. On
 the same validation outputs the multipliers of the edge baseline
 (:func:`nanoct.evaluation.metrics.edge_std` of the network's mean) are fitted, and the
 validation images' std level and the apparent-motion scores of the train and validation
@@ -40,14 +43,20 @@ from ..core.errors import NanoctError
 from ..evaluation.conformal import (
     DEFAULT_DELTA,
     DEFAULT_LEVELS,
+    OBJECT_WIDTH_BINS,
     conformal_multiplier,
+    fit_group_cuts,
+    fit_group_intervals,
+    fit_support_threshold,
     fit_width_map,
+    group_labels,
     guaranteed_coverage,
     half_width_of,
     level_key,
     rcps_multiplier,
+    support_of,
 )
-from ..evaluation.metrics import EDGE_SIGMA, edge_std
+from ..evaluation.metrics import EDGE_SIGMA, SUPPORT_RADIUS, edge_std, support_mask
 from ..io.fileio import atomic_write_text
 from ..io.store import DataStore
 from .base import PostProcessor
@@ -60,6 +69,8 @@ from .train import resolve_device
 __all__ = [
     "CALIBRATION_FILE",
     "CALIBRATION_FORMAT",
+    "DEFAULT_SUPPORT_SOURCE",
+    "SUPPORT_SOURCES",
     "Inference",
     "OOD_ALPHA",
     "calibrate",
@@ -73,7 +84,10 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 6
+CALIBRATION_FORMAT = 7
+#: What the prediction-time support of the group-conditional calibration is computed from.
+SUPPORT_SOURCES = ("std", "mean")
+DEFAULT_SUPPORT_SOURCE = "std"
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
 
@@ -175,6 +189,48 @@ def ood_p_values(values: np.ndarray, reference: list[float] | np.ndarray) -> np.
     return (1.0 + above) / (ref.size + 1.0)
 
 
+def _support_rule(means: np.ndarray, stds: np.ndarray, gts: np.ndarray, source: str, fill: bool) -> dict[str, Any]:
+    """The prediction-time support (:func:`nanoct.evaluation.conformal.support_of` of the std or of the
+    mean, holes filled with ``fill``, dilated by the evaluation's support radius) whose threshold
+    best matches the validation images' true support (:func:`nanoct.evaluation.metrics.support_mask`, largest IoU)."""
+    if source not in SUPPORT_SOURCES:
+        raise NanoctError(f"support source {source!r} must be one of {', '.join(SUPPORT_SOURCES)}")
+    image = stds if source == "std" else means
+    threshold = fit_support_threshold(image, support_mask(gts), SUPPORT_RADIUS, fill=fill)
+    return {"source": source, "threshold": threshold, "radius": SUPPORT_RADIUS, "fill": fill}
+
+
+def _level_fit(
+    err: np.ndarray, stds: np.ndarray, means: np.ndarray, level: float, delta: float, groups: dict[str, Any]
+) -> dict[str, Any]:
+    """One level: the pooled one-multiplier intervals (for comparison) and the group-conditional ones (delivered)."""
+    width_map = fit_width_map(err, stds, level)
+    scaled = half_width_of(stds, {"map": width_map, "multiplier": 1.0})
+    q = conformal_multiplier(err, scaled, level)
+    try:
+        rcps: float | None = rcps_multiplier(err, scaled, level, delta)
+    except ValueError:
+        rcps = None
+    pooled = {
+        "map": width_map,
+        "multiplier": q,
+        "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta),
+        "rcps_multiplier": rcps,
+        "val_coverage": float(np.mean(err <= q * scaled)),
+    }
+    grouped = groups | fit_group_intervals(err, stds, group_labels(stds, groups, means), level, delta)
+    half = half_width_of(stds, {"groups": grouped}, image=means)
+    group_rcps = grouped["rcps_multipliers"]
+    return {
+        "groups": grouped,
+        "multiplier": q,
+        "guaranteed_coverage": guaranteed_coverage(err, half, 1.0, delta),
+        "rcps_multiplier": None if None in group_rcps else max(group_rcps),
+        "val_coverage": float(np.mean(err <= half)),
+        "pooled": pooled,
+    }
+
+
 def fit_intervals(
     means: np.ndarray,
     stds: np.ndarray,
@@ -182,27 +238,35 @@ def fit_intervals(
     levels: tuple[float, ...] = DEFAULT_LEVELS,
     delta: float = DEFAULT_DELTA,
     edge_sigma: float = EDGE_SIGMA,
+    support_source: str = DEFAULT_SUPPORT_SOURCE,
+    fill_holes: bool = True,
 ) -> dict[str, Any]:
     """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
 
-    For each level: the width map ``g`` of the std (:func:`nanoct.evaluation.conformal.fit_width_map`,
-    the level's quantile of |error| in 20 bins of the std, strictly increasing), the
-    split-conformal multiplier of ``g(std)``
-    (:func:`nanoct.evaluation.conformal.conformal_multiplier`, all pixels of all images pooled), the
-    coverage it keeps with probability ``1 - delta`` (:func:`~nanoct.evaluation.conformal.guaranteed_coverage`,
-    Hoeffding-Bentkus over the images), the risk-controlling multiplier
-    (:func:`~nanoct.evaluation.conformal.rcps_multiplier`; None where the images are too few for any
-    guarantee at that level), and the validation coverage; the same conformal multiplier for the
-    edge baseline (:func:`nanoct.evaluation.metrics.edge_std` of the mean). Also the validation
-    images' out-of-distribution statistic (:func:`image_statistic`).
+    The delivered intervals are group-conditional (Mondrian) split-conformal intervals
+    (:func:`nanoct.evaluation.conformal.fit_group_intervals`): the groups are the background and
+    the five equal-count std bins (fifths) of the object's support, the support as seen at
+    prediction time (``support_source``: the std or the mean above a threshold, dilated by 2 px;
+    the threshold is the one whose support best matches the validation images' true support), the
+    fifths' std cut points those of the validation support. Per level and group: a width map per
+    region and a split-conformal multiplier, with each group's guarantee (its coverage at least
+    the level for exchangeable pixels of the group; the per-image coverage of its pixels that holds
+    with probability ``1 - delta``). Next to them, for comparison, the pooled calibration of
+    earlier versions (``pooled``: one width map and one multiplier for all pixels). Also the edge
+    baseline's conformal multiplier (:func:`nanoct.evaluation.metrics.edge_std` of the mean) and
+    the validation images' out-of-distribution statistic (:func:`image_statistic`).
 
     Returns
     -------
     dict
-        ``delta``, ``levels`` = {level key: {``map``, ``multiplier``, ``guaranteed_coverage``,
-        ``rcps_multiplier``, ``val_coverage``}}, ``edge_sigma``, ``edge_multipliers`` =
-        {level key: multiplier}, ``ood`` = {``statistic``: "mean_std", ``alpha``, ``val``: the
-        validation images' values, sorted}.
+        ``delta``, ``support`` (the support rule), ``cuts`` (the object's std cut points),
+        ``levels`` = {level key: {``groups`` (``support``, ``cuts``, ``maps``, ``multipliers``,
+        ``rcps_multipliers``, ``guaranteed_coverage``, ``val_coverage``, ``n_pixels``: lists over
+        background, object fifths 1..5), ``multiplier`` (the pooled one), ``guaranteed_coverage``
+        and ``val_coverage`` (the delivered intervals over all pixels), ``rcps_multiplier`` (the
+        largest group's, None where a group has none), ``pooled``}}, ``edge_sigma``,
+        ``edge_multipliers`` = {level key: multiplier}, ``ood`` = {``statistic``: "mean_std",
+        ``alpha``, ``val``: the validation images' values, sorted}.
 
     Raises
     ------
@@ -215,27 +279,19 @@ def fit_intervals(
     fitted: dict[str, Any] = {}
     edge_fit: dict[str, float] = {}
     try:
+        rule = _support_rule(np.asarray(means, np.float64), stds, np.asarray(gts), support_source, fill_holes)
+        image = stds if support_source == "std" else means
+        cuts = fit_group_cuts(stds, support_of(image, rule["threshold"], rule["radius"], fill_holes), OBJECT_WIDTH_BINS)
+        groups = {"support": rule, "cuts": cuts}
         for level in levels:
-            key = level_key(level)
-            width_map = fit_width_map(err, stds, level)
-            scaled = half_width_of(stds, {"map": width_map, "multiplier": 1.0})
-            q = conformal_multiplier(err, scaled, level)
-            try:
-                rcps: float | None = rcps_multiplier(err, scaled, level, delta)
-            except ValueError:
-                rcps = None
-            fitted[key] = {
-                "map": width_map,
-                "multiplier": q,
-                "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta),
-                "rcps_multiplier": rcps,
-                "val_coverage": float(np.mean(err <= q * scaled)),
-            }
-            edge_fit[key] = conformal_multiplier(err, edges, level)
+            fitted[level_key(level)] = _level_fit(err, stds, means, level, delta, groups)
+            edge_fit[level_key(level)] = conformal_multiplier(err, edges, level)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
         "delta": float(delta),
+        "support": rule,
+        "cuts": cuts,
         "levels": fitted,
         "edge_sigma": float(edge_sigma),
         "edge_multipliers": edge_fit,
@@ -243,18 +299,23 @@ def fit_intervals(
     }
 
 
-def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False) -> np.ndarray:
-    """The half-width of the interval of ``level`` of a prediction: ``multiplier * g(std)`` (float64).
+def half_width(
+    params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False, mean: np.ndarray | None = None
+) -> np.ndarray:
+    """The half-width of the interval of ``level`` of a prediction (float64, the shape of ``std``).
 
     ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
-    std. ``guaranteed`` takes the risk-controlling multiplier (coverage guaranteed with
-    probability ``1 - delta``) instead of the split-conformal one.
+    std, one image (H, W) or a stack (n, H, W) (the support of a group-conditional calibration is
+    found per image); ``mean``: its stored mean, needed only where the calibration's support is
+    defined on the mean. ``guaranteed`` takes the risk-controlling multipliers (coverage
+    guaranteed with probability ``1 - delta``) instead of the split-conformal ones
+    (:func:`nanoct.evaluation.conformal.half_width_of`).
 
     Raises
     ------
     NanoctError
-        If the prediction has no calibration, was not calibrated at ``level``, or (``guaranteed``)
-        the validation split was too small for a guarantee at that level.
+        If the prediction has no calibration, was not calibrated at ``level``, (``guaranteed``) the
+        validation split was too small for a guarantee at that level, or the support needs the mean.
     """
     cal = params.get("calibration") or {}
     levels = cal.get("levels")
@@ -267,13 +328,18 @@ def half_width(params: dict[str, Any], std: np.ndarray, level: float, guaranteed
             f"--levels including {key}"
         )
     which = "rcps_multiplier" if guaranteed else "multiplier"
-    if levels[key][which] is None:
+    entry = levels[key]
+    missing = None in entry["groups"]["rcps_multipliers"] if guaranteed and "groups" in entry else entry[which] is None
+    if missing:
         raise NanoctError(
             f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
             f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
             "leave out --guaranteed or choose a lower level"
         )
-    return half_width_of(std, levels[key], which)
+    try:
+        return half_width_of(std, entry, which, image=mean)
+    except ValueError as exc:
+        raise NanoctError(f"cannot compute the interval: {exc}") from exc
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:

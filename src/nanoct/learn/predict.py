@@ -3,14 +3,16 @@
 The result goes to ``reconstructions/<input>+<model>`` when the input is the method the
 network was trained on, and to ``reconstructions/<input>+<model>@<train_input>`` when a
 network trained on one method is applied to another (the paper's input-mixing tables).
-Networks that return a pixel-wise standard deviation also write ``uncertainty/<name>``; their
-latent samples for sample ``i`` are drawn from a generator seeded with ``i``, so results do
-not depend on batching or on interruptions. The stored std is the network's own (raw) std;
-the calibration fitted on the validation split (:mod:`nanoct.learn.calibration`: one multiplier
-per interval level) is stored with the parameters, so the interval of level p is
-``mean +- multiplier_p * stored std``, and images whose std level is unlike the validation
-split's, or whose sinogram shows more apparent motion than the training scans, are flagged (a
-warning, and the note ``ood`` of the result: :func:`ood_check`).
+With ``tile``, images of any size are predicted in overlapping tiles of the size the network was
+trained on (:mod:`nanoct.learn.tiling`). Networks that return a pixel-wise standard deviation
+also write ``uncertainty/<name>``; their latent samples for sample ``i`` are drawn from a
+generator seeded with ``i``, so results do not depend on batching or on interruptions. The
+stored std is the network's own (raw) std; the calibration fitted on the validation split
+(:mod:`nanoct.learn.calibration`: per interval level a multiplier per group of pixels, the
+background and the std fifths of the object) is stored with the parameters (the half-width:
+:func:`nanoct.learn.calibration.half_width`), and images whose std level is unlike the
+validation split's, or whose sinogram shows more apparent motion than the training scans, are
+flagged (a warning, and the note ``ood`` of the result: :func:`ood_check`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
 are stored with the result; running the same command again only fills in missing samples,
@@ -40,6 +42,7 @@ from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
 from .scan_ood import store_scan_scores
+from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, predict_tiled
 
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
 
@@ -101,6 +104,8 @@ def predict(
     calibrate: bool = True,
     levels: tuple[float, ...] = DEFAULT_LEVELS,
     delta: float = DEFAULT_DELTA,
+    tile: int | None = None,
+    overlap: int = DEFAULT_OVERLAP,
 ) -> str:
     """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
 
@@ -136,6 +141,15 @@ def predict(
         distribution (:func:`ood_check`). The stored std is the raw std either way.
     levels, delta
         Interval levels and the guarantee's failure probability of the calibration.
+    tile : int, optional
+        Apply the network in ``tile`` x ``tile`` tiles (:func:`nanoct.learn.tiling.predict_tiled`;
+        0: the image size the network was trained on), ``overlap`` pixels apart, blended with a
+        smooth window: images of any size in bounded memory, with a progress bar per image. The
+        geometry of the data set may then differ from the training data's; the calibration is the
+        run's own (fitted untiled on its validation split) where the data set has no validation
+        split.
+    overlap : int
+        Pixels shared by neighbouring tiles.
 
     Returns
     -------
@@ -161,8 +175,8 @@ def predict(
         raise NanoctError(f"no training run at {run}; train one first ('nanoct train ... --out {run}')")
     store = DataStore.open(store_path, mode="r+")
     ckpt_path = run / f"{checkpoint}.pt"
-    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
-    _check_geometry(store, run, ckpt)
+    ckpt = load_checkpoint(ckpt_path)
+    tiling = _tiling(store, run, ckpt, tile, overlap)
     kwargs = dict(reconstruct_kwargs or {})
     sampling = model_class(str(ckpt["model"])).has_uncertainty
     if kwargs and not sampling:
@@ -187,7 +201,7 @@ def predict(
         "hparams": ckpt["hparams"],
         "train_input": train_input,
         "reconstruct": kwargs,
-    }
+    } | ({"tiling": tiling} if tiling else {})
     if sampling and calibrate:
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
         params["calibration"] = calibrate_run(store, run, checkpoint, delta=delta, **fit)
@@ -205,7 +219,8 @@ def predict(
         if todo.size:
             model = model_from_checkpoint(ckpt, ckpt_path)
             infer = Inference(model, kwargs, sampling, device)
-            _write_outputs(store, infer, input_name, out, todo, 1 if sampling else batch_size, progress)
+            step = batch_size if tiling or not sampling else 1
+            _write_outputs(store, infer, input_name, out, todo, step, progress, tiling)
         if "calibration" in params:
             ood_check(store, out, indices)
     return out
@@ -275,12 +290,74 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     return record
 
 
-def _write_outputs(
-    store: DataStore, infer: Inference, input_name: str, out: str, todo: np.ndarray, step: int, progress: bool
+def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int) -> dict | None:
+    """The tiling of a prediction (``size``, ``overlap``, ``margin``; ``tile`` 0 = the trained size), None
+    untiled; untiled, the data set's image size and geometry must be the training data's."""
+    trained = int(ckpt["image_size"])
+    if tile is None:
+        if trained != store.geometry.n:
+            raise NanoctError(
+                f"the run {run} was trained on {trained}x{trained} images, the data here are "
+                f"{store.geometry.n}x{store.geometry.n}; predict in tiles of the trained size (--tile 0) or train a "
+                "network for this image size"
+            )
+        _check_geometry(store, run, ckpt)
+        return None
+    size = trained if tile == 0 else int(tile)
+    margin = DEFAULT_MARGIN
+    if size < 4 * margin + 2 or not 2 * margin + 1 <= overlap <= size // 2:
+        raise NanoctError(
+            f"tile {size} with overlap {overlap}: the tile must be at least {4 * margin + 2} pixels and the overlap "
+            f"between {2 * margin + 1} and half the tile; e.g. --tile 0 (the trained size, {trained}) with the "
+            f"default overlap {DEFAULT_OVERLAP}"
+        )
+    return {"size": size, "overlap": int(overlap), "margin": margin}
+
+
+def _write_tiled(
+    store: DataStore,
+    infer: Inference,
+    input_name: str,
+    out: str,
+    todo: np.ndarray,
+    tiling: dict[str, int],
+    batch_size: int,
+    progress: bool,
 ) -> None:
-    """Post-process ``reconstructions/<input_name>`` of the samples ``todo``, ``step`` at a time, into ``<out>``."""
+    """Post-process the samples ``todo`` one at a time in tiles (:func:`nanoct.learn.tiling.predict_tiled`);
+    one progress bar per image; latent samples seeded with the sample index."""
+    for i in todo:
+        mean, std = predict_tiled(
+            store.read_reconstruction(input_name, [int(i)])[0],
+            infer,
+            tiling["size"],
+            overlap=tiling["overlap"],
+            margin=tiling["margin"],
+            batch=batch_size,
+            seed=int(i),
+            progress=progress,
+            desc=f"{out} #{int(i)}",
+        )
+        store.write_reconstruction(out, int(i), mean, std=std)
+
+
+def _write_outputs(
+    store: DataStore,
+    infer: Inference,
+    input_name: str,
+    out: str,
+    todo: np.ndarray,
+    step: int,
+    progress: bool,
+    tiling: dict[str, int] | None = None,
+) -> None:
+    """Post-process ``reconstructions/<input_name>`` of the samples ``todo``, ``step`` at a time, into ``<out>``
+    (with ``tiling``: one image at a time, ``step`` tiles at a time, :func:`_write_tiled`)."""
     from tqdm.auto import tqdm
 
+    if tiling:
+        _write_tiled(store, infer, input_name, out, todo, tiling, step, progress)
+        return
     with tqdm(total=int(todo.size), desc=out, unit="img", disable=not progress) as bar:
         for start in range(0, todo.size, step):
             idx = todo[start : start + step]
