@@ -114,6 +114,12 @@ def axis_rows(n_rows: int, count: int = 8) -> np.ndarray:
     return np.unique(np.linspace(0, n_rows - 1, min(count, n_rows)).round().astype(int))
 
 
+def object_rows(sinograms: np.ndarray, fraction: float = 0.2) -> np.ndarray:
+    """Rows of ``(S, K, L)`` sinograms holding the object: every view's mass at least ``fraction`` of the top row's."""
+    mass = np.asarray(sinograms).sum(axis=2).min(axis=1)  # (S,): each row's smallest view mass
+    return mass > fraction * max(float(mass.max()), 0.0)
+
+
 def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
     """Line integrals ``(S, K, L)`` less each view's open-beam absorbance, where air is seen.
 
@@ -236,8 +242,7 @@ def _centroid(
     notes: list[str],
 ) -> None:
     """The centroid estimate over the rows that hold the object; used when it can be trusted."""
-    mass = clean.sum(axis=2).min(axis=1)  # (S,): each row's smallest view mass
-    rows = mass > 0.2 * max(float(mass.max()), 0.0)
+    rows = object_rows(clean)
     if not rows.any():
         notes.append("centroid: no row holds an object")
         return

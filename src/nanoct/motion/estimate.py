@@ -39,7 +39,7 @@ import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
-from .axis import AxisEstimate, axis_rows, estimate_axis, remove_air
+from .axis import AxisEstimate, axis_rows, estimate_axis, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
 from .matching import apply_vertical, match_projections
 from .registration import register_shifts
@@ -154,8 +154,7 @@ def estimate_motion(
     tick("vertical")
     sinos = straight.transpose(1, 0, 2)
     clean, air = remove_air(sinos)
-    mass = clean.sum(axis=2).min(axis=1)
-    rows = mass > 0.2 * max(float(mass.max()), 0.0)
+    rows = object_rows(clean)
     _, d_centroid, spread = centroid_motion(clean[rows] if rows.any() else clean, phi)
     method = horizontal if horizontal != "auto" else ("centroid" if air else "matching")
     record: dict[str, Any] = {"vertical": "row profiles" if vertical else "none", "horizontal": method}

@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, axis_tilt, estimate_axis, remove_air
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.stack import estimate_stack_motion
@@ -221,8 +221,7 @@ def horizontal_motion(
     geometry = store.geometry
     clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
     info: dict[str, Any] = {}
-    mass = clean.sum(axis=2).min(axis=1)
-    rows = mass > 0.2 * max(float(mass.max()), 0.0)
+    rows = object_rows(clean)
     _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
     if air:
         if params["center"] == "auto":
