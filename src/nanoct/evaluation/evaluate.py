@@ -283,8 +283,9 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
     lines += [
         "",
         "All scores are computed on the stored std (`uncertainty/<name>`) and the intervals mean +- multiplier x "
-        "g(stored std), g the level's quantile of |error| given the std (strictly increasing) and the multiplier "
-        "of each level by split conformal prediction, both fitted on the validation split. "
+        "g(stored std), g the level's quantile of |error| given the std (strictly increasing, one per region: "
+        "background, object) and one multiplier per level and group (the background and the five std fifths of "
+        "the object's support found from the std) by split conformal prediction, fitted on the validation split. "
         f"Guaranteed: the per-image coverage that holds with probability {1 - (delta or 0.1):.0%} "
         "(Hoeffding-Bentkus bound over the validation images). Partial corr.: Pearson correlation of the std "
         "with |error| given the edge baseline. AUSE: area between the sparsification curve (mean absolute "
