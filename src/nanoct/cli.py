@@ -798,25 +798,38 @@ def import_(
     stack), post-process it with a network trained on data simulated with its geometry, and
     export the images.
     """
-    from .io.scanio import import_scan
-
-    row_range = _parse_range(rows, "--rows", ":")
-    options = _reader_options(
-        data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
-    )
-    corrections = _corrections(
-        outliers, outlier_size, outlier_kind, open_beam, air_columns, open_beam_degree,
-        (delta_beta, energy_kev, distance_m, pixel_size_m), stripes, stripe_params,
-    )  # fmt: skip
-    store = import_scan(
-        src, out, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
-        is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
-        crop=_parse_range(crop, "--crop", ","), binning=binning, center_offset=_parse_center(center_offset),
-        size=size, tolerance=tolerance, entry=entry, drop_bad=drop_bad_views, options=options,
-        corrections=corrections,
+    store = _import_from_flags(
+        src, out, locals(), binning=binning, center_offset=_parse_center(center_offset), size=size,
+        tolerance=tolerance, drop_bad=drop_bad_views,
     )  # fmt: skip
     if not quiet:
         _echo_import(store)
+
+
+def _import_from_flags(src: Path, out: Path, flags: dict[str, Any], **settings: Any) -> Any:
+    """:func:`~nanoct.io.scanio.import_scan` with the reading and correction flags ``import`` and ``stack`` share.
+
+    ``flags`` holds the command's parameters by name (its ``locals()``); ``settings`` the
+    import's other keywords (binning, axis, ...), which only ``import`` offers.
+    """
+    from .io.scanio import import_scan
+
+    f = flags
+    row_range = _parse_range(f["rows"], "--rows", ":")
+    options = _reader_options(
+        f["data_path"], f["image_key_path"], f["angles_path"], f["angles_units"], f["allow_outside"],
+        f["tilt_axis"], f["angles_select"],
+    )  # fmt: skip
+    corrections = _corrections(
+        f["outliers"], f["outlier_size"], f["outlier_kind"], f["open_beam"], f["air_columns"], f["open_beam_degree"],
+        (f["delta_beta"], f["energy_kev"], f["distance_m"], f["pixel_size_m"]), f["stripes"], f["stripe_params"],
+    )  # fmt: skip
+    return import_scan(
+        src, out, fmt=f["fmt"], angles_file=f["angles"], degrees=not f["radians"], flats=f["flats"],
+        darks=f["darks"], is_line_integral=f["line_integrals"], entry=f["entry"],
+        rows=None if row_range is None else slice(*row_range), crop=_parse_range(f["crop"], "--crop", ","),
+        options=options, corrections=corrections, **settings,
+    )  # fmt: skip
 
 
 def _corrections(
@@ -937,21 +950,7 @@ def stack(
     if not (source / "zarr.json").is_file():
         if store_dir is None:
             raise NanoctError(f"{source} is not a data set; to import a scan file, add --store NEW_DIR")
-        from .io.scanio import import_scan
-
-        row_range = _parse_range(rows, "--rows", ":")
-        options = _reader_options(
-            data_path, image_key_path, angles_path, angles_units, allow_outside, tilt_axis, angles_select
-        )
-        corrections = _corrections(
-            outliers, outlier_size, outlier_kind, open_beam, air_columns, open_beam_degree,
-            (delta_beta, energy_kev, distance_m, pixel_size_m), stripes, stripe_params,
-        )  # fmt: skip
-        source = import_scan(
-            source, store_dir, fmt=fmt, angles_file=angles, degrees=not radians, flats=flats, darks=darks,
-            is_line_integral=line_integrals, rows=None if row_range is None else slice(*row_range),
-            crop=_parse_range(crop, "--crop", ","), entry=entry, options=options, corrections=corrections,
-        ).path  # fmt: skip
+        source = _import_from_flags(source, store_dir, locals()).path
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
         binning=binning, coarse_iter=coarse_iter, model=_parse_model(model), eta=_parse_eta(eta),

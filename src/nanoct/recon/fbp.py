@@ -22,7 +22,7 @@ from ..core.validation import check_array, check_choice
 from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 
-__all__ = ["FILTERS", "FbpParams", "fbp", "ramp_filter"]
+__all__ = ["FILTERS", "FbpParams", "fbp", "ramp_filter", "ramp_response"]
 
 FILTERS = ("ram-lak", "hann")
 
@@ -46,9 +46,29 @@ def ramp_filter(sino: np.ndarray, spacing: float, filter: str = "ram-lak") -> np
         ``spacing * (h * p)`` for each projection p: the discrete convolution approximating
         the ramp-filtered projection.
     """
-    check_choice(filter, "filter", FILTERS)
     n_det = sino.shape[1]
     size = int(2 ** np.ceil(np.log2(2 * n_det)))
+    spectrum = np.fft.rfft(sino, n=size, axis=1) * ramp_response(size, spacing, filter)[: size // 2 + 1]
+    return spacing * np.fft.irfft(spectrum, n=size, axis=1)[:, :n_det]
+
+
+def ramp_response(size: int, spacing: float, filter: str = "ram-lak") -> np.ndarray:
+    """The DFT (length ``size``) of :func:`ramp_filter`'s spatial kernel (without its ``spacing`` factor).
+
+    Parameters
+    ----------
+    size : int
+        Transform length (the padded detector).
+    spacing : float
+        Detector sample spacing.
+    filter : {"ram-lak", "hann"}
+        Ram-Lak, or Ram-Lak times a Hann window.
+
+    Returns
+    -------
+    ndarray of shape (size,), float64
+    """
+    check_choice(filter, "filter", FILTERS)
     n = np.concatenate([np.arange(0, size // 2 + 1), np.arange(-(size // 2) + 1, 0)])
     kernel = np.zeros(size)
     kernel[0] = 1.0 / (4 * spacing**2)
@@ -58,8 +78,7 @@ def ramp_filter(sino: np.ndarray, spacing: float, filter: str = "ram-lak") -> np
     if filter == "hann":
         freq = np.abs(np.fft.fftfreq(size))  # cycles per sample, Nyquist at 0.5
         response *= 0.5 + 0.5 * np.cos(2 * np.pi * freq)
-    spectrum = np.fft.rfft(sino, n=size, axis=1) * response[: size // 2 + 1]
-    return spacing * np.fft.irfft(spectrum, n=size, axis=1)[:, :n_det]
+    return response
 
 
 @numba.njit(cache=True, parallel=True, fastmath={"contract"})

@@ -42,7 +42,7 @@ from ..core.fanout import usable_cpus
 from ..core.geometry import Geometry
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float, check_int
-from .fbp import FILTERS
+from .fbp import FILTERS, ramp_response
 from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 
@@ -128,15 +128,7 @@ def backend_label(backend: str) -> str:
 
 def _filter_response(size: int, spacing: float, filter: str) -> np.ndarray:
     """The DFT (length ``size``) of :func:`~nanoct.recon.fbp.ramp_filter`'s kernel, times ``spacing``."""
-    n = np.concatenate([np.arange(0, size // 2 + 1), np.arange(-(size // 2) + 1, 0)])
-    kernel = np.zeros(size)
-    kernel[0] = 1.0 / (4 * spacing**2)
-    odd = n % 2 == 1
-    kernel[odd] = -1.0 / (np.pi * n[odd] * spacing) ** 2
-    response = np.real(np.fft.fft(kernel))
-    if filter == "hann":
-        response *= 0.5 + 0.5 * np.cos(2 * np.pi * np.abs(np.fft.fftfreq(size)))
-    return response * spacing
+    return ramp_response(size, spacing, filter) * spacing
 
 
 def _period(geometry: Geometry, shifts: np.ndarray, axis_range: float = 0.0) -> int:

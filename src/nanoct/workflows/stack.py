@@ -221,9 +221,9 @@ def horizontal_motion(
     geometry = store.geometry
     clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
     info: dict[str, Any] = {}
-    rows = object_rows(clean)
-    _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
     if air:
+        rows = object_rows(clean)
+        _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
         if params["center"] == "auto":
             center, info["axis"] = _axis(store, vertical, shifts)
         else:
