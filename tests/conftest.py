@@ -1,12 +1,17 @@
-"""Shared fixtures: operator cache in a temporary directory, a tiny data set."""
+"""Shared fixtures: operator cache in a temporary directory, a tiny data set; ``scan_cases`` importable."""
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from nanoct.core.geometry import get_preset
 from nanoct.sim.generate import generate_dataset
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # shared test helpers: scan_cases
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motion_cases import gauge_free_rms, known_motion, moved
 
 from nanoct.core.errors import NanoctError
 from nanoct.motion.estimate import estimate_motion
+from scan_cases import gauge_free_rms, known_motion, moved
 
 
 def test_real_scan_with_added_motion_recovered_in_both_directions(i13):
@@ -40,7 +40,7 @@ def test_estimate_motion_bad_input():
 
 
 def test_limited_angle_tilt_series_with_jumps_between_frames():
-    from motion_cases import analytic_projections
+    from scan_cases import analytic_projections
 
     angles = np.deg2rad(np.linspace(-76, 76, 39))  # no two views 180 degrees apart: prealigned, sharpness axis
     proj = np.pad(analytic_projections(angles, 64, 24, 2.0, seed=5), ((0, 0), (0, 0), (24, 24)))

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motion_cases import analytic_projections, gauge_free_rms, moved
 
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
 from nanoct.motion.matching import _own_views, _static_projections, apply_vertical, extend_edges, match_projections
 from nanoct.recon.fbp import ramp_filter
 from nanoct.recon.stack import corrected_fbp, reproject
+from scan_cases import analytic_projections, gauge_free_rms, moved
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motion_cases import analytic_projections, gauge_free_rms, known_motion, moved
 
 from nanoct.core.errors import NanoctError
 from nanoct.motion.vertical import row_profiles, vertical_shifts
+from scan_cases import analytic_projections, gauge_free_rms, known_motion, moved
 
 
 def test_constructed_stack_vertical_shifts_recovered():

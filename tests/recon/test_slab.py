@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import sys
 from functools import partial
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,36 +15,10 @@ from nanoct.core.geometry import Geometry
 from nanoct.recon import slab
 from nanoct.recon.gridrec import GridrecPlan
 from nanoct.recon.slab import read_block, reconstruct_slabs, slab_blocks
-from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
+from scan_cases import SLAB_K, SLAB_L, SLAB_OFFSET, SLAB_R, slab_line_integrals, write_raw_scan
 
-K, R, L, OFFSET = 90, 7, 48, 1.4
-
-
-def _line_integrals(d=None, v=None):
-    """(K, R, L) line integrals of a stack whose slices change smoothly with the row; moved by (d, v)."""
-    phi = np.arange(K) * np.pi / K
-    phantoms = stack_phantom(L, R + 8, seed=4)
-    rows = np.arange(R + 8, dtype=np.float64) - 4  # rows -4 .. R + 3: room for vertical moves
-    sinos = np.stack([ellipse_sinogram(e, phi, L, shifts=d, center_offset=OFFSET) for e in phantoms])  # (R+8, K, L)
-    out = np.empty((K, R, L), np.float32)
-    for k in range(K):
-        z = np.arange(R) + (0.0 if v is None else v[k])  # p_k(u, z) = P_k(u + d_k, z + v_k)
-        for col in range(L):
-            out[k, :, col] = np.interp(z, rows, sinos[:, k, col])
-    return phi, out
-
-
-def _write_scan(tmp_path: Path, data: np.ndarray, phi: np.ndarray) -> tuple[Path, dict]:
-    """A raw scan as .npy intensities with flats and darks (transmission exp(-p) times a flat of 1000, dark 50)."""
-    flat = np.full((2, R, L), 1000.0, np.float32)
-    dark = np.full((2, R, L), 50.0, np.float32)
-    np.save(tmp_path / "proj.npy", (dark[0] + (flat[0] - dark[0]) * np.exp(-data)).astype(np.float32))
-    np.save(tmp_path / "flats.npy", flat)
-    np.save(tmp_path / "darks.npy", dark)
-    np.savetxt(tmp_path / "angles.txt", np.rad2deg(phi))
-    read = {"angles_file": str(tmp_path / "angles.txt"), "flats": str(tmp_path / "flats.npy")}
-    read["darks"] = str(tmp_path / "darks.npy")
-    return tmp_path / "proj.npy", read
+K, R, L, OFFSET = SLAB_K, SLAB_R, SLAB_L, SLAB_OFFSET
+_line_integrals, _write_scan = slab_line_integrals, write_raw_scan
 
 
 def test_blocks_equal_the_whole_scan_reconstructed_at_once(tmp_path):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import zarr
@@ -11,37 +9,11 @@ import zarr
 from nanoct.core.geometry import Geometry
 from nanoct.recon import stack
 from nanoct.recon.gridrec import GridrecPlan
-from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 from nanoct.workflows import slabs
+from scan_cases import SLAB_K, SLAB_L, SLAB_OFFSET, SLAB_R, slab_line_integrals, write_raw_scan
 
-K, R, L, OFFSET = 90, 7, 48, 1.4
-
-
-def _line_integrals(d=None, v=None):
-    """(K, R, L) line integrals of a stack whose slices change smoothly with the row; moved by (d, v)."""
-    phi = np.arange(K) * np.pi / K
-    phantoms = stack_phantom(L, R + 8, seed=4)
-    rows = np.arange(R + 8, dtype=np.float64) - 4  # rows -4 .. R + 3: room for vertical moves
-    sinos = np.stack([ellipse_sinogram(e, phi, L, shifts=d, center_offset=OFFSET) for e in phantoms])  # (R+8, K, L)
-    out = np.empty((K, R, L), np.float32)
-    for k in range(K):
-        z = np.arange(R) + (0.0 if v is None else v[k])  # p_k(u, z) = P_k(u + d_k, z + v_k)
-        for col in range(L):
-            out[k, :, col] = np.interp(z, rows, sinos[:, k, col])
-    return phi, out
-
-
-def _write_scan(tmp_path: Path, data: np.ndarray, phi: np.ndarray) -> tuple[Path, dict]:
-    """A raw scan as .npy intensities with flats and darks (transmission exp(-p) times a flat of 1000, dark 50)."""
-    flat = np.full((2, R, L), 1000.0, np.float32)
-    dark = np.full((2, R, L), 50.0, np.float32)
-    np.save(tmp_path / "proj.npy", (dark[0] + (flat[0] - dark[0]) * np.exp(-data)).astype(np.float32))
-    np.save(tmp_path / "flats.npy", flat)
-    np.save(tmp_path / "darks.npy", dark)
-    np.savetxt(tmp_path / "angles.txt", np.rad2deg(phi))
-    read = {"angles_file": str(tmp_path / "angles.txt"), "flats": str(tmp_path / "flats.npy")}
-    read["darks"] = str(tmp_path / "darks.npy")
-    return tmp_path / "proj.npy", read
+K, R, L, OFFSET = SLAB_K, SLAB_R, SLAB_L, SLAB_OFFSET
+_line_integrals, _write_scan = slab_line_integrals, write_raw_scan
 
 
 def test_scan_motion_from_a_few_rows_then_every_block(tmp_path, monkeypatch):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +9,7 @@ import pytest
 
 from nanoct.cli import run
 from nanoct.io.store import DataStore
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "motion"))
-from motion_cases import gauge_free_rms, known_motion, moved  # noqa: E402
+from scan_cases import gauge_free_rms, known_motion, moved
 
 I13 = Path(__file__).resolve().parents[1] / "data" / "realdata" / "i13-24737-tiff"
 

@@ -1,6 +1,8 @@
-"""Constructed 3-D scans and known motion for the motion tests (imported by them)."""
+"""Constructed 3-D scans and known motion shared by the tests (``from scan_cases import ...``)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import scipy.ndimage as ndi
@@ -44,3 +46,36 @@ def analytic_projections(angles: np.ndarray, n_det: int, n_rows: int, center: fl
     envelope = 0.5 + 0.5 * np.tanh((0.6 - np.abs(z)) * 8) + 0.3 * np.sin(5 * z)
     sinos = [w * ellipse_sinogram(e, angles, n_det, center_offset=center) for w, e in zip(envelope, slices)]
     return np.stack(sinos, axis=1)
+
+
+#: The slab tests' small stack: views, rows, columns, axis offset.
+SLAB_K, SLAB_R, SLAB_L, SLAB_OFFSET = 90, 7, 48, 1.4
+
+
+def slab_line_integrals(d=None, v=None):
+    """(K, R, L) line integrals of a stack whose slices change smoothly with the row; moved by (d, v)."""
+    k_views, n_rows, n_det = SLAB_K, SLAB_R, SLAB_L
+    phi = np.arange(k_views) * np.pi / k_views
+    phantoms = stack_phantom(n_det, n_rows + 8, seed=4)
+    rows = np.arange(n_rows + 8, dtype=np.float64) - 4  # rows -4 .. R + 3: room for vertical moves
+    sinos = np.stack([ellipse_sinogram(e, phi, n_det, shifts=d, center_offset=SLAB_OFFSET) for e in phantoms])
+    out = np.empty((k_views, n_rows, n_det), np.float32)
+    for k in range(k_views):
+        z = np.arange(n_rows) + (0.0 if v is None else v[k])  # p_k(u, z) = P_k(u + d_k, z + v_k)
+        for col in range(n_det):
+            out[k, :, col] = np.interp(z, rows, sinos[:, k, col])
+    return phi, out
+
+
+def write_raw_scan(tmp_path: Path, data: np.ndarray, phi: np.ndarray) -> tuple[Path, dict]:
+    """A raw scan as .npy intensities with flats and darks (transmission exp(-p) times a flat of 1000, dark 50)."""
+    shape = (2, SLAB_R, SLAB_L)
+    flat = np.full(shape, 1000.0, np.float32)
+    dark = np.full(shape, 50.0, np.float32)
+    np.save(tmp_path / "proj.npy", (dark[0] + (flat[0] - dark[0]) * np.exp(-data)).astype(np.float32))
+    np.save(tmp_path / "flats.npy", flat)
+    np.save(tmp_path / "darks.npy", dark)
+    np.savetxt(tmp_path / "angles.txt", np.rad2deg(phi))
+    read = {"angles_file": str(tmp_path / "angles.txt"), "flats": str(tmp_path / "flats.npy")}
+    read["darks"] = str(tmp_path / "darks.npy")
+    return tmp_path / "proj.npy", read
