@@ -871,6 +871,9 @@ def _echo_import(store: Any) -> None:
     )
     for note in scan.get("notes", []):
         typer.echo(f"note: {note}", err=True)
+    for note in (scan.get("axis") or {}).get("notes", []):  # --center-offset auto: estimators that disagree
+        if note.startswith("warning"):
+            typer.echo(note, err=True)
 
 
 def _parse_center(text: str) -> float | str:
