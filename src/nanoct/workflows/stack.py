@@ -54,8 +54,8 @@ __all__ = [
 ]
 
 #: Reconstruction of each slice with the stack's motion: motion-corrected FBP, its Fourier-space
-#: form (gridrec), Dremel (SART view steps) with the motion held fixed, or RESESOP-Kaczmarz on
-#: the shift-corrected sinogram.
+#: form (gridrec), Dremel (SART view steps) with the motion held fixed (on measured data: as its
+#: start), or RESESOP-Kaczmarz with the motion (on measured data: Dremel's refinement of it).
 STACK_METHODS = ("fbp", "gridrec", "dremel", "resesop")
 
 #: How ``--method fbp`` runs: ``auto`` (gridrec where usable), ``gridrec`` or ``backprojection``.
@@ -432,7 +432,9 @@ def reconstruct_stack(
     eta : "auto", float or array_like of shape (K,)
         RESESOP's model-uncertainty level per view (only with ``method="resesop"``). ``"auto"``:
         per view, half the largest ``|y_c - A x_0|`` of the shift-corrected sinogram ``y_c`` and
-        its FBP ``x_0`` (:data:`AUTO_ETA_FRACTION`); a number: that level for every view.
+        its FBP ``x_0`` (:data:`AUTO_ETA_FRACTION`; on measured data ``x_0`` is Dremel's image and
+        ``y_c`` the views read with Dremel's motion, :func:`_resesop_slice`); a number: that
+        level for every view.
     name : str, optional
         Output name (default :func:`~nanoct.names.stack_name`).
     overwrite : bool
