@@ -30,9 +30,11 @@ the gauge no data fix); ``--unregistered`` prints the plain scores too.
 Rows per slice: FBP of the moved data without correction, FBP with the known motion, FBP with
 the stack's motion (:func:`nanoct.motion.stack.estimate_stack_motion` on all chosen slices,
 axis given), Dremel with the defaults (``nanoct.dremel``), Dremel with the data as given
-(``dremel_off``: ``measured="off"``), RESESOP with eta estimated from Dremel's image
-(:func:`nanoct.recon.eta.eta_from_residual`: its default on measured data, half the largest
-residual per view; ``resesop_eta1``: the whole), the stack paths (``dremel_joint``,
+(``dremel_off``: ``measured="off"``), RESESOP after Dremel (``resesop``: the model carries Dremel's
+motion, ``shifts=``, and eta is estimated from Dremel's image after that motion with
+:func:`nanoct.recon.eta.eta_from_residual`, its default on measured data: half the largest
+residual per view; ``resesop_eta1``: the whole; ``resesop_unmoved_model``: the paper's
+unperturbed model with eta from Dremel's residual before its motion), the stack paths (``dremel_joint``,
 ``dremel_stack``, ``resesop_stack``: see :func:`stack_rows`), Dremel on the unmoved scan
 (``dremel_unmoved``: what a perfect motion estimate would give Dremel against this reference),
 and for each iterative method its sweeps and seconds.
@@ -62,18 +64,17 @@ from nanoct.recon.fbp import fbp
 from nanoct.recon.measured import air_level
 from nanoct.recon.resesop import resesop
 from nanoct.recon.shared import joint_shifts, remove_translation
-from nanoct.recon.stack import corrected_fbp, reproject
-from nanoct.workflows.stack import AUTO_ETA_FRACTION, shift_corrected
+from nanoct.workflows.stack import _dremel_slice, _resesop_slice
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "realdata" / "i13-24737-tiff"
 AXIS = 6.2
 ROWS = (
     "fbp_raw", "fbp", "fbp_known", "fbp_stack", "dremel", "dremel_off", "resesop", "resesop_eta1",
-    "dremel_joint", "dremel_stack", "resesop_stack", "dremel_unmoved",
+    "resesop_unmoved_model", "dremel_joint", "dremel_stack", "resesop_stack", "dremel_unmoved",
 )  # fmt: skip
 #: The rows with sweeps and seconds, and the rows the targets compare with uncorrected FBP.
 ITERATIVE = (
-    "dremel", "dremel_off", "resesop", "resesop_eta1",
+    "dremel", "dremel_off", "resesop", "resesop_eta1", "resesop_unmoved_model",
     "dremel_joint", "dremel_stack", "resesop_stack", "dremel_unmoved",
 )  # fmt: skip
 
@@ -142,20 +143,20 @@ def stack_rows(g: Geometry, sino: np.ndarray, stack: np.ndarray, joint: np.ndarr
 
     ``dremel_joint``: Dremel with the joint motion held fixed (``nanoct reconstruct --method dremel``
     on an imported stack: :func:`nanoct.recon.shared.joint_shifts` over the chosen slices);
-    ``dremel_stack`` / ``resesop_stack``: ``nanoct stack --method dremel|resesop`` with the motion
-    of :func:`nanoct.motion.stack.estimate_stack_motion` (RESESOP on the shift-corrected sinogram
-    with half the corrected FBP's largest residual per view as eta, the ``auto`` level).
+    ``dremel_stack`` / ``resesop_stack``: the per-slice functions of ``nanoct stack --method
+    dremel|resesop`` with the motion of :func:`nanoct.motion.stack.estimate_stack_motion` (on
+    measured data Dremel starts from it and refines it; RESESOP's model carries Dremel's refined
+    motion, eta half the largest residual per view after it: the ``auto`` level). The sweeps of
+    ``resesop_stack`` are not reported (0); its seconds include its Dremel.
     """
     y = sino.astype(np.float32)
     out = {
         "dremel_joint": timed(dremel, g, y, shifts0=joint, fix_shifts=True),
-        "dremel_stack": timed(dremel, g, y, shifts0=stack, fix_shifts=True),
+        "dremel_stack": timed(_dremel_slice, g, y, stack),
     }
     t0 = time.perf_counter()
-    corrected = shift_corrected(sino.astype(np.float64), stack)
-    levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(g, corrected_fbp(g, corrected))).max(axis=1)
-    image, (sweeps, _) = timed(resesop, g, corrected, levels)
-    out["resesop_stack"] = (image, (sweeps, time.perf_counter() - t0))  # the eta level counted
+    image = _resesop_slice(g, y, stack, "auto")
+    out["resesop_stack"] = (image, (0, time.perf_counter() - t0))
     return out
 
 
@@ -185,11 +186,14 @@ def reconstruct(
     off = nanoct.dremel(y, angles=angles, degrees=True, center_offset=AXIS, measured="off")
     t2 = time.perf_counter()
     out["dremel_off"] = (off.image, (off.iterations, t2 - t1))
-    eta = eta_from_residual(g, y, d.image)
-    t3 = time.perf_counter()
-    r = nanoct.resesop(y, angles=angles, degrees=True, center_offset=AXIS, eta=eta)
-    out["resesop"] = (r.image, (r.iterations, time.perf_counter() - t3))
-    out["resesop_eta1"] = timed(resesop, g, y, eta_from_residual(g, y, d.image, scale=1.0))
+    # RESESOP after Dremel: the model carries Dremel's motion, eta the residual left after it
+    image, (sweeps, seconds) = timed(resesop, g, y, eta_from_residual(g, y, d.image, shifts=d.motion), shifts=d.motion)
+    out["resesop"] = (image, (sweeps, seconds + (t1 - t0)))  # Dremel's time counted
+    eta1 = eta_from_residual(g, y, d.image, scale=1.0, shifts=d.motion)
+    out["resesop_eta1"] = timed(resesop, g, y, eta1, shifts=d.motion)
+    # the unperturbed model (the paper's), eta from Dremel's residual before its motion
+    eta0 = eta_from_residual(g, y, d.image)
+    out["resesop_unmoved_model"] = timed(nanoct.resesop, y, angles=angles, degrees=True, center_offset=AXIS, eta=eta0)
     out["dremel_unmoved"] = timed(dremel, g, unmoved.astype(np.float32), fix_shifts=True)
     return out | stack_rows(g, sino, stack, motions["joint"])
 
@@ -271,14 +275,23 @@ def save_pictures(folder: Path, cases: dict[str, tuple[dict, dict]], slices: lis
         plt.close(fig)
 
 
-#: Dremel's measured-data options and two shift-estimate refinements (``--variants``).
+#: Dremel's measured-data options, shift-estimate refinements and a restart (``--variants``).
 VARIANTS = {
     "defaults": {},
     "pad=0 (no extension)": {"pad": 0},
     "pad=L/2": {"pad": "half"},
-    "subpixel=True": {"subpixel": True},
+    "subpixel=False (the simulations' default)": {"subpixel": False},
     "f_sr=4": {"f_sr": 4},
+    "restarted from its own motion (twice the time)": {"restart": True},
 }
+
+
+def variant_image(g: Geometry, y: np.ndarray, kw: dict) -> np.ndarray:
+    """Dremel's image with one of :data:`VARIANTS` (``restart``: a second run from the first run's motion)."""
+    kw = dict(kw)
+    if kw.pop("restart", False):
+        kw["shifts0"] = dremel(g, y, **kw).motion
+    return dremel(g, y, **kw).image
 
 
 def variants(proj: np.ndarray, moved: np.ndarray, refs: dict, angles: np.ndarray, slices: list[int]) -> None:
@@ -291,7 +304,7 @@ def variants(proj: np.ndarray, moved: np.ndarray, refs: dict, angles: np.ndarray
         means = {}
         for name, kw in VARIANTS.items():
             kw = {**kw, "pad": n // 2} if kw.get("pad") == "half" else kw
-            values = [scores(dremel(g, moved[:, s, cols].astype(np.float32), **kw).image, refs[s][cols, cols],
+            values = [scores(variant_image(g, moved[:, s, cols].astype(np.float32), kw), refs[s][cols, cols],
                              disc(n))[1] for s in slices]  # fmt: skip
             means[name] = np.mean(values)
         print(f"Dremel variants ({'cut' if cut else 'full'}), mean PSNR: "

@@ -599,9 +599,11 @@ class DremelParams(MethodParams):
         Up-sampling factor of the cross-correlation (the paper: 2).
     weighting : {"additive", "overlap", "none"}, default "additive"
         Zero-padding bias compensation of the cross-correlation (:func:`shift_cross_corr`).
-    subpixel : bool, default False
+    subpixel : bool, optional
         Parabolic refinement of the correlation peak (:func:`shift_cross_corr`; not in the
-        paper).
+        paper). Default False, and True for measured data (``measured``): a real motion is
+        not a multiple of ``1 / f_sr`` pixels (on the I13 scan with an added motion the
+        refinement gained 0.3 dB, ``docs/reconstruction.md``).
     fix_shifts : bool, default False
         Keep the shifts at ``shifts0`` (no shift correction): SART with a known motion, e.g.
         one estimated jointly from several slices or read from another tool's file.
@@ -711,7 +713,7 @@ def dremel(
     so estimated shifts may differ from the true ones by such a term.
     """
     p = DremelParams.check(op, **params)
-    inner = {**params, "measured": "off", "pad": None}
+    inner = {"subpixel": True, **params, "measured": "off", "pad": None}  # measured data: the refined peak
     measured = solve_measured(
         lambda d, x, cb: dremel(
             d.geometry, d.sinogram, x0=x, shifts0=shifts0, callback=cb, matrix=matrix,

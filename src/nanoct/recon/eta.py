@@ -6,7 +6,9 @@ On a measured scan it has to be estimated. Two estimators:
 
 ``residual``
     From a first reconstruction ``x0`` that already corrects most of the motion (Dremel):
-    ``eta_k = scale * max_l |y_kl - (A x0)_kl|``. ``A x0`` stands in for ``y^eta``; the
+    ``eta_k = scale * max_l |y_kl - (A x0)_kl|``, or with the motion ``x0`` came with
+    (``shifts``: Dremel's estimate) against the data with that motion undone, the model error
+    RESESOP meets when it is given the same ``shifts``. ``A x0`` stands in for ``y^eta``; the
     residual also holds the model's discretisation error and what ``x0`` got wrong, and
     ``scale`` (1 by default, or fitted on a simulated reference set with
     :func:`fit_scale`) corrects its average bias. On measured data (an open beam not at zero,
@@ -32,7 +34,7 @@ from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..core.operators import RayTransform, system_matrix
 from ..core.validation import check_array, check_choice, check_float
-from .measured import MEASURED_MODES, air_level, looks_measured
+from .measured import MEASURED_MODES, air_level, looks_measured, read_moved
 from .rowaction import resolve_projector
 
 __all__ = ["MEASURED_SCALE", "eta_from_reference", "eta_from_residual", "fit_scale"]
@@ -51,6 +53,7 @@ def eta_from_residual(
     scale: float | None = None,
     projector: str | None = None,
     measured: str = "auto",
+    shifts: Any = None,
 ) -> np.ndarray:
     """``scale * max_l |y - A x0|`` per view, from a first reconstruction ``x0``.
 
@@ -78,6 +81,11 @@ def eta_from_residual(
         Measured data (as the methods' parameter): ``"on"`` removes the air level; ``"auto"``
         is ``"on"`` where :func:`~nanoct.recon.measured.looks_measured`, else ``"off"``;
         ``"extend"`` keeps the air level but takes the measured default scale.
+    shifts : array_like of shape (K,), optional
+        The motion the model carries (object pixels along ``e_u``, as Dremel's ``motion`` and
+        :func:`~nanoct.recon.resesop.resesop`'s ``shifts``): the residual is taken against the
+        views read at ``u - d_k`` (:func:`~nanoct.recon.measured.read_moved`), so that eta is
+        the model error left after this motion. Give Dremel's own motion with its image.
 
     Returns
     -------
@@ -88,6 +96,9 @@ def eta_from_residual(
     measured = check_choice(measured, "measured", MEASURED_MODES)
     if measured == "auto":
         measured = "on" if looks_measured(y) else "off"
+    if shifts is not None:
+        d = check_array(shifts, "shifts", shape=(geometry.n_angles,), dtype=np.float64)
+        y = read_moved(y, d * geometry.magnification / geometry.det_spacing)
     if measured == "on":
         y = y - air_level(y)[:, None]
     if scale is None:

@@ -27,6 +27,10 @@ detector is an object filling it, and the cross-correlation of Dremel follows it
    the residual over the measured rays falls below ``DISCREPANCY_TAU * sigma * sqrt(K L)``;
    RESESOP takes ``sigma`` as its noise level ``delta`` unless one is given.
 
+A motion estimated elsewhere (the stack's, or Dremel's own) is carried by reading each view at
+``u - d_k`` (:func:`read_moved`, the edges held): RESESOP's ``shifts`` and the residual eta
+estimate after that motion (:func:`~nanoct.recon.eta.eta_from_residual`) use it.
+
 ``measured="auto"`` (the methods' default) applies these, unless the caller gives the system
 matrix, when :func:`looks_measured` finds a
 non-zero level at the detector edges (open beam not at zero, or an object cut by the edges):
@@ -63,6 +67,7 @@ __all__ = [
     "noise_level",
     "padded_geometry",
     "prepare_measured",
+    "read_moved",
     "solve_measured",
 ]
 
@@ -135,6 +140,30 @@ def noise_level(sino: np.ndarray) -> float:
     w = min(edge_width(y.shape[1]), d.shape[1] // 2)
     parts = [d, np.concatenate([d[:, :w], d[:, -w:]], axis=1)] if w > 0 else [d]
     return float(min(1.4826 * np.median(np.abs(p - np.median(p))) for p in parts) / math.sqrt(6.0))
+
+
+def read_moved(sino: Any, shifts: Any) -> np.ndarray:
+    """Each view ``k`` read at ``u - d_k``: the views of a moved object as the unmoved one gives them.
+
+    Linear interpolation along the detector; beyond its ends each view keeps its edge value
+    (an open beam not at zero, or an object cut by the edges, is not turned into a step to 0).
+    The same convention as :func:`~nanoct.recon.stack.corrected_fbp` and Dremel's ``motion``
+    (in detector pixels).
+
+    Parameters
+    ----------
+    sino : array_like of shape (K, L)
+    shifts : array_like of shape (K,)
+        Per-view detector shifts ``d_k`` in detector pixels.
+
+    Returns
+    -------
+    ndarray of shape (K, L), float64
+    """
+    y = np.asarray(sino, dtype=np.float64)
+    d = check_array(shifts, "shifts", shape=(y.shape[0],), dtype=np.float64)
+    u = np.arange(y.shape[1], dtype=np.float64)
+    return np.stack([np.interp(u - dk, u, view) for view, dk in zip(y, d)]) if y.size else y.copy()
 
 
 def extend_sinogram(sino: np.ndarray, pad: int) -> np.ndarray:

@@ -59,7 +59,7 @@ from ..core.geometry import Geometry
 from ..core.matrixfree import RAY_ENTRIES_PER_N, ParallelRays, ray_dot, ray_setup, ray_trace, residual_norm_free
 from ..core.operators import RayTransform
 from ..core.validation import check_array, check_choice, check_float
-from .measured import check_measured, solve_measured
+from .measured import check_measured, read_moved, solve_measured
 from .params import MethodParams, resolve_geometry
 from .result import ReconResult
 from .rowaction import (
@@ -407,6 +407,7 @@ def resesop(
     eta: Any,
     *,
     x0: Any = None,
+    shifts: Any = None,
     callback: Callable[[int, np.ndarray, None], Any] | None = None,
     matrix: sp.csr_matrix | None = None,
     **params: Any,
@@ -425,6 +426,14 @@ def resesop(
         SESOP-Kaczmarz, which never meets the discrepancy and runs ``n_iter`` sweeps.
     x0 : array_like of shape (N, N), optional
         Start image (default zeros, as the paper).
+    shifts : array_like of shape (K,), optional
+        An estimated object shift per view (object pixels along ``e_u``, as Dremel's
+        ``motion``): the model ``A^eta`` is then the operator of the object moved by them,
+        realised by reading view ``k`` at ``u - d_k``, ``d_k = shifts_k m / Delta_d``
+        (:func:`~nanoct.recon.measured.read_moved`; the same shifted model as Dremel's).
+        ``eta`` is then the model error left after this motion
+        (:func:`~nanoct.recon.eta.eta_from_residual` with the same ``shifts``). Default: the
+        unperturbed model, as the paper.
     callback : callable, optional
         ``callback(iteration, x, None)`` after each sweep that did not meet the discrepancy
         principle; returning True stops (reason ``"callback"``).
@@ -449,6 +458,10 @@ def resesop(
     """
     p = ResesopParams.check(op, **params)
     geometry = resolve_geometry(op)
+    if shifts is not None:
+        sino = check_array(sino, "sinogram", shape=geometry.sino_shape)
+        d = check_array(shifts, "shifts", shape=(geometry.n_angles,), dtype=np.float64)
+        sino = read_moved(sino, d * geometry.magnification / geometry.det_spacing).astype(np.float32)
     inner = {**params, "measured": "off", "pad": None}
     measured = solve_measured(
         lambda d, x, cb: resesop(

@@ -54,8 +54,8 @@ __all__ = [
 ]
 
 #: Reconstruction of each slice with the stack's motion: motion-corrected FBP, its Fourier-space
-#: form (gridrec), Dremel (SART view steps) with the motion held fixed, or RESESOP-Kaczmarz on
-#: the shift-corrected sinogram.
+#: form (gridrec), Dremel (SART view steps) with the motion held fixed (on measured data: as its
+#: start), or RESESOP-Kaczmarz with the motion (on measured data: Dremel's refinement of it).
 STACK_METHODS = ("fbp", "gridrec", "dremel", "resesop")
 
 #: How ``--method fbp`` runs: ``auto`` (gridrec where usable), ``gridrec`` or ``backprojection``.
@@ -105,19 +105,44 @@ def shift_corrected(sinogram: np.ndarray, shifts: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(u - d, u, view, left=0.0, right=0.0) for view, d in zip(sinogram, shifts)])
 
 
-def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
-    """RESESOP-Kaczmarz on the shift-corrected sinogram; ``"auto"`` eta: half the FBP's largest residual per view.
+def _dremel_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray) -> Any:
+    """Dremel with the stack's motion (detector pixels): held fixed, or on measured data Dremel's start.
 
-    A measured sinogram's air level (:func:`~nanoct.recon.measured.air_level`) is removed first, so
-    that the level is not taken for the model error.
+    On a measured sinogram (:func:`~nanoct.recon.measured.looks_measured`) Dremel starts from the
+    stack's motion and refines it per slice (its measured-data defaults); a simulation keeps the
+    stack's motion fixed, as before.
     """
-    from ..recon.measured import air_level, looks_measured
+    from ..recon.dremel import dremel
+    from ..recon.measured import looks_measured
+
+    shifts_obj = shifts * geometry.det_spacing / geometry.magnification  # detector px -> object px
+    return dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=not looks_measured(sino))
+
+
+def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
+    """RESESOP-Kaczmarz with the stack's motion; ``"auto"`` eta: half the largest residual per view after it.
+
+    Measured data (:func:`~nanoct.recon.measured.looks_measured`): the model carries the motion
+    (:func:`~nanoct.recon.resesop.resesop`'s ``shifts``); with ``"auto"`` the motion is Dremel's
+    refinement of the stack's (:func:`_dremel_slice`) and eta half the largest residual of Dremel's
+    image per view after that motion (:func:`~nanoct.recon.eta.eta_from_residual`, air level
+    removed). A simulation: RESESOP on the shift-corrected sinogram, ``"auto"`` eta half the
+    corrected FBP's largest residual per view.
+    """
+    from ..recon.eta import eta_from_residual
+    from ..recon.measured import looks_measured
     from ..recon.resesop import resesop
 
-    sino = sino.astype(np.float64)
     if looks_measured(sino):
-        sino = sino - air_level(sino)[:, None]
-    corrected = shift_corrected(sino, shifts)
+        if eta == "auto":
+            start = _dremel_slice(geometry, sino, shifts)
+            motion = start.motion
+            levels = eta_from_residual(geometry, sino, start.image, scale=AUTO_ETA_FRACTION, shifts=motion)
+        else:
+            motion = shifts * geometry.det_spacing / geometry.magnification
+            levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
+        return resesop(geometry, sino, levels, shifts=motion, projector="auto").image
+    corrected = shift_corrected(sino.astype(np.float64), shifts)
     if eta == "auto":
         start = corrected_fbp(geometry, corrected)
         levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(geometry, start)).max(axis=1)
@@ -285,10 +310,7 @@ def _reconstruct_slice(
     elif method == "resesop":
         image = _resesop_slice(geometry, sino, shifts, eta)
     else:
-        from ..recon.dremel import dremel
-
-        shifts_obj = shifts * geometry.det_spacing / geometry.magnification  # detector px -> object px
-        image = dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=True).image
+        image = _dremel_slice(geometry, sino, shifts).image
     store.write_reconstruction(name, index, image, shifts.astype(np.float32))
     return index
 
@@ -410,7 +432,9 @@ def reconstruct_stack(
     eta : "auto", float or array_like of shape (K,)
         RESESOP's model-uncertainty level per view (only with ``method="resesop"``). ``"auto"``:
         per view, half the largest ``|y_c - A x_0|`` of the shift-corrected sinogram ``y_c`` and
-        its FBP ``x_0`` (:data:`AUTO_ETA_FRACTION`); a number: that level for every view.
+        its FBP ``x_0`` (:data:`AUTO_ETA_FRACTION`; on measured data ``x_0`` is Dremel's image and
+        ``y_c`` the views read with Dremel's motion, :func:`_resesop_slice`); a number: that
+        level for every view.
     name : str, optional
         Output name (default :func:`~nanoct.names.stack_name`).
     overwrite : bool
