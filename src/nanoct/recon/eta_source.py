@@ -101,7 +101,9 @@ class EtaPlan:
         None unless the residual estimator's first reconstruction was made by a method that
         estimates motion (:func:`~nanoct.recon.registry.methods_with_motion`).
         """
-        if self.kind != "residual" or store.reconstruction_params(self.first).get("method") not in methods_with_motion():
+        if self.kind != "residual":
+            return None
+        if store.reconstruction_params(self.first).get("method") not in methods_with_motion():
             return None
         return store.read_shifts(self.first, [index])[0].astype(np.float64)
 
