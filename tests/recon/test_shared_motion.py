@@ -79,6 +79,9 @@ def test_joint_motion_refined_per_slice_on_measured_stack(tmp_path, stack):
     direct = dremel(g, measured[1], n_iter=3, shifts0=joint)
     np.testing.assert_allclose(shifts[1], direct.motion, atol=1e-6)
     np.testing.assert_allclose(store.read_reconstruction("dremel", [1])[0], direct.image, atol=1e-6)
+    # exported as the stack's one motion: the joint estimate
+    joint_file = write_store_shifts(store.path, "dremel", tmp_path / "joint.txt")
+    np.testing.assert_allclose(read_shifts(joint_file, g.n_angles), joint, atol=1e-5)
 
 
 def test_joint_estimate_not_redone_on_resume(tmp_path, stack, monkeypatch):
