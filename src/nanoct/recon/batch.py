@@ -13,7 +13,8 @@ defaults of ``nanoct stack``: RESESOP on an imported scan estimates eta from the
 Dremel (``eta="estimate:residual"`` unless given) and runs after Dremel's motion, its model
 carrying that motion and eta the residual left after it
 (:class:`~nanoct.recon.eta_source.EtaPlan`); Dremel starts each slice from a joint motion of
-the stack and refines it (on a simulation the joint motion is held fixed, as before).
+the stack and refines it (a simulation holds the joint motion fixed and RESESOP keeps the
+unperturbed model).
 """
 
 from __future__ import annotations

@@ -127,7 +127,7 @@ def carries_motion(sinogram: Any, measured: str = "auto") -> bool:
     The methods' own rule (:mod:`~nanoct.recon.measured`): ``measured`` ``"on"`` or
     ``"extend"``, or ``"auto"`` where :func:`~nanoct.recon.measured.looks_measured` (an open
     beam not at zero, or an object cut by the detector edges), the rule ``nanoct stack`` uses
-    per slice; a simulation is reconstructed as before.
+    per slice; a simulation keeps the unperturbed model and a held joint motion.
     """
     return measured in ("on", "extend") or (measured == "auto" and looks_measured(np.asarray(sinogram)))
 

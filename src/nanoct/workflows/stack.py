@@ -110,7 +110,7 @@ def _dremel_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray) -> Any:
 
     On a measured sinogram (:func:`~nanoct.recon.measured.looks_measured`) Dremel starts from the
     stack's motion and refines it per slice (its measured-data defaults); a simulation keeps the
-    stack's motion fixed, as before.
+    stack's motion fixed.
     """
     from ..recon.dremel import dremel
     from ..recon.measured import looks_measured
