@@ -11,6 +11,9 @@ indices 0..S-1, the paper's motion), mean PSNR after the best sub-pixel translat
 * Dremel (32 iterations, the simulations' defaults) and with ``subpixel=True`` (the parabolic
   correlation peak, the measured-data default);
 * Dremel restarted from its own motion (a second run with a fresh image);
+* Dremel started from the views' centroid motion (:func:`nanoct.motion.center.centroid_motion`,
+  where the views' total line integral varies by at most 1 %, the tolerance of
+  :func:`nanoct.motion.stack.estimate_stack_motion`; else from zero), and RESESOP after it;
 * RESESOP with the unperturbed model and eta from Dremel's residual (scale 1), and RESESOP
   after Dremel: Dremel's motion in the model (``shifts=``) and eta the residual after it.
 """
@@ -24,12 +27,16 @@ import numpy as np
 
 from nanoct.core.geometry import get_preset
 from nanoct.evaluation.metrics import register
+from nanoct.motion.center import centroid_motion
 from nanoct.recon.dremel import dremel
 from nanoct.recon.eta import eta_from_residual
 from nanoct.recon.resesop import resesop
 from nanoct.sim.simulate import SimulationConfig, simulate_sample
 
-ROWS = ("dremel", "dremel_subpixel", "dremel_restart", "resesop_unmoved_model", "resesop_after_dremel")
+ROWS = (
+    "dremel", "dremel_subpixel", "dremel_restart", "resesop_unmoved_model", "resesop_after_dremel",
+    "dremel_centroid", "resesop_after_dremel_centroid",
+)  # fmt: skip
 
 
 def psnr(image: np.ndarray, truth: np.ndarray) -> float:
@@ -49,6 +56,11 @@ def sample_scores(g, sample) -> dict[str, float]:
         "resesop_unmoved_model": resesop(g, y, eta_from_residual(g, y, d.image)).image,
         "resesop_after_dremel": resesop(g, y, eta_from_residual(g, y, d.image, shifts=d.motion), shifts=d.motion).image,
     }
+    _, start, spread = centroid_motion(y, g.angles)
+    c = dremel(g, y, shifts0=start * g.det_spacing / g.magnification) if spread <= 0.01 else d
+    images["dremel_centroid"] = c.image
+    eta = eta_from_residual(g, y, c.image, shifts=c.motion)
+    images["resesop_after_dremel_centroid"] = resesop(g, y, eta, shifts=c.motion).image
     return {row: psnr(images[row], truth) for row in ROWS}
 
 

@@ -70,12 +70,13 @@ DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "realdata" / "i1
 AXIS = 6.2
 ROWS = (
     "fbp_raw", "fbp", "fbp_known", "fbp_stack", "dremel", "dremel_off", "resesop", "resesop_eta1",
-    "resesop_unmoved_model", "dremel_joint", "dremel_stack", "resesop_stack", "dremel_unmoved",
+    "resesop_unmoved_model", "dremel_joint", "resesop_joint", "dremel_joint_refined", "resesop_joint_refined",
+    "dremel_stack", "resesop_stack", "dremel_unmoved",
 )  # fmt: skip
 #: The rows with sweeps and seconds, and the rows the targets compare with uncorrected FBP.
 ITERATIVE = (
-    "dremel", "dremel_off", "resesop", "resesop_eta1", "resesop_unmoved_model",
-    "dremel_joint", "dremel_stack", "resesop_stack", "dremel_unmoved",
+    "dremel", "dremel_off", "resesop", "resesop_eta1", "resesop_unmoved_model", "dremel_joint", "resesop_joint",
+    "dremel_joint_refined", "resesop_joint_refined", "dremel_stack", "resesop_stack", "dremel_unmoved",
 )  # fmt: skip
 
 
@@ -141,8 +142,13 @@ def timed(run, *args, **kwargs) -> tuple[np.ndarray, tuple[int, float]]:
 def stack_rows(g: Geometry, sino: np.ndarray, stack: np.ndarray, joint: np.ndarray) -> dict[str, tuple]:
     """The slice with a motion shared by the stack, as ``nanoct reconstruct`` and ``nanoct stack`` run it.
 
-    ``dremel_joint``: Dremel with the joint motion held fixed (``nanoct reconstruct --method dremel``
-    on an imported stack: :func:`nanoct.recon.shared.joint_shifts` over the chosen slices);
+    ``dremel_joint``: Dremel with the joint motion held fixed (:func:`nanoct.recon.shared.joint_shifts`
+    over the chosen slices; what ``nanoct reconstruct --method dremel`` does on a simulated stack);
+    ``dremel_joint_refined``: Dremel started from the joint motion and refining it per slice
+    (``nanoct reconstruct --method dremel`` on an imported measured stack); ``resesop_joint`` /
+    ``resesop_joint_refined``: RESESOP after the motion of these two (its model carries it, eta
+    from the residual of their image after it: ``nanoct reconstruct --method resesop --eta
+    estimate:residual`` after them; their seconds include Dremel's);
     ``dremel_stack`` / ``resesop_stack``: the per-slice functions of ``nanoct stack --method
     dremel|resesop`` with the motion of :func:`nanoct.motion.stack.estimate_stack_motion` (on
     measured data Dremel starts from it and refines it; RESESOP's model carries Dremel's refined
@@ -150,12 +156,17 @@ def stack_rows(g: Geometry, sino: np.ndarray, stack: np.ndarray, joint: np.ndarr
     ``resesop_stack`` are not reported (0); its seconds include its Dremel.
     """
     y = sino.astype(np.float32)
-    out = {
-        "dremel_joint": timed(dremel, g, y, shifts0=joint, fix_shifts=True),
-        "dremel_stack": timed(_dremel_slice, g, y, stack),
-    }
+    out = {"dremel_stack": timed(_dremel_slice, g, y, stack)}
+    for row, fixed in (("dremel_joint", True), ("dremel_joint_refined", False)):
+        t0 = time.perf_counter()
+        first = dremel(g, y, shifts0=joint, fix_shifts=fixed)
+        t1 = time.perf_counter()
+        out[row] = (first.image, (first.iterations, t1 - t0))
+        eta = eta_from_residual(g, y, first.image, shifts=first.motion)
+        image, (sweeps, seconds) = timed(resesop, g, y, eta, shifts=first.motion)
+        out[row.replace("dremel", "resesop")] = (image, (sweeps, seconds + t1 - t0))
     t0 = time.perf_counter()
-    image = _resesop_slice(g, y, stack, "auto")
+    image, _ = _resesop_slice(g, y, stack, "auto")
     out["resesop_stack"] = (image, (0, time.perf_counter() - t0))
     return out
 

@@ -227,14 +227,17 @@ def reconstruct(
     eta: str | None = typer.Option(
         None,
         "--eta",
-        help="Methods that use eta: true (the store's, default), estimate:residual[=RECONSTRUCTION] (from a first "
-        "reconstruction, default dremel) or estimate:reference=STORE (per-view median of a simulated store's eta).",
+        help="Methods that use eta: true (the store's; default of a simulated data set), "
+        "estimate:residual[=RECONSTRUCTION] (from a first reconstruction, default dremel; default of an imported "
+        "scan, where on measured data RESESOP then carries Dremel's motion) or estimate:reference=STORE (per-view "
+        "median of a simulated store's eta).",
     ),
     param: list[str] = typer.Option(
         [],
         "--param",
         help="Method parameter name=value (repeatable); 'nanoct methods METHOD' lists them. Dremel also: "
-        "motion_slices=all|0,5,9 (one motion for these slices), shifts_from=FILE (start motion), fix_shifts=true "
+        "motion_slices=all|0,5,9 (one motion for these slices; on measured data each slice refines it), "
+        "shifts_from=FILE (start motion), fix_shifts=true "
         "(use it as given).",
     ),
     name: str | None = typer.Option(

@@ -88,9 +88,10 @@ def test_imported_scan_has_no_true_eta(tiny_store, tmp_path, reference):
     g = tiny_store.geometry
     scan = create_scan(tmp_path / "scan", g, tiny_store.read_sample(0).sinogram[None], scan={"shared_motion": True})
     with pytest.raises(NanoctError, match="no true eta; estimate it with --eta estimate:residual"):
-        reconstruct_dataset(scan.path, "resesop", workers=0, progress=False)
-    with pytest.raises(NanoctError, match=r"make it first: nanoct reconstruct \S+ --method dremel$"):
-        reconstruct_dataset(scan.path, "resesop", params={"eta": "estimate:residual"}, workers=0, progress=False)
+        reconstruct_dataset(scan.path, "resesop", params={"eta": "true"}, workers=0, progress=False)
+    for params in ({}, {"eta": "estimate:residual"}):  # a scan's default: the residual of Dremel
+        with pytest.raises(NanoctError, match=r"make it first: nanoct reconstruct \S+ --method dremel$"):
+            reconstruct_dataset(scan.path, "resesop", params=params, workers=0, progress=False)
     assert DataStore.open(scan.path).reconstruction_names() == []
     params = {**QUICK, "eta": f"estimate:reference={reference.path}"}
     assert (
@@ -120,3 +121,35 @@ def test_cli_eta_option(monkeypatch, capsys, tiny_store):
     code, out, _ = _cli(monkeypatch, capsys, *args, "--param", "n_iter=1", "-w", "0", "-q", "--name", "rcli")
     assert code == 0 and "reconstructions/rcli" in out
     assert DataStore.open(path).reconstruction_params("rcli")["eta"] == "estimate:residual=fbp"
+
+
+def test_measured_scan_runs_resesop_after_dremels_motion(tiny_store, tmp_path):
+    """On measured data RESESOP's model carries the first reconstruction's motion and eta is the residual after it."""
+    g = tiny_store.geometry
+    sinos = np.stack([tiny_store.read_sample(i).sinogram for i in tiny_store.indices("test")[:2]])
+    scan = create_scan(tmp_path / "scan", g, sinos + np.float32(0.3 * sinos.max()), scan={"source": "test"})
+    reconstruct_dataset(scan.path, "dremel", params={"n_iter": 3}, workers=0, progress=False)
+    name = reconstruct_dataset(scan.path, "resesop", params=QUICK, workers=0, progress=False)
+    assert name == "resesop_est-residual"  # the scan's default eta: the residual of Dremel
+    store = DataStore.open(scan.path)
+    sample = store.read_sample(1)
+    first, motion = store.read_reconstruction("dremel", [1])[0], store.read_shifts("dremel", [1])[0]
+    assert np.abs(motion).max() > 0.1
+    eta = eta_from_residual(g, sample.sinogram, first, shifts=motion)
+    direct = resesop(g, sample.sinogram, eta, shifts=motion, **QUICK)
+    np.testing.assert_allclose(store.read_reconstruction(name, [1])[0], direct.image, atol=1e-6)
+    unmoved = resesop(g, sample.sinogram, eta_from_residual(g, sample.sinogram, first), **QUICK)
+    assert np.abs(unmoved.image - direct.image).max() > 1e-3  # the motion made a difference
+
+
+def test_simulated_store_keeps_the_unmoved_model(tiny_store):
+    """A simulation: eta from Dremel's residual before its motion, RESESOP with the paper's model, as before."""
+    path, i = tiny_store.path, int(tiny_store.indices("test")[0])
+    reconstruct_dataset(path, "dremel", split="test", params={"n_iter": 3}, name="d3", workers=0, progress=False)
+    params = {**QUICK, "eta": "estimate:residual=d3"}
+    name = reconstruct_dataset(path, "resesop", split="test", params=params, workers=0, progress=False)
+    store = DataStore.open(path)
+    sample = store.read_sample(i)
+    eta = eta_from_residual(store.geometry, sample.sinogram, store.read_reconstruction("d3", [i])[0])
+    direct = resesop(store.geometry, sample.sinogram, eta, **QUICK)
+    np.testing.assert_array_equal(store.read_reconstruction(name, [i])[0], direct.image)

@@ -67,6 +67,23 @@ def test_shared_motion_recovered_on_imported_stack(tmp_path, stack):
     np.testing.assert_allclose(read_shifts(out, g.n_angles), shared, atol=1e-5)
 
 
+def test_joint_motion_refined_per_slice_on_measured_stack(tmp_path, stack):
+    """A measured stack (open beam not at zero): every slice starts from the joint motion and refines it."""
+    g, sinos, _ = stack
+    measured = sinos + np.float32(0.3 * sinos.max())
+    store = create_scan(tmp_path / "scan", g, measured, scan={"shared_motion": True, "source": "test"})
+    reconstruct_dataset(store.path, "dremel", params={"n_iter": 3}, workers=0, progress=False)
+    store = DataStore.open(store.path)
+    joint, shifts = store.recons.shared_shifts("dremel"), store.read_shifts("dremel")
+    assert not np.array_equal(shifts[1], joint) and not np.array_equal(shifts[0], shifts[1])
+    direct = dremel(g, measured[1], n_iter=3, shifts0=joint)
+    np.testing.assert_allclose(shifts[1], direct.motion, atol=1e-6)
+    np.testing.assert_allclose(store.read_reconstruction("dremel", [1])[0], direct.image, atol=1e-6)
+    # exported as the stack's one motion: the joint estimate
+    joint_file = write_store_shifts(store.path, "dremel", tmp_path / "joint.txt")
+    np.testing.assert_allclose(read_shifts(joint_file, g.n_angles), joint, atol=1e-5)
+
+
 def test_joint_estimate_not_redone_on_resume(tmp_path, stack, monkeypatch):
     import nanoct.recon.batch as batch
 

@@ -6,7 +6,8 @@ import numpy as np
 
 from nanoct.core.geometry import Geometry
 from nanoct.core.operators import system_matrix
-from nanoct.workflows.stack import _dremel_slice, _resesop_slice
+from nanoct.io.store import DataStore, create_scan
+from nanoct.workflows.stack import _dremel_slice, _reconstruct_slice, _resesop_slice
 
 N = 40
 ANGLES = np.linspace(0, np.pi, 48, endpoint=False)
@@ -42,10 +43,29 @@ def test_dremel_slice_holds_the_motion_of_a_simulation_and_refines_a_measured_on
 def test_resesop_slice_carries_the_motion_on_measured_data() -> None:
     g, x, moved, d = _scan()
     measured = moved + np.float32(0.3)
-    auto = _resesop_slice(g, measured, d, "auto")
-    level = _resesop_slice(g, measured, d, 0.01)
-    sim = _resesop_slice(g, moved, d, 0.01)
+    auto, auto_motion = _resesop_slice(g, measured, d, "auto")
+    level, level_motion = _resesop_slice(g, measured, d, 0.01)
+    sim, sim_motion = _resesop_slice(g, moved, d, 0.01)
     for image in (auto, level, sim):
         assert image.shape == (N, N) and np.isfinite(image).all()
     assert min(_psnr(level, x), _psnr(auto, x), _psnr(sim, x)) > 30.0  # about 35 dB; 18-20 dB without the motion
-    assert _psnr(_resesop_slice(g, measured, -d, 0.01), x) < 20.0  # the sign of the motion matters
+    assert _psnr(_resesop_slice(g, measured, -d, 0.01)[0], x) < 20.0  # the sign of the motion matters
+    # the motion each used: Dremel's refinement with "auto" eta on measured data, else the stack's
+    np.testing.assert_allclose(auto_motion, _dremel_slice(g, measured, d).motion, atol=1e-6)
+    assert level_motion is d and sim_motion is d
+
+
+def test_reconstruct_slice_stores_the_motion_it_used(tmp_path) -> None:
+    g, _, moved, d = _scan()
+    sinos = np.stack([moved + np.float32(0.3), moved])  # a measured slice (open beam at 0.3), a simulated one
+    path = str(create_scan(tmp_path / "scan", g, sinos, {"source": "test"}).path)
+    start, vertical = 0.5 * d, np.zeros(ANGLES.size)
+    refined = _dremel_slice(g, sinos[0], start).motion
+    assert np.abs(refined - start).max() > 0.1
+    for method in ("dremel", "resesop"):
+        DataStore.open(path, mode="r+").prepare_reconstruction(method, {"method": method}, shifts=True)
+        for index in (0, 1):
+            _reconstruct_slice(path, method, method, {"center_offset": 0.0}, "auto", start, vertical, index)
+        rows = DataStore.open(path).read_shifts(method)
+        np.testing.assert_allclose(rows[0], refined, atol=1e-6)  # measured: Dremel's refinement (detector px)
+        np.testing.assert_array_equal(rows[1], start.astype(np.float32))  # a simulation: the stack's motion

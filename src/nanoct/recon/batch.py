@@ -6,6 +6,15 @@ Besides the solver's own parameters a batch run takes the method's batch paramet
 from a file (:mod:`nanoct.recon.shared`). What they need from the store is checked and
 prepared here, in the calling process, before any sample task starts; a shared motion is
 estimated once and kept with the reconstruction, so a resumed run does not estimate it again.
+
+Measured data (:func:`~nanoct.recon.eta_source.carries_motion`: an open beam not at zero or an
+object cut by the detector edges, the rule of the methods and of ``nanoct stack``) get the
+defaults of ``nanoct stack``: RESESOP on an imported scan estimates eta from the residual of
+Dremel (``eta="estimate:residual"`` unless given) and runs after Dremel's motion, its model
+carrying that motion and eta the residual left after it
+(:class:`~nanoct.recon.eta_source.EtaPlan`); Dremel starts each slice from a joint motion of
+the stack and refines it (a simulation holds the joint motion fixed and RESESOP keeps the
+unperturbed model).
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import DataStore, Sample, open_cached
 from ..names import reconstruction_name
-from .eta_source import EtaPlan, plan_eta
+from .eta_source import EtaPlan, carries_motion, plan_eta
 from .registry import check_method_params, method_spec
 from .result import ReconResult
 from .shared import joint_shifts, read_store_shifts
@@ -54,14 +63,30 @@ class _Inputs:
     eta: EtaPlan | None = None
     shifts0: np.ndarray | None = None
     fixed: bool = False
+    refine_measured: bool = False
+
+
+def _sample_inputs(
+    store: DataStore, index: int, sample: Sample, params: dict[str, Any], inputs: _Inputs
+) -> tuple[dict[str, Any], np.ndarray | None]:
+    """The solver parameters and eta of one sample (measured data: the motion carried or refined)."""
+    measured = carries_motion(sample.sinogram, params.get("measured", "auto"))
+    eta = None
+    if inputs.eta is not None:
+        motion = inputs.eta.motion(store, index) if measured else None
+        eta = inputs.eta.eta(store, index, sample, shifts=motion)
+        if motion is not None:
+            params = {**params, "shifts": motion}
+    if inputs.shifts0 is not None:
+        fixed = inputs.fixed and not (inputs.refine_measured and measured)
+        params = {**params, "shifts0": inputs.shifts0, "fix_shifts": fixed}
+    return params, eta
 
 
 def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], inputs: _Inputs, index: int) -> int:
     store = open_cached(path)
     sample = store.read_sample(index)
-    eta = None if inputs.eta is None else inputs.eta.eta(store, index, sample)
-    if inputs.shifts0 is not None:
-        params = {**params, "shifts0": inputs.shifts0, "fix_shifts": inputs.fixed}
+    params, eta = _sample_inputs(store, index, sample, params, inputs)
     result = reconstruct_sample(method, store.geometry, sample, params, eta=eta)
     if not np.isfinite(result.image).all():
         raise NanoctError(f"{method} produced non-finite values on sample {index}; check the parameters {params}")
@@ -73,9 +98,12 @@ def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tupl
     """Checked parameters (all), and the user's parameters with the batch ones normalised, defaults left out.
 
     An imported stack with one motion for all slices gets ``motion_slices="all"`` unless the
-    motion is given (``fix_shifts``) or the slices are chosen.
+    motion is given (``fix_shifts``) or the slices are chosen; a method that needs eta gets
+    ``eta="estimate:residual"`` (from Dremel's reconstruction) on an imported scan unless given.
     """
     spec = method_spec(method)
+    if spec.needs_eta and store.is_scan and params.get("eta") is None:
+        params = {**params, "eta": "estimate:residual"}
     checked = check_method_params(method, params, store.geometry)
     shared = store.is_scan and bool(store.meta["scan"].get("shared_motion"))
     if spec.estimates_motion and shared and checked["motion_slices"] is None and not checked["fix_shifts"]:
@@ -207,7 +235,8 @@ def reconstruct_dataset(
             fixed = slices is not None or checked["fix_shifts"]
             if checked["fix_shifts"]:  # a joint estimate was stored by _shared_shifts already
                 store.recons.set_shared_shifts(name, shifts0)
-            inputs = _Inputs(shifts0=shifts0, fixed=fixed)
+            refine = slices is not None and not checked["fix_shifts"]  # a joint estimate: refined on measured data
+            inputs = _Inputs(shifts0=shifts0, fixed=fixed, refine_measured=refine)
         pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
         task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
         run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)

@@ -2,11 +2,16 @@
 
 ``eta`` (the CLI's ``--eta``) is one of
 
-``"true"`` (default)
+``"true"`` (default of a simulated data set)
     The store's own eta (only a simulation has it).
-``"estimate:residual"`` or ``"estimate:residual=NAME"``
+``"estimate:residual"`` or ``"estimate:residual=NAME"`` (default of an imported scan: ``dremel``)
     Per sample from a first reconstruction ``reconstructions/NAME`` (default ``dremel``):
-    :func:`nanoct.recon.eta.eta_from_residual` with scale 1; ``--eta-scale`` scales it like any eta.
+    :func:`nanoct.recon.eta.eta_from_residual` (scale 1, on measured data its default 0.5);
+    ``--eta-scale`` scales it like any eta. On measured data (:func:`carries_motion`), when the
+    first reconstruction has a motion (Dremel's), RESESOP runs after that motion, as ``nanoct
+    stack --method resesop`` does: its model carries the motion (``resesop(..., shifts=)``) and
+    eta is the residual left after it (:meth:`EtaPlan.motion`). A simulation keeps the paper's
+    unperturbed model and the residual before the motion.
 ``"estimate:reference=PATH"``
     The per-view median of the eta of a simulated reference store of the same geometry
     (:func:`nanoct.recon.eta.eta_from_reference`), the same for every sample.
@@ -30,9 +35,11 @@ from ..io.store import DataStore
 from ..io.store_recon import check_name
 from ..names import reconstruct_command
 from .eta import eta_from_reference, eta_from_residual
+from .measured import looks_measured
 from .params import MethodParams
+from .registry import methods_with_motion
 
-__all__ = ["EtaPlan", "EtaSourceParams", "plan_eta"]
+__all__ = ["EtaPlan", "EtaSourceParams", "carries_motion", "plan_eta"]
 
 _SYNTAX = "use true, estimate:residual[=RECONSTRUCTION] or estimate:reference=STORE"
 
@@ -88,14 +95,41 @@ class EtaPlan:
     first: str | None = None
     reference: np.ndarray | None = None
 
-    def eta(self, store: Any, index: int, sample: Any) -> np.ndarray:
-        """The (unscaled) eta of sample ``index`` of ``store`` (``sample`` its data)."""
+    def motion(self, store: Any, index: int) -> np.ndarray | None:
+        """The motion of the first reconstruction of sample ``index`` (Dremel's shifts), or None.
+
+        None unless the residual estimator's first reconstruction was made by a method that
+        estimates motion (:func:`~nanoct.recon.registry.methods_with_motion`).
+        """
+        if self.kind != "residual":
+            return None
+        if store.reconstruction_params(self.first).get("method") not in methods_with_motion():
+            return None
+        return store.read_shifts(self.first, [index])[0].astype(np.float64)
+
+    def eta(self, store: Any, index: int, sample: Any, shifts: Any = None) -> np.ndarray:
+        """The (unscaled) eta of sample ``index`` of ``store`` (``sample`` its data).
+
+        ``shifts``: the motion RESESOP's model carries (:meth:`motion`); the residual estimate
+        is then taken after it (:func:`~nanoct.recon.eta.eta_from_residual`'s ``shifts``).
+        """
         if self.kind == "true":
             return sample.eta
         if self.kind == "reference":
             return self.reference  # type: ignore[return-value]
         first = store.read_reconstruction(self.first, [index])[0]
-        return eta_from_residual(store.geometry, sample.sinogram, first)
+        return eta_from_residual(store.geometry, sample.sinogram, first, shifts=shifts)
+
+
+def carries_motion(sinogram: Any, measured: str = "auto") -> bool:
+    """Whether a batch run treats ``sinogram`` as measured data: RESESOP after the first reconstruction's motion.
+
+    The methods' own rule (:mod:`~nanoct.recon.measured`): ``measured`` ``"on"`` or
+    ``"extend"``, or ``"auto"`` where :func:`~nanoct.recon.measured.looks_measured` (an open
+    beam not at zero, or an object cut by the detector edges), the rule ``nanoct stack`` uses
+    per slice; a simulation keeps the unperturbed model and a held joint motion.
+    """
+    return measured in ("on", "extend") or (measured == "auto" and looks_measured(np.asarray(sinogram)))
 
 
 def _reference_eta(path: str, geometry: Geometry) -> np.ndarray:

@@ -154,7 +154,7 @@ class MethodSpec:
         """Run the method: ``solver(op, sinogram[, eta], **params)``.
 
         ``params`` are the solver's parameters and its other keyword arguments (``x0``,
-        ``callback``, ``matrix``, ``shifts0``); batch parameters do not go here.
+        ``callback``, ``matrix``, ``shifts0``, RESESOP's ``shifts``); batch parameters do not go here.
 
         Raises
         ------

@@ -110,7 +110,7 @@ def _dremel_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray) -> Any:
 
     On a measured sinogram (:func:`~nanoct.recon.measured.looks_measured`) Dremel starts from the
     stack's motion and refines it per slice (its measured-data defaults); a simulation keeps the
-    stack's motion fixed, as before.
+    stack's motion fixed.
     """
     from ..recon.dremel import dremel
     from ..recon.measured import looks_measured
@@ -119,7 +119,9 @@ def _dremel_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray) -> Any:
     return dremel(geometry, sino, shifts0=shifts_obj, fix_shifts=not looks_measured(sino))
 
 
-def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]) -> np.ndarray:
+def _resesop_slice(
+    geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]
+) -> tuple[np.ndarray, np.ndarray]:
     """RESESOP-Kaczmarz with the stack's motion; ``"auto"`` eta: half the largest residual per view after it.
 
     Measured data (:func:`~nanoct.recon.measured.looks_measured`): the model carries the motion
@@ -128,27 +130,36 @@ def _resesop_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str
     image per view after that motion (:func:`~nanoct.recon.eta.eta_from_residual`, air level
     removed). A simulation: RESESOP on the shift-corrected sinogram, ``"auto"`` eta half the
     corrected FBP's largest residual per view.
+
+    Returns
+    -------
+    image : ndarray of shape (N, N)
+    motion : ndarray of shape (K,)
+        The motion the slice was reconstructed with, in detector pixels: Dremel's refinement on
+        measured data with ``"auto"`` eta, else the stack's ``shifts``.
     """
     from ..recon.eta import eta_from_residual
     from ..recon.measured import looks_measured
     from ..recon.resesop import resesop
 
+    to_obj = geometry.det_spacing / geometry.magnification  # detector px -> object px
     if looks_measured(sino):
         if eta == "auto":
             start = _dremel_slice(geometry, sino, shifts)
-            motion = start.motion
+            motion = start.motion.astype(np.float64)
             levels = eta_from_residual(geometry, sino, start.image, scale=AUTO_ETA_FRACTION, shifts=motion)
         else:
-            motion = shifts * geometry.det_spacing / geometry.magnification
+            motion = shifts * to_obj
             levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
-        return resesop(geometry, sino, levels, shifts=motion, projector="auto").image
+        image = resesop(geometry, sino, levels, shifts=motion, projector="auto").image
+        return image, (motion / to_obj if eta == "auto" else shifts)
     corrected = shift_corrected(sino.astype(np.float64), shifts)
     if eta == "auto":
         start = corrected_fbp(geometry, corrected)
         levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(geometry, start)).max(axis=1)
     else:
         levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
-    return resesop(geometry, corrected, levels, projector="auto").image
+    return resesop(geometry, corrected, levels, projector="auto").image, shifts
 
 
 def _motion_slices(store: DataStore, value: str | None) -> list[int]:
@@ -302,16 +313,29 @@ def _reconstruct_slice(
     vertical: np.ndarray,
     index: int,
 ) -> int:
+    """Reconstruct slice ``index`` and write it with the motion it used (detector pixels).
+
+    The shifts row written is the stack's motion (``shifts``), except on measured data with
+    Dremel, or RESESOP with ``"auto"`` eta, where it is Dremel's refinement of it for this slice
+    (:func:`_dremel_slice`); the stack's motion stays recorded as the reconstruction's
+    ``shared_shifts``.
+    """
     store = open_cached(path)
     geometry = with_center(store.geometry, slice_center(info, index, store.n))
     sino = read_straight(store, [index], vertical)[0]
+    motion = shifts
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
     elif method == "resesop":
-        image = _resesop_slice(geometry, sino, shifts, eta)
+        image, motion = _resesop_slice(geometry, sino, shifts, eta)
     else:
-        image = _dremel_slice(geometry, sino, shifts).image
-    store.write_reconstruction(name, index, image, shifts.astype(np.float32))
+        from ..recon.measured import looks_measured
+
+        result = _dremel_slice(geometry, sino, shifts)
+        image = result.image
+        if looks_measured(sino):  # refined per slice: Dremel's motion, object -> detector pixels
+            motion = result.motion.astype(np.float64) * geometry.magnification / geometry.det_spacing
+    store.write_reconstruction(name, index, image, motion.astype(np.float32))
     return index
 
 
@@ -416,11 +440,17 @@ def reconstruct_stack(
     path : path
         Data-set store (an imported scan, or a simulated parallel-beam store).
     method : {"fbp", "gridrec", "dremel", "resesop"}
-        Slice reconstruction with the motion fixed (:data:`STACK_METHODS`). ``"gridrec"``: FBP in
+        Slice reconstruction with the stack's motion (:data:`STACK_METHODS`). ``"gridrec"``: FBP in
         Fourier space (:class:`~nanoct.recon.gridrec.GridrecPlan`, slices in blocks of two per
-        thread); ``"fbp"`` runs it too where it is usable (``engine``). ``"resesop"`` runs
-        :func:`~nanoct.recon.resesop.resesop` (20 sweeps at most, matrix-free rays for large
-        slices) on the sinogram with every view moved back by its shift (:func:`shift_corrected`).
+        thread); ``"fbp"`` runs it too where it is usable (``engine``); both hold the motion
+        fixed. ``"dremel"``: Dremel with the motion held fixed on a simulation; on measured data
+        (:func:`~nanoct.recon.measured.looks_measured`) Dremel starts from it and refines it per
+        slice. ``"resesop"`` runs :func:`~nanoct.recon.resesop.resesop` (20 sweeps at most,
+        matrix-free rays for large slices): on a simulation on the sinogram with every view moved
+        back by its shift (:func:`shift_corrected`); on measured data its model carries the motion,
+        with ``"auto"`` eta Dremel's per-slice refinement of it. Each slice's shifts row holds the
+        motion it was reconstructed with (the refined one where Dremel refined it, detector
+        pixels); the stack's motion is the reconstruction's ``shared_shifts``.
     center : float or "auto"
         Rotation-axis offset in the store's detector pixels, or ``"auto"``: estimated with the motion.
     motion_slices : str, optional
