@@ -129,3 +129,30 @@ def test_parallel_tiles_with_a_flow_network_equals_sequential_tiles(rng):
     np.testing.assert_allclose(got[0], expected[0], rtol=0, atol=1e-5)
     np.testing.assert_allclose(got[1], expected[1], rtol=0, atol=1e-5)
     assert np.isfinite(got[1]).all() and got[1].min() > 0
+
+
+def test_parallel_tiles_workers_run_one_openmp_thread_each():
+    """Each worker thread takes torch's thread count (one) before the network's first operation, so a
+    convolution in a fresh thread does not start a team of OpenMP threads of its own."""
+    import ctypes
+    import os
+
+    maps = f"/proc/{os.getpid()}/maps"
+    libs = [path for path in open(maps).read().split() if "libgomp" in path] if os.path.exists(maps) else []
+    if not libs:
+        pytest.skip("no GNU OpenMP library loaded by torch here")
+    gomp = ctypes.CDLL(libs[0])
+    team: list[int] = []
+
+    def network(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
+        team.append(gomp.omp_get_max_threads())  # before any torch operation in this thread
+        return x, None
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with parallel_tiles("cpu") as workers:
+            predict_tiled(np.zeros((60, 60), np.float32), network, 20, overlap=6, margin=2, batch=1, workers=workers)
+    finally:
+        torch.set_num_threads(before)
+    assert len(team) == 16 and set(team) == {1}

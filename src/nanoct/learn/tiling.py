@@ -28,6 +28,7 @@ the seams are measured in the tests and benchmarks/README.md.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -116,12 +117,22 @@ def parallel_tiles(device: Any = "cpu") -> Iterator[int]:
         torch.set_num_threads(threads)
 
 
+def _take_torch_threads() -> None:
+    """In a new thread: take torch's intra-op thread count now (one under :func:`parallel_tiles`).
+
+    torch applies its setting to a thread's OpenMP team size at the thread's first parallel loop;
+    a convolution run before that would use OpenMP's default team of all cores.
+    """
+    if "torch" in sys.modules:
+        sys.modules["torch"].get_num_threads()
+
+
 def _in_order(call: Callable[[int], Any], n: int, workers: int) -> Iterator[Any]:
     """``call(0), ..., call(n - 1)`` in order, computed by ``workers`` threads, at most ``workers + 1`` ahead."""
     if workers <= 1:
         yield from (call(k) for k in range(n))
         return
-    with ThreadPoolExecutor(workers) as pool:
+    with ThreadPoolExecutor(workers, initializer=_take_torch_threads) as pool:
         pending: list[Future] = [pool.submit(call, k) for k in range(min(n, workers + 1))]
         for k in range(n):
             result = pending.pop(0).result()
