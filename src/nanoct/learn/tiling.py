@@ -7,7 +7,7 @@ Each tile's output is weighted by a separable window (:func:`edge_window`): 1 in
 0 within ``margin`` pixels of an edge it shares with another tile (where the tile's own border
 makes its output differ from the whole image's), and a raised-cosine ramp between; 1 up to the
 image's own edges. The stitched mean is the weighted mean of the tiles' means, the stitched std
-the square root of the weighted mean of their variances. Memory is ``workers + 1`` batches of
+the square root of the weighted mean of their variances. Memory is at most ``workers + 2`` batches of
 tiles and three float64 accumulators of the slice, whatever its size.
 
 With ``workers`` > 1 the network is called on several batches at once from a pool of threads
