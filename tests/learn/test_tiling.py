@@ -156,3 +156,19 @@ def test_parallel_tiles_workers_run_one_openmp_thread_each():
     finally:
         torch.set_num_threads(before)
     assert len(team) == 16 and set(team) == {1}
+
+
+def test_parallel_workers_stop_at_an_error():
+    """A network error in one batch reaches the caller, and the slice stops there: at most the few batches
+    already submitted (the window of workers + 1) are computed, not the rest."""
+    calls: list[int] = []
+
+    def failing(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
+        calls.append(seed)
+        if seed == 1_000_003 + 1:  # the second batch (seed 1)
+            raise ValueError("broken batch")
+        return x, None
+
+    with pytest.raises(ValueError, match="broken batch"):
+        predict_tiled(np.zeros((100, 100), np.float32), failing, 20, overlap=6, margin=2, batch=1, seed=1, workers=2)
+    assert 2 <= len(calls) <= 6  # of 49 batches

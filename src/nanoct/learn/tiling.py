@@ -134,11 +134,15 @@ def _in_order(call: Callable[[int], Any], n: int, workers: int) -> Iterator[Any]
         return
     with ThreadPoolExecutor(workers, initializer=_take_torch_threads) as pool:
         pending: list[Future] = [pool.submit(call, k) for k in range(min(n, workers + 1))]
-        for k in range(n):
-            result = pending.pop(0).result()
-            if k + len(pending) + 1 < n:
-                pending.append(pool.submit(call, k + len(pending) + 1))
-            yield result
+        try:
+            for k in range(n):
+                result = pending.pop(0).result()
+                if k + len(pending) + 1 < n:
+                    pending.append(pool.submit(call, k + len(pending) + 1))
+                yield result
+        finally:  # an error or an interruption: calls not yet started are dropped
+            for future in pending:
+                future.cancel()
 
 
 def predict_tiled(
