@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-from nanoct.learn.tiling import edge_window, predict_tiled, tile_starts
+from nanoct.learn.tiling import edge_window, parallel_tiles, predict_tiled, tile_starts
 
 
 def test_tile_starts_cover_the_image():
@@ -78,3 +78,97 @@ def test_tiled_output_is_a_convex_blend_of_the_tiles():
     assert np.all(mean - image >= min(tile_means) - 1e-5) and np.all(mean - image <= max(tile_means) + 1e-5)
     const, _ = predict_tiled(image, lambda x, s: (np.full_like(x, 0.25), None), 32, overlap=8, margin=2)
     np.testing.assert_allclose(const, 0.25, rtol=1e-6)
+
+
+def test_parallel_workers_give_the_same_output_as_one(rng):
+    """Batches computed by several threads are blended in tile order with the same seeds: the output equals
+    that of one worker bit for bit, for a network whose output depends on the seed of its call."""
+    seeds: list[int] = []
+
+    def noisy(x: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        seeds.append(seed)
+        noise = np.random.default_rng(seed).normal(0, 0.1, x.shape).astype(np.float32)
+        return x + noise, 0.1 + np.abs(noise)
+
+    image = rng.uniform(0, 1, (75, 61)).astype(np.float32)
+    one = predict_tiled(image, noisy, 20, overlap=6, margin=2, batch=2, seed=7)
+    one_seeds, seeds[:] = list(seeds), []
+    for workers in (2, 5):
+        many = predict_tiled(image, noisy, 20, overlap=6, margin=2, batch=2, seed=7, workers=workers)
+        assert np.array_equal(one[0], many[0]) and np.array_equal(one[1], many[1])
+        assert sorted(seeds) == sorted(one_seeds) and len(set(one_seeds)) == len(one_seeds) > 6
+        seeds[:] = []
+
+
+def test_parallel_tiles_with_a_flow_network_equals_sequential_tiles(rng):
+    """A conditional invertible network (a tiny CiUNetRes, 4 antithetic latent samples) called from two
+    threads with one torch thread each gives the sequential prediction with two torch threads to float32
+    rounding (the summation order of a convolution depends on the thread count); the thread count comes
+    back afterwards, and a non-CPU device gets one worker and no change."""
+    from nanoct.learn.calibration import Inference
+    from nanoct.learn.models import build_model
+
+    torch.manual_seed(0)
+    model = build_model(
+        "ciunet-res", n_scales=3, blocks_per_scale=1, pre_blocks=1, cond_channels=(4, 4, 8), hidden_ratio=1.0
+    )
+    infer = Inference(model, {"n_samples": 4, "antithetic": True}, True, "cpu")
+    image = rng.uniform(0, 1, (40, 36)).astype(np.float32)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        expected = predict_tiled(image, infer, 16, overlap=6, margin=2, batch=2, seed=3)
+        with parallel_tiles("cpu") as workers:
+            assert workers == 2 and torch.get_num_threads() == 1
+            got = predict_tiled(image, infer, 16, overlap=6, margin=2, batch=2, seed=3, workers=workers)
+        assert torch.get_num_threads() == 2
+        with parallel_tiles("cuda") as workers:
+            assert workers == 1 and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    np.testing.assert_allclose(got[0], expected[0], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(got[1], expected[1], rtol=0, atol=1e-5)
+    assert np.isfinite(got[1]).all() and got[1].min() > 0
+
+
+def test_parallel_tiles_workers_run_one_openmp_thread_each():
+    """Each worker thread takes torch's thread count (one) before the network's first operation, so a
+    convolution in a fresh thread does not start a team of OpenMP threads of its own."""
+    import ctypes
+    import os
+
+    maps = f"/proc/{os.getpid()}/maps"
+    libs = [path for path in open(maps).read().split() if "libgomp" in path] if os.path.exists(maps) else []
+    if not libs:
+        pytest.skip("no GNU OpenMP library loaded by torch here")
+    gomp = ctypes.CDLL(libs[0])
+    team: list[int] = []
+
+    def network(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
+        team.append(gomp.omp_get_max_threads())  # before any torch operation in this thread
+        return x, None
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with parallel_tiles("cpu") as workers:
+            predict_tiled(np.zeros((60, 60), np.float32), network, 20, overlap=6, margin=2, batch=1, workers=workers)
+    finally:
+        torch.set_num_threads(before)
+    assert len(team) == 16 and set(team) == {1}
+
+
+def test_parallel_workers_stop_at_an_error():
+    """A network error in one batch reaches the caller, and the slice stops there: at most the few batches
+    already submitted (the window of workers + 1) are computed, not the rest."""
+    calls: list[int] = []
+
+    def failing(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
+        calls.append(seed)
+        if seed == 1_000_003 + 1:  # the second batch (seed 1)
+            raise ValueError("broken batch")
+        return x, None
+
+    with pytest.raises(ValueError, match="broken batch"):
+        predict_tiled(np.zeros((100, 100), np.float32), failing, 20, overlap=6, margin=2, batch=1, seed=1, workers=2)
+    assert 2 <= len(calls) <= 6  # of 49 batches

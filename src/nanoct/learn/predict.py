@@ -42,7 +42,7 @@ from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
 from .scan_ood import store_scan_scores
-from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, predict_tiled
+from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, parallel_tiles, predict_tiled
 
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
 
@@ -325,20 +325,23 @@ def _write_tiled(
     progress: bool,
 ) -> None:
     """Post-process the samples ``todo`` one at a time in tiles (:func:`nanoct.learn.tiling.predict_tiled`);
-    one progress bar per image; latent samples seeded with the sample index."""
-    for i in todo:
-        mean, std = predict_tiled(
-            store.read_reconstruction(input_name, [int(i)])[0],
-            infer,
-            tiling["size"],
-            overlap=tiling["overlap"],
-            margin=tiling["margin"],
-            batch=batch_size,
-            seed=int(i),
-            progress=progress,
-            desc=f"{out} #{int(i)}",
-        )
-        store.write_reconstruction(out, int(i), mean, std=std)
+    one progress bar per image; latent samples seeded with the sample index. On the CPU, as many
+    single-threaded network calls at once as torch has threads (:func:`nanoct.learn.tiling.parallel_tiles`)."""
+    with parallel_tiles(infer.dev) as workers:
+        for i in todo:
+            mean, std = predict_tiled(
+                store.read_reconstruction(input_name, [int(i)])[0],
+                infer,
+                tiling["size"],
+                overlap=tiling["overlap"],
+                margin=tiling["margin"],
+                batch=batch_size,
+                seed=int(i),
+                workers=workers,
+                progress=progress,
+                desc=f"{out} #{int(i)}",
+            )
+            store.write_reconstruction(out, int(i), mean, std=std)
 
 
 def _write_outputs(

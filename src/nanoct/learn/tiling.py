@@ -7,8 +7,17 @@ Each tile's output is weighted by a separable window (:func:`edge_window`): 1 in
 0 within ``margin`` pixels of an edge it shares with another tile (where the tile's own border
 makes its output differ from the whole image's), and a raised-cosine ramp between; 1 up to the
 image's own edges. The stitched mean is the weighted mean of the tiles' means, the stitched std
-the square root of the weighted mean of their variances. Memory is one batch of tiles and three
-float64 accumulators of the slice, whatever its size.
+the square root of the weighted mean of their variances. Memory is at most ``workers + 2`` batches of
+tiles and three float64 accumulators of the slice, whatever its size.
+
+With ``workers`` > 1 the network is called on several batches at once from a pool of threads
+(the blending stays in the calling thread, in tile order, each batch with its own seed), so the
+output is the same as with one worker, bit for bit. For a torch network on the CPU,
+:func:`parallel_tiles` gives each worker one torch thread: independent single-threaded calls keep
+both cores of a small machine busy without the synchronisation of torch's own threads, which on
+a machine shared with other processes wait on each other (measured in benchmarks/README.md).
+One torch thread instead of several changes the convolutions' summation order only: the outputs
+differ by float32 rounding (tested to 1e-5).
 
 Where a network's output at a pixel depends only on the input within ``margin`` pixels (its
 receptive field fits in the margin) and does not depend on the tile's position, the tiled
@@ -19,11 +28,15 @@ the seams are measured in the tests and benchmarks/README.md.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_MARGIN", "DEFAULT_OVERLAP", "edge_window", "predict_tiled", "tile_starts"]
+__all__ = ["DEFAULT_MARGIN", "DEFAULT_OVERLAP", "edge_window", "parallel_tiles", "predict_tiled", "tile_starts"]
 
 #: Pixels shared by neighbouring tiles (at least 2 margins plus a ramp).
 DEFAULT_OVERLAP = 16
@@ -81,6 +94,57 @@ def edge_window(tile: int, overlap: int, margin: int, first: bool, last: bool) -
     return w
 
 
+@contextmanager
+def parallel_tiles(device: Any = "cpu") -> Iterator[int]:
+    """The number of tile workers for a torch network on ``device``, with torch set to one thread meanwhile.
+
+    On the CPU: yields torch's intra-op thread count ``n`` and sets it to 1 until the block ends (then
+    restores ``n``), so :func:`predict_tiled` with ``workers=n`` runs ``n`` single-threaded network calls
+    at once. Elsewhere (a GPU): yields 1 and changes nothing. The thread count changes a convolution's
+    summation order, so outputs differ from those with torch's threads by float32 rounding (at most
+    5e-7 for the tiny study's CiUNetRes on values of order 1; tested to 1e-5).
+    """
+    import torch
+
+    if torch.device(device).type != "cpu":
+        yield 1
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield threads
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _take_torch_threads() -> None:
+    """In a new thread: take torch's intra-op thread count now (one under :func:`parallel_tiles`).
+
+    torch applies its setting to a thread's OpenMP team size at the thread's first parallel loop;
+    a convolution run before that would use OpenMP's default team of all cores.
+    """
+    if "torch" in sys.modules:
+        sys.modules["torch"].get_num_threads()
+
+
+def _in_order(call: Callable[[int], Any], n: int, workers: int) -> Iterator[Any]:
+    """``call(0), ..., call(n - 1)`` in order, computed by ``workers`` threads, at most ``workers + 1`` ahead."""
+    if workers <= 1:
+        yield from (call(k) for k in range(n))
+        return
+    with ThreadPoolExecutor(workers, initializer=_take_torch_threads) as pool:
+        pending: list[Future] = [pool.submit(call, k) for k in range(min(n, workers + 1))]
+        try:
+            for k in range(n):
+                result = pending.pop(0).result()
+                if k + len(pending) + 1 < n:
+                    pending.append(pool.submit(call, k + len(pending) + 1))
+                yield result
+        finally:  # an error or an interruption: calls not yet started are dropped
+            for future in pending:
+                future.cancel()
+
+
 def predict_tiled(
     image: np.ndarray,
     network: TileFunction,
@@ -90,6 +154,7 @@ def predict_tiled(
     margin: int = DEFAULT_MARGIN,
     batch: int = 16,
     seed: int = 0,
+    workers: int = 1,
     progress: bool = False,
     desc: str = "tiles",
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -111,6 +176,10 @@ def predict_tiled(
         The first call gets ``seed``, the k-th ``seed * 1_000_003 + k`` (latent samples of sampling
         networks), so a prediction depends on nothing but the image, its seed and the tiling, and a
         single tile is the untiled prediction with that seed.
+    workers : int
+        Calls of ``network`` running at once, each on its own batch, from as many threads (``network``
+        must then be safe to call from several threads, as a torch module in evaluation is); the
+        output does not depend on it. For a torch network see :func:`parallel_tiles`.
     progress, desc
         A progress bar over the tiles.
 
@@ -124,7 +193,9 @@ def predict_tiled(
     h0, w0 = image.shape
     if min(h0, w0) < tile:
         padded = np.pad(image, ((0, max(tile - h0, 0)), (0, max(tile - w0, 0))), mode="edge")
-        mean, std = predict_tiled(padded, network, tile, overlap=overlap, margin=margin, batch=batch, seed=seed)
+        mean, std = predict_tiled(
+            padded, network, tile, overlap=overlap, margin=margin, batch=batch, seed=seed, workers=workers
+        )
         return mean[:h0, :w0], None if std is None else std[:h0, :w0]
     ys, xs = tile_starts(h0, tile, overlap), tile_starts(w0, tile, overlap)
     win_y = {y: edge_window(tile, overlap, margin, y == 0, y + tile == h0) for y in ys}
@@ -132,11 +203,14 @@ def predict_tiled(
     acc_mean, acc_var, acc_w = (np.zeros((h0, w0)) for _ in range(3))
     has_std = True
     corners = [(y, x) for y in ys for x in xs]
+    parts = [corners[start : start + batch] for start in range(0, len(corners), batch)]
+
+    def call(k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        tiles = np.stack([image[y : y + tile, x : x + tile] for y, x in parts[k]])
+        return network(tiles, seed if k == 0 else seed * 1_000_003 + k)
+
     with tqdm(total=len(corners), desc=desc, unit="tile", disable=not progress) as bar:
-        for k, start in enumerate(range(0, len(corners), batch)):
-            part = corners[start : start + batch]
-            tiles = np.stack([image[y : y + tile, x : x + tile] for y, x in part])
-            mean, std = network(tiles, seed if k == 0 else seed * 1_000_003 + k)
+        for part, (mean, std) in zip(parts, _in_order(call, len(parts), workers)):
             has_std = has_std and std is not None
             for j, (y, x) in enumerate(part):
                 w = np.outer(win_y[y], win_x[x])
