@@ -41,6 +41,7 @@ from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
 from .axis import AxisEstimate, axis_rows, estimate_axis, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
+from .focus import focus_smooth
 from .matching import apply_vertical, match_projections
 from .registration import register_shifts
 from .vertical import row_profiles, vertical_shifts
@@ -100,6 +101,25 @@ def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = No
     steps = np.concatenate([np.zeros((1, 2)), np.cumsum(jumps, axis=0)])
     steps -= steps.mean(axis=0)
     return steps[:, 0], steps[:, 1]
+
+
+def _match_and_focus(straight: np.ndarray, phi: np.ndarray, start: float, fit_axis: bool) -> tuple[np.ndarray, float]:
+    """Horizontal shifts without a centroid: autofocus of the slow part, projection matching, autofocus again.
+
+    :func:`~nanoct.motion.focus.focus_smooth` finds the motion that is slow over the views (which
+    projection matching does not see), :func:`~nanoct.motion.matching.match_projections` the fast
+    part from there, and a second autofocus corrects the slow part matching disturbed (with
+    ``fit_axis``, also the constant: the axis of the sharpest slices). Returns the shifts and the
+    axis they go with: ``start`` less the constant the last autofocus added, in the gauge of
+    ``(1, cos phi, sin phi)``.
+    """
+    first = focus_smooth(straight, phi, start)
+    matched = match_projections(straight, phi, start, horizontal=first.horizontal)
+    final = focus_smooth(straight, phi, start, matched.horizontal, axis=fit_axis)
+    d = final.horizontal
+    basis = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi)], axis=1)
+    constant = float(np.linalg.lstsq(basis, d, rcond=None)[0][0]) if fit_axis else 0.0
+    return d, start - constant
 
 
 def estimate_motion(
@@ -163,13 +183,19 @@ def estimate_motion(
         d = d_centroid
     else:
         start = estimate_axis(sinos[axis_rows(sinos.shape[0])], phi).offset if center is None else float(center)
-        d = match_projections(straight, phi, start, progress=lambda stage: None).horizontal
+        d, focus_axis = _match_and_focus(straight, phi, start, fit_axis=center is None)
+        record["focus"] = {"start_axis": start, "axis": focus_axis}
     d = remove_translation(d, phi)
     tick("horizontal")
     # the axis with the views moved back by their shifts: the estimators then see a still object
     rows_axis = axis_rows(sinos.shape[0])
     corrected = np.stack([fourier_shift(sino, d) for sino in sinos[rows_axis]])
     axis = estimate_axis(corrected, phi)
+    if method == "matching" and center is None:
+        d = d - (start - focus_axis)  # the pair (start, d) as (focus_axis, d less the constant the focus found)
+        note = "focus: the axis of the sharpest slices with the matched shifts (no opposite view or centroid trusted)"
+        estimates = {**axis.estimates, "focus": focus_axis}
+        axis = AxisEstimate(focus_axis, estimates, ("focus",), (*axis.notes, note), axis.air_removed)
     if center is not None:
         axis = AxisEstimate(float(center), {**axis.estimates, "given": float(center)}, ("given",), axis.notes, air)
     tick("axis")
