@@ -44,7 +44,7 @@ from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth
 from .matching import apply_vertical, match_projections
 from .registration import register_shifts
-from .vertical import row_profiles, vertical_shifts
+from .vertical import row_profiles, tilt_from_profiles, vertical_shifts
 
 __all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours"]
 
@@ -66,6 +66,10 @@ class Motion3D:
         ``"centroid"`` or ``"matching"``.
     record : dict
         Why each choice was made (JSON-ready).
+    tilt_deg : float
+        In-plane tilt of the axis on the detector (degrees, the sign of
+        :class:`~nanoct.motion.axis.AxisTilt`), undone before the shifts were estimated; 0 when not
+        estimated.
     """
 
     horizontal: np.ndarray
@@ -73,6 +77,7 @@ class Motion3D:
     axis: AxisEstimate
     horizontal_method: str
     record: dict[str, Any] = field(default_factory=dict)
+    tilt_deg: float = 0.0
 
 
 def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -130,6 +135,7 @@ def estimate_motion(
     horizontal: str = "auto",
     vertical: bool = True,
     prealign: bool | str = "auto",
+    tilt: bool | str = "auto",
     progress: Callable[[str], Any] | None = None,
 ) -> Motion3D:
     """Vertical and horizontal shift per view and the rotation axis (see the module docstring).
@@ -150,6 +156,10 @@ def estimate_motion(
         Start from :func:`prealign_neighbours` (jumps of tens of pixels between frames);
         ``"auto"``: for a limited-angle series (no two views 180 degrees apart), where frames
         of a tilt series are acquired in angular order.
+    tilt : bool or "auto"
+        Estimate the in-plane tilt of the axis from the row profiles
+        (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undo it first; ``"auto"``: for a
+        limited-angle series (a scan with opposite views has :func:`~nanoct.motion.axis.axis_tilt`).
     progress : callable, optional
         Called with the name of each finished stage.
 
@@ -169,6 +179,10 @@ def estimate_motion(
     v0, d0 = prealign_neighbours(proj) if prealign else (np.zeros(phi.size), np.zeros(phi.size))
     if prealign:
         proj = np.stack([ndi.shift(p, (a, b), order=1, mode="nearest") for p, a, b in zip(proj, v0, d0)])
+    limited = not opposite_pairs(phi)[0].size
+    tilt_deg = _tilt(proj) if (limited if tilt == "auto" else tilt) else 0.0
+    if tilt_deg:
+        proj = apply_vertical(proj, np.zeros(phi.size), tilt_deg)
     v = vertical_shifts(row_profiles(proj)) if vertical and proj.shape[1] >= 4 else np.zeros(phi.size)
     straight = apply_vertical(proj, v) if np.any(v) else proj
     tick("vertical")
@@ -179,6 +193,7 @@ def estimate_motion(
     method = horizontal if horizontal != "auto" else ("centroid" if air else "matching")
     record: dict[str, Any] = {"vertical": "row profiles" if vertical else "none", "horizontal": method}
     record.update(air_removed=air, centroid_rows=int(rows.sum()), mass_spread=float(spread), prealign=bool(prealign))
+    record["tilt_deg"] = tilt_deg
     if method == "centroid":
         d = d_centroid
     else:
@@ -201,4 +216,12 @@ def estimate_motion(
     tick("axis")
     d = remove_translation(d + d0, phi)
     v = v + v0 if vertical else v
-    return Motion3D(d, v - v.mean(), axis, method, record)
+    return Motion3D(d, v - v.mean(), axis, method, record, tilt_deg)
+
+
+def _tilt(proj: np.ndarray) -> float:
+    """The axis tilt from the row profiles of the views with their open beam removed (0 for too few rows)."""
+    if proj.shape[1] < 24:
+        return 0.0
+    clean, _ = remove_air(proj.transpose(1, 0, 2))
+    return tilt_from_profiles(clean.transpose(1, 0, 2))[0]
