@@ -73,6 +73,14 @@ def test_focus_recovers_slow_motion_of_a_real_scan_wider_than_the_field_of_view(
     assert before > 0.8 and error < 0.15 and result.score < result.score_start, (before, error)
 
 
+def test_focus_that_runs_to_its_bounds_is_not_used():
+    rng = np.random.default_rng(0)
+    angles = np.arange(90) * np.pi / 90
+    start = np.zeros(90)
+    result = focus_smooth(rng.normal(0, 1, (90, 8, 26)), angles, 0.0, start)  # noise: no structure to focus
+    assert not result.accepted and np.array_equal(result.horizontal, start)
+
+
 def test_focus_bad_input():
     with pytest.raises(NanoctError, match="do not match"):
         focus_smooth(np.zeros((4, 8, 8)), np.zeros(3), 0.0)

@@ -108,7 +108,9 @@ def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = No
     return steps[:, 0], steps[:, 1]
 
 
-def _match_and_focus(straight: np.ndarray, phi: np.ndarray, start: float, fit_axis: bool) -> tuple[np.ndarray, float]:
+def _match_and_focus(
+    straight: np.ndarray, phi: np.ndarray, start: float, fit_axis: bool, record: dict[str, Any]
+) -> tuple[np.ndarray, float]:
     """Horizontal shifts without a centroid: autofocus of the slow part, projection matching, autofocus again.
 
     :func:`~nanoct.motion.focus.focus_smooth` finds the motion that is slow over the views (which
@@ -116,14 +118,16 @@ def _match_and_focus(straight: np.ndarray, phi: np.ndarray, start: float, fit_ax
     part from there, and a second autofocus corrects the slow part matching disturbed (with
     ``fit_axis``, also the constant: the axis of the sharpest slices). Returns the shifts and the
     axis they go with: ``start`` less the constant the last autofocus added, in the gauge of
-    ``(1, cos phi, sin phi)``.
+    ``(1, cos phi, sin phi)``. An autofocus that ran to its bounds is not used
+    (:class:`~nanoct.motion.focus.FocusResult` ``accepted``); ``record`` gets which were.
     """
     first = focus_smooth(straight, phi, start)
     matched = match_projections(straight, phi, start, horizontal=first.horizontal)
     final = focus_smooth(straight, phi, start, matched.horizontal, axis=fit_axis)
     d = final.horizontal
     basis = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi)], axis=1)
-    constant = float(np.linalg.lstsq(basis, d, rcond=None)[0][0]) if fit_axis else 0.0
+    constant = float(np.linalg.lstsq(basis, d, rcond=None)[0][0]) if fit_axis and final.accepted else 0.0
+    record.update(accepted=[first.accepted, final.accepted], start_axis=start, axis=start - constant)
     return d, start - constant
 
 
@@ -198,15 +202,15 @@ def estimate_motion(
         d = d_centroid
     else:
         start = estimate_axis(sinos[axis_rows(sinos.shape[0])], phi).offset if center is None else float(center)
-        d, focus_axis = _match_and_focus(straight, phi, start, fit_axis=center is None)
-        record["focus"] = {"start_axis": start, "axis": focus_axis}
+        record["focus"] = {}
+        d, focus_axis = _match_and_focus(straight, phi, start, center is None, record["focus"])
     d = remove_translation(d, phi)
     tick("horizontal")
     # the axis with the views moved back by their shifts: the estimators then see a still object
     rows_axis = axis_rows(sinos.shape[0])
     corrected = np.stack([fourier_shift(sino, d) for sino in sinos[rows_axis]])
     axis = estimate_axis(corrected, phi)
-    if method == "matching" and center is None:
+    if method == "matching" and center is None and record["focus"]["accepted"][1]:
         d = d - (start - focus_axis)  # the pair (start, d) as (focus_axis, d less the constant the focus found)
         note = "focus: the axis of the sharpest slices with the matched shifts (no opposite view or centroid trusted)"
         estimates = {**axis.estimates, "focus": focus_axis}
