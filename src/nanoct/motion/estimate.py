@@ -15,14 +15,20 @@ of every view with the rotation axis, and a record of the estimators that ran:
        view, fitted on ``(1, cos phi, sin phi)`` (:func:`~nanoct.motion.center.centroid_motion`);
        no reconstruction, every view counts.
    ``matching``
-       where no air is seen (an object wider than the field of view): projection matching,
-       reconstruct / reproject / register, coarse to fine
-       (:func:`~nanoct.motion.matching.match_projections`), which needs no centroid. (Without
+       where no air is seen (an object wider than the field of view): an autofocus of the motion
+       that is slow over the views (:func:`~nanoct.motion.focus.focus_smooth`), projection
+       matching from there, reconstruct / reproject / register, coarse to fine
+       (:func:`~nanoct.motion.matching.match_projections`), and the autofocus again with the
+       axis; no centroid is needed. (Without
        air the views' mass may vary little, a crop inside the sample seeing nearly the same mass
        from every angle, while their centroids mean nothing: on the Diamond K11 crop they gave
        shifts of 11.7 px RMS. ``horizontal="centroid"`` forces them.)
 3. **axis** from every estimator that applies (:func:`~nanoct.motion.axis.estimate_axis`) on the
-   views moved back by their horizontal shifts, so that the axis goes with the shifts; unless given.
+   views moved back by their horizontal shifts, so that the axis goes with the shifts; on the
+   ``matching`` path the axis of the last autofocus (``focus``) is used; unless given.
+
+For a limited-angle series the in-plane tilt of the axis on the detector is estimated from the
+row profiles (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undone first.
 
 The horizontal shifts are given without the term ``a cos(phi) + b sin(phi)`` (a translation of the
 object, which the data do not fix); their constant, if any, goes with the axis found in step 3.
