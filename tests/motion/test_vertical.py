@@ -35,3 +35,24 @@ def test_bad_profiles():
         vertical_shifts(np.full((5, 8), np.nan))
     with pytest.raises(NanoctError, match="views, rows, columns"):
         row_profiles(np.zeros((5, 8)))
+
+
+@pytest.mark.parametrize("tilt", [3.0, -2.0])
+def test_tilt_from_profiles_on_a_limited_angle_series_of_the_real_scan(i13, tilt):
+    import scipy.ndimage as ndi
+
+    from nanoct.motion.axis import remove_air
+    from nanoct.motion.vertical import tilt_from_profiles
+
+    li, angles = i13
+    views = np.abs(np.rad2deg(angles) - 90) <= 76  # a tilt series of +-76 degrees: no opposite views
+    rng = np.random.default_rng(1)
+    jitter = rng.normal(0, 1.0, views.sum())  # and vertical motion of 1 px RMS
+    data = np.stack(
+        [ndi.shift(ndi.rotate(p, tilt, reshape=False, order=3, mode="nearest"), (-v, 0), order=3, mode="nearest")
+         for p, v in zip(li[views], jitter)]
+    )  # fmt: skip
+    clean = remove_air(data.transpose(1, 0, 2))[0].transpose(1, 0, 2)
+    found, grid, scores = tilt_from_profiles(clean)
+    assert found == pytest.approx(tilt, abs=0.5)  # measured 3.03 and -1.98 degrees
+    assert grid.size == scores.size and scores.min() < 0.8 * scores.max()

@@ -25,7 +25,7 @@ The estimators (each in detector pixels from the detector centre, positive to th
     when the air was removed and the views' total mass varies by at most ``centroid_tolerance``.
 ``sharpness``
     Only when none of the above applies (a limited-angle tilt series): the offset that minimises
-    the total variation of Hann-filtered FBP slices normalised by their mean absolute value (a
+    the total variation of Hann-filtered FBP slices over their L2 norm inside the field of view (a
     wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel.
 
 The axis is the centroid's where it is trusted: of the four, only the centroid is not biased by
@@ -46,6 +46,7 @@ from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..recon.stack import corrected_fbp
 from .center import centroid_motion, fit_center, opposite_pairs
+from .matching import extend_edges
 
 __all__ = [
     "AGREEMENT_PX",
@@ -156,16 +157,32 @@ def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
 
 
 def _sharpness(sino: np.ndarray, phi: np.ndarray) -> float:
-    """The offset whose Hann FBP slices have the least normalised total variation."""
+    """The offset whose Hann FBP slices have the least total variation relative to their norm.
+
+    Searched on a 1-pixel grid over a quarter of the detector's half width each side of its
+    centre, refined on a 0.1-pixel grid. The rows are extended smoothly by half their width
+    each side (:func:`~nanoct.motion.matching.extend_edges`: an object wider than the field of
+    view leaves no edge artefact) and scored inside the disc of radius 0.45 L, as total
+    variation over the L2 norm: a wrong axis turns edges into arcs and doubles them, which adds
+    variation, while the norm of an FBP image barely depends on the axis (each view fills its own
+    line of the Fourier plane). Dividing by the L1 norm instead rewards the wrong axis on
+    limited-angle data, whose smeared slices have the larger L1 norm.
+    """
     n_det = sino.shape[2]
+    pad = n_det // 2
+    width = n_det + 2 * pad
+    grid = np.arange(width) - (width - 1) / 2
+    disc = np.hypot(*np.meshgrid(grid, grid, indexing="ij")) < 0.45 * n_det
+    inner = disc[:-1, :-1]
+    extended = extend_edges(sino, pad)
 
     def score(offset: float) -> float:
-        geometry = Geometry.from_angles(phi, n_det, n_det, center_offset=offset)
+        geometry = Geometry.from_angles(phi, width, width, center_offset=offset)
         total = 0.0
-        for row in sino:
+        for row in extended:
             image = corrected_fbp(geometry, row, filter="hann").astype(np.float64)
-            tv = np.abs(np.diff(image, axis=0)).sum() + np.abs(np.diff(image, axis=1)).sum()
-            total += tv / max(np.abs(image).sum(), 1e-12)
+            gradient = np.hypot(np.diff(image, axis=0)[:, :-1], np.diff(image, axis=1)[:-1, :])
+            total += gradient[inner].sum() / max(float(np.sqrt((image[disc] ** 2).sum())), 1e-12)
         return total
 
     coarse = np.arange(-(n_det // 8), n_det // 8 + 1, 1.0)
@@ -329,7 +346,10 @@ def axis_tilt(sinograms: Any, angles: Any, *, group: int = 4, rows: Any = None, 
     if sino.ndim != 3 or sino.shape[1] != phi.size:
         raise NanoctError(f"sinograms of shape {sino.shape} do not match {phi.size} angles (rows, views, columns)")
     if not opposite_pairs(phi)[0].size:
-        raise NanoctError("the axis tilt needs views 180 degrees apart; this scan has none")
+        raise NanoctError(
+            "the axis tilt needs views 180 degrees apart; for a limited-angle series use "
+            "nanoct.motion.vertical.tilt_from_profiles"
+        )
     clean, _ = remove_air(sino)
     starts = np.arange(0, sino.shape[0] - group + 1, group)
     mass = np.array([clean[r : r + group].sum(axis=2).min() for r in starts])

@@ -15,14 +15,20 @@ of every view with the rotation axis, and a record of the estimators that ran:
        view, fitted on ``(1, cos phi, sin phi)`` (:func:`~nanoct.motion.center.centroid_motion`);
        no reconstruction, every view counts.
    ``matching``
-       where no air is seen (an object wider than the field of view): projection matching,
-       reconstruct / reproject / register, coarse to fine
-       (:func:`~nanoct.motion.matching.match_projections`), which needs no centroid. (Without
+       where no air is seen (an object wider than the field of view): an autofocus of the motion
+       that is slow over the views (:func:`~nanoct.motion.focus.focus_smooth`), projection
+       matching from there, reconstruct / reproject / register, coarse to fine
+       (:func:`~nanoct.motion.matching.match_projections`), and the autofocus again with the
+       axis; no centroid is needed. (Without
        air the views' mass may vary little, a crop inside the sample seeing nearly the same mass
        from every angle, while their centroids mean nothing: on the Diamond K11 crop they gave
        shifts of 11.7 px RMS. ``horizontal="centroid"`` forces them.)
 3. **axis** from every estimator that applies (:func:`~nanoct.motion.axis.estimate_axis`) on the
-   views moved back by their horizontal shifts, so that the axis goes with the shifts; unless given.
+   views moved back by their horizontal shifts, so that the axis goes with the shifts; on the
+   ``matching`` path the axis of the last autofocus (``focus``) is used; unless given.
+
+For a limited-angle series the in-plane tilt of the axis on the detector is estimated from the
+row profiles (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undone first.
 
 The horizontal shifts are given without the term ``a cos(phi) + b sin(phi)`` (a translation of the
 object, which the data do not fix); their constant, if any, goes with the axis found in step 3.
@@ -41,9 +47,10 @@ from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
 from .axis import AxisEstimate, axis_rows, estimate_axis, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
+from .focus import focus_smooth
 from .matching import apply_vertical, match_projections
 from .registration import register_shifts
-from .vertical import row_profiles, vertical_shifts
+from .vertical import row_profiles, tilt_from_profiles, vertical_shifts
 
 __all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours"]
 
@@ -65,6 +72,10 @@ class Motion3D:
         ``"centroid"`` or ``"matching"``.
     record : dict
         Why each choice was made (JSON-ready).
+    tilt_deg : float
+        In-plane tilt of the axis on the detector (degrees, the sign of
+        :class:`~nanoct.motion.axis.AxisTilt`), undone before the shifts were estimated; 0 when not
+        estimated.
     """
 
     horizontal: np.ndarray
@@ -72,6 +83,7 @@ class Motion3D:
     axis: AxisEstimate
     horizontal_method: str
     record: dict[str, Any] = field(default_factory=dict)
+    tilt_deg: float = 0.0
 
 
 def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -102,6 +114,29 @@ def prealign_neighbours(projections: np.ndarray, *, max_shift: float | None = No
     return steps[:, 0], steps[:, 1]
 
 
+def _match_and_focus(
+    straight: np.ndarray, phi: np.ndarray, start: float, fit_axis: bool, record: dict[str, Any]
+) -> tuple[np.ndarray, float]:
+    """Horizontal shifts without a centroid: autofocus of the slow part, projection matching, autofocus again.
+
+    :func:`~nanoct.motion.focus.focus_smooth` finds the motion that is slow over the views (which
+    projection matching does not see), :func:`~nanoct.motion.matching.match_projections` the fast
+    part from there, and a second autofocus corrects the slow part matching disturbed (with
+    ``fit_axis``, also the constant: the axis of the sharpest slices). Returns the shifts and the
+    axis they go with: ``start`` less the constant the last autofocus added, in the gauge of
+    ``(1, cos phi, sin phi)``. An autofocus that ran to its bounds is not used
+    (:class:`~nanoct.motion.focus.FocusResult` ``accepted``); ``record`` gets which were.
+    """
+    first = focus_smooth(straight, phi, start)
+    matched = match_projections(straight, phi, start, horizontal=first.horizontal)
+    final = focus_smooth(straight, phi, start, matched.horizontal, axis=fit_axis)
+    d = final.horizontal
+    basis = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi)], axis=1)
+    constant = float(np.linalg.lstsq(basis, d, rcond=None)[0][0]) if fit_axis and final.accepted else 0.0
+    record.update(accepted=[first.accepted, final.accepted], start_axis=start, axis=start - constant)
+    return d, start - constant
+
+
 def estimate_motion(
     projections: Any,
     angles: Any,
@@ -110,6 +145,7 @@ def estimate_motion(
     horizontal: str = "auto",
     vertical: bool = True,
     prealign: bool | str = "auto",
+    tilt: bool | str = "auto",
     progress: Callable[[str], Any] | None = None,
 ) -> Motion3D:
     """Vertical and horizontal shift per view and the rotation axis (see the module docstring).
@@ -130,6 +166,10 @@ def estimate_motion(
         Start from :func:`prealign_neighbours` (jumps of tens of pixels between frames);
         ``"auto"``: for a limited-angle series (no two views 180 degrees apart), where frames
         of a tilt series are acquired in angular order.
+    tilt : bool or "auto"
+        Estimate the in-plane tilt of the axis from the row profiles
+        (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undo it first; ``"auto"``: for a
+        limited-angle series (a scan with opposite views has :func:`~nanoct.motion.axis.axis_tilt`).
     progress : callable, optional
         Called with the name of each finished stage.
 
@@ -149,6 +189,10 @@ def estimate_motion(
     v0, d0 = prealign_neighbours(proj) if prealign else (np.zeros(phi.size), np.zeros(phi.size))
     if prealign:
         proj = np.stack([ndi.shift(p, (a, b), order=1, mode="nearest") for p, a, b in zip(proj, v0, d0)])
+    limited = not opposite_pairs(phi)[0].size
+    tilt_deg = _tilt(proj) if (limited if tilt == "auto" else tilt) else 0.0
+    if tilt_deg:
+        proj = apply_vertical(proj, np.zeros(phi.size), tilt_deg)
     v = vertical_shifts(row_profiles(proj)) if vertical and proj.shape[1] >= 4 else np.zeros(phi.size)
     straight = apply_vertical(proj, v) if np.any(v) else proj
     tick("vertical")
@@ -159,20 +203,35 @@ def estimate_motion(
     method = horizontal if horizontal != "auto" else ("centroid" if air else "matching")
     record: dict[str, Any] = {"vertical": "row profiles" if vertical else "none", "horizontal": method}
     record.update(air_removed=air, centroid_rows=int(rows.sum()), mass_spread=float(spread), prealign=bool(prealign))
+    record["tilt_deg"] = tilt_deg
     if method == "centroid":
         d = d_centroid
     else:
         start = estimate_axis(sinos[axis_rows(sinos.shape[0])], phi).offset if center is None else float(center)
-        d = match_projections(straight, phi, start, progress=lambda stage: None).horizontal
+        record["focus"] = {}
+        d, focus_axis = _match_and_focus(straight, phi, start, center is None, record["focus"])
     d = remove_translation(d, phi)
     tick("horizontal")
     # the axis with the views moved back by their shifts: the estimators then see a still object
     rows_axis = axis_rows(sinos.shape[0])
     corrected = np.stack([fourier_shift(sino, d) for sino in sinos[rows_axis]])
     axis = estimate_axis(corrected, phi)
+    if method == "matching" and center is None and record["focus"]["accepted"][1]:
+        d = d - (start - focus_axis)  # the pair (start, d) as (focus_axis, d less the constant the focus found)
+        note = "focus: the axis of the sharpest slices with the matched shifts (no opposite view or centroid trusted)"
+        estimates = {**axis.estimates, "focus": focus_axis}
+        axis = AxisEstimate(focus_axis, estimates, ("focus",), (*axis.notes, note), axis.air_removed)
     if center is not None:
         axis = AxisEstimate(float(center), {**axis.estimates, "given": float(center)}, ("given",), axis.notes, air)
     tick("axis")
     d = remove_translation(d + d0, phi)
     v = v + v0 if vertical else v
-    return Motion3D(d, v - v.mean(), axis, method, record)
+    return Motion3D(d, v - v.mean(), axis, method, record, tilt_deg)
+
+
+def _tilt(proj: np.ndarray) -> float:
+    """The axis tilt from the row profiles of the views with their open beam removed (0 for too few rows)."""
+    if proj.shape[1] < 24:
+        return 0.0
+    clean, _ = remove_air(proj.transpose(1, 0, 2))
+    return tilt_from_profiles(clean.transpose(1, 0, 2))[0]
