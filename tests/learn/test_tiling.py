@@ -138,7 +138,9 @@ def test_parallel_tiles_workers_run_one_openmp_thread_each():
     import os
 
     maps = f"/proc/{os.getpid()}/maps"
-    libs = [path for path in open(maps).read().split() if "libgomp" in path] if os.path.exists(maps) else []
+    loaded = open(maps).read().split() if os.path.exists(maps) else []
+    # torch's own libgomp: other packages (finufft) may have loaded a copy of their own first
+    libs = [path for path in loaded if "libgomp" in path and os.sep + "torch" + os.sep in path]
     if not libs:
         pytest.skip("no GNU OpenMP library loaded by torch here")
     gomp = ctypes.CDLL(libs[0])
