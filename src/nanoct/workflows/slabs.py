@@ -151,7 +151,8 @@ def _horizontal(
         notes.append(f"warning: the axis estimators disagree by {abs(mirror - center):.2f} px "
                      f"(centroid {center:+.2f}, mirror {mirror:+.2f}); motion or a wrong axis")  # fmt: skip
     axis = {"offset": center, "estimates": {"centroid": center, "mirror": mirror}, "used": ["centroid"], "notes": notes}
-    info.update(center_offset=float(center), center_raw=float(center), center_method="estimators", axis=axis)
+    info.update(center_offset=float(center), center_raw=float(center), axis=axis)
+    info["center_method"] = "the views' centroids (opposite views as a check)"
     return shifts, info
 
 
