@@ -107,6 +107,8 @@ def test_a_scan_file_needs_out_or_store_and_a_store_takes_no_out(scan, tmp_path,
     path, read, *_ = scan
     assert run(["stack", str(path), "-q", *read]) == 2
     assert "--out OUT.zarr" in capsys.readouterr().err
+    assert run(["stack", str(path), "--store", str(tmp_path / "s"), "--block", "4", "-q", *read]) == 2
+    assert "--block goes with --out" in capsys.readouterr().err and not (tmp_path / "s").exists()
     assert run(["import", str(path), "--out", str(tmp_path / "store"), "--rows", "0:2", "-q", *read]) == 0
     assert run(["stack", str(tmp_path / "store"), "--out", str(tmp_path / "o.zarr"), "-q"]) == 2
     assert "is a data set" in capsys.readouterr().err

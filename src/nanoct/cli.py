@@ -887,7 +887,9 @@ def _parse_center(text: str) -> float | str:
 
 @app.command()
 def stack(
-    source: Path = typer.Argument(..., help="Data-set store, or a scan file to import into --store first."),
+    source: Path = typer.Argument(
+        ..., help="Data-set store, or a scan file: streamed into --out, or imported into --store first."
+    ),
     store_dir: Path | None = typer.Option(None, "--store", help="With a scan file: the new data set to import into."),
     out: Path | None = typer.Option(
         None, "--out", "-o", help="With a scan file: stream it block by block into this Zarr group (bounded memory)."
@@ -945,9 +947,10 @@ def stack(
 ) -> None:
     """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable).
 
-    Given a scan file and --store, imports it first with the reading and correction options of
-    'nanoct import' (--format, --angles, --data-path, --open-beam, --stripes ...; the axis is then
-    estimated here, not at import).
+    Given a scan file and --out, streams it block by block of detector rows (memory bounded by a
+    block, resumable by block; docs/commands.md). Given a scan file and --store, imports it first
+    with the reading and correction options of 'nanoct import' (--format, --angles, --data-path,
+    --open-beam, --stripes ...; the axis is then estimated here, not at import).
     Ends with a summary: the axis and how it was found, the range of the motion, and where the
     slices are.
     """
@@ -963,6 +966,8 @@ def stack(
                 f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "
                 "resumable), or import it first with --store NEW_DIR (not both)"
             )
+        if block is not None:
+            raise NanoctError("--block goes with --out (streaming); a data set made with --store runs slice by slice")
         source = _import_from_flags(source, store_dir, locals()).path
     elif out is not None or block is not None:
         raise NanoctError(f"--out and --block stream a scan file; {source} is a data set (drop them)")
