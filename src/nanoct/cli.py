@@ -957,20 +957,9 @@ def stack(
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
 
-    if not (source / "zarr.json").is_file():
-        if out is not None and store_dir is None:
-            typer.echo(_stream_stack(source, out, locals()))
-            return
-        if store_dir is None or out is not None:
-            raise NanoctError(
-                f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "
-                "resumable), or import it first with --store NEW_DIR (not both)"
-            )
-        if block is not None:
-            raise NanoctError("--block goes with --out (streaming); a data set made with --store runs slice by slice")
-        source = _import_from_flags(source, store_dir, locals()).path
-    elif out is not None or block is not None:
-        raise NanoctError(f"--out and --block stream a scan file; {source} is a data set (drop them)")
+    source = _stack_source(source, store_dir, out, block, locals())
+    if source is None:  # streamed into --out
+        return
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
         binning=binning, coarse_iter=coarse_iter, model=_parse_model(model), eta=_parse_eta(eta),
@@ -978,6 +967,28 @@ def stack(
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
     typer.echo(_stack_summary(DataStore.open(source), written))
+
+
+def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block: int | None, flags: dict) -> Any:
+    """The data set ``nanoct stack`` works on: ``source``, or the scan file imported into ``--store``.
+
+    A scan file with ``--out`` is streamed here instead (its summary printed; ``None`` returned).
+    """
+    if (source / "zarr.json").is_file():
+        if out is not None or block is not None:
+            raise NanoctError(f"--out and --block stream a scan file; {source} is a data set (drop them)")
+        return source
+    if out is not None and store_dir is None:
+        typer.echo(_stream_stack(source, out, flags))
+        return None
+    if store_dir is None or out is not None:
+        raise NanoctError(
+            f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "
+            "resumable), or import it first with --store NEW_DIR (not both)"
+        )
+    if block is not None:
+        raise NanoctError("--block goes with --out (streaming); a data set made with --store runs slice by slice")
+    return _import_from_flags(source, store_dir, flags).path
 
 
 #: ``nanoct stack`` flags the streaming path (``--out``) does not apply, with their defaults.
