@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/bench_gridrec.py [--cols 1024 2048] [--views 1800] [--slices 4] [--repeat 3]
-        [--paper-slices 8] [--skip-paper] [--times-only] [--slab-rows 32 --slab-block 16 [--slab-only]]
+        [--paper-slices 8] [--skip-paper] [--times-only]
 
 For each size: a few slices of an analytic ellipse phantom (:func:`nanoct.sim.analytic.stack_phantom`,
 exact line integrals, 2 sub-samples per detector pixel) over 180 degrees, rotation axis 7.3 px
@@ -23,23 +23,16 @@ agreement target: within 0.1 dB), and algotom's (best of the 8 flips/rotations o
 orientation convention differs). Paper-parallel (255^2, 567 views, 363 detector pixels): ASTRA's
 CPU FBP (``line`` projector) against gridrec per slice in a stack of ``--paper-slices``.
 
-``--slab-rows R``: a synthetic NXtomo scan (``R`` rows between two analytic slices, the same
-motion, flats and darks) streamed through :func:`nanoct.workflows.slabs.reconstruct_scan` in a
-child process: wall time (motion from 4 rows, every slice to Zarr) and the child's peak memory.
+The streaming pipeline end to end (``nanoct stack SCAN --out OUT.zarr``): ``bench_slabs.py``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import subprocess
-import sys
-import tempfile
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -197,54 +190,6 @@ def _paper(slices: int, repeat: int) -> None:
           f"dB, gridrec {psnr(images[0], truth):.3f} dB")  # fmt: skip
 
 
-_SLAB_RUN = """
-import sys, time, json
-from pathlib import Path
-from nanoct.workflows.slabs import reconstruct_scan
-t0 = time.perf_counter()
-out = reconstruct_scan(sys.argv[1], sys.argv[2], block=int(sys.argv[3]), progress=False)
-took = time.perf_counter() - t0
-peak = [int(l.split()[1]) for l in Path("/proc/self/status").read_text().splitlines() if l.startswith("VmHWM:")][0]
-print(json.dumps({"seconds": took, "peak_gib": peak / 2**20}))
-"""
-
-
-def _slab(rows: int, cols: int, views: int, block: int, folder: Path) -> None:
-    """A synthetic NXtomo scan (intensities, flats, darks) of ``rows`` rows, streamed through ``reconstruct_scan``."""
-    import h5py
-
-    from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
-
-    phi = np.arange(views) * np.pi / views
-    d = _motion(views)
-    t0 = time.perf_counter()
-    ends = [ellipse_sinogram(e, phi, cols, shifts=d, center_offset=7.3) for e in stack_phantom(cols, 2, seed=5)]
-    path = folder / "scan.nx"
-    with h5py.File(path, "w") as f:
-        data = f.create_dataset(
-            "entry/instrument/detector/data", (views + 4, rows, cols), "float32", chunks=(1, min(rows, 16), cols)
-        )
-        data[:2] = 10.0  # darks
-        data[2:4] = 1000.0  # flats
-        for r0 in range(0, rows, 16):
-            w = (np.arange(r0, min(r0 + 16, rows)) / max(rows - 1, 1))[:, None, None]
-            lines = (1 - w) * ends[0][None] + w * ends[1][None]  # rows between two analytic slices
-            data[4:, r0 : r0 + lines.shape[0]] = (10.0 + 990.0 * np.exp(-lines)).transpose(1, 0, 2)
-        f["entry/instrument/detector/image_key"] = np.r_[2, 2, 1, 1, np.zeros(views, int)]
-        f["entry/sample/rotation_angle"] = np.r_[0, 0, 0, 0, np.rad2deg(phi)]
-    size = path.stat().st_size / 2**30
-    print(f"\n== slab pipeline: NXtomo {views} views x {rows} rows x {cols} columns ({size:.2f} GiB, written in "
-          f"{time.perf_counter() - t0:.0f} s), blocks of {block} rows, one process")  # fmt: skip
-    run = subprocess.run(
-        [sys.executable, "-c", _SLAB_RUN, str(path), str(folder / "out.zarr"), str(block)],
-        capture_output=True, text=True, check=True,
-    )  # fmt: skip
-    result = json.loads(run.stdout.strip().splitlines()[-1])
-    per_row = result["seconds"] / rows
-    print(f"import + motion (4 rows) + {rows} slices to Zarr: {result['seconds']:.1f} s ({per_row:.2f} s per slice), "
-          f"peak memory {result['peak_gib']:.2f} GiB (target for 256 slices: <= 10 min, <= 4 GB)")  # fmt: skip
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cols", type=int, nargs="+", default=[1024, 2048])
@@ -254,23 +199,16 @@ def main() -> None:
     parser.add_argument("--paper-slices", type=int, default=8)
     parser.add_argument("--skip-paper", action="store_true")
     parser.add_argument("--times-only", action="store_true", help="Skip nanoct's FBP and the PSNR (gridrec vs algotom)")
-    parser.add_argument("--slab-rows", type=int, default=0, help="Also stream an NXtomo scan of this many rows")
-    parser.add_argument("--slab-block", type=int, default=16)
-    parser.add_argument("--slab-dir", type=Path, default=None, help="Where to write the scan (default: a temp dir)")
-    parser.add_argument("--slab-only", action="store_true", help="Only the slab pipeline (at the largest --cols)")
     args = parser.parse_args()
     import finufft
     import numba
 
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, numba threads "
           f"{numba.get_num_threads()}, finufft {finufft.__version__}, load {os.getloadavg()[0]:.1f}")  # fmt: skip
-    if not (args.skip_paper or args.slab_only):
+    if not args.skip_paper:
         _paper(args.paper_slices, args.repeat)
-    for cols in [] if args.slab_only else args.cols:
+    for cols in args.cols:
         _size(cols, args.views, args.slices, args.repeat, quality=not args.times_only)
-    if args.slab_rows:
-        with tempfile.TemporaryDirectory(dir=args.slab_dir) as folder:
-            _slab(args.slab_rows, max(args.cols), args.views, args.slab_block, Path(folder))
 
 
 if __name__ == "__main__":

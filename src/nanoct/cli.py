@@ -890,8 +890,14 @@ def _parse_center(text: str) -> float | str:
 
 @app.command()
 def stack(
-    source: Path = typer.Argument(..., help="Data-set store, or a scan file to import into --store first."),
+    source: Path = typer.Argument(
+        ..., help="Data-set store, or a scan file: streamed into --out, or imported into --store first."
+    ),
     store_dir: Path | None = typer.Option(None, "--store", help="With a scan file: the new data set to import into."),
+    out: Path | None = typer.Option(
+        None, "--out", "-o", help="With a scan file: stream it block by block into this Zarr group (bounded memory)."
+    ),
+    block: int | None = typer.Option(None, "--block", help="With --out: detector rows per block (default 16)."),
     method: str = typer.Option(
         "fbp", "--method", "-m", help="Each slice: fbp | gridrec (FBP in Fourier space) | dremel (fixed) | resesop."
     ),
@@ -944,19 +950,19 @@ def stack(
 ) -> None:
     """Whole measured stack: one motion and rotation axis (coarse to fine), then every slice (resumable).
 
-    Given a scan file and --store, imports it first with the reading and correction options of
-    'nanoct import' (--format, --angles, --data-path, --open-beam, --stripes ...; the axis is then
-    estimated here, not at import).
+    Given a scan file and --out, streams it block by block of detector rows (memory bounded by a
+    block, resumable by block; docs/commands.md). Given a scan file and --store, imports it first
+    with the reading and correction options of 'nanoct import' (--format, --angles, --data-path,
+    --open-beam, --stripes ...; the axis is then estimated here, not at import).
     Ends with a summary: the axis and how it was found, the range of the motion, and where the
     slices are.
     """
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
 
-    if not (source / "zarr.json").is_file():
-        if store_dir is None:
-            raise NanoctError(f"{source} is not a data set; to import a scan file, add --store NEW_DIR")
-        source = _import_from_flags(source, store_dir, locals()).path
+    source = _stack_source(source, store_dir, out, block, locals())
+    if source is None:  # streamed into --out
+        return
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
         binning=binning, coarse_iter=coarse_iter, model=_parse_model(model), eta=_parse_eta(eta),
@@ -964,6 +970,96 @@ def stack(
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
     typer.echo(_stack_summary(DataStore.open(source), written))
+
+
+def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block: int | None, flags: dict) -> Any:
+    """The data set ``nanoct stack`` works on: ``source``, or the scan file imported into ``--store``.
+
+    A scan file with ``--out`` is streamed here instead (its summary printed; ``None`` returned).
+    """
+    if (source / "zarr.json").is_file():
+        if out is not None or block is not None:
+            raise NanoctError(f"--out and --block stream a scan file; {source} is a data set (drop them)")
+        return source
+    if out is not None and store_dir is None:
+        typer.echo(_stream_stack(source, out, flags))
+        return None
+    if store_dir is None or out is not None:
+        raise NanoctError(
+            f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "
+            "resumable), or import it first with --store NEW_DIR (not both)"
+        )
+    if block is not None:
+        raise NanoctError("--block goes with --out (streaming); a data set made with --store runs slice by slice")
+    return _import_from_flags(source, store_dir, flags).path
+
+
+#: ``nanoct stack`` flags the streaming path (``--out``) does not apply, with their defaults.
+_NOT_STREAMED = {
+    "crop": None, "outliers": None, "open_beam": False, "air_columns": None, "delta_beta": None,
+    "energy_kev": None, "distance_m": None, "pixel_size_m": None, "stripes": None, "stripe_params": None,
+    "name": None, "eta": "auto",
+}  # fmt: skip
+
+
+def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
+    """``nanoct stack SCAN --out OUT.zarr``: the scan streamed block by block (``reconstruct_scan``)."""
+    from .workflows.slabs import reconstruct_scan
+    from .workflows.stack import fbp_engine
+
+    f = flags
+    given = [k for k, default in _NOT_STREAMED.items() if f[k] != default]
+    if given:
+        names = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise NanoctError(f"{names}: not applied when streaming with --out; import with --store NEW_DIR instead")
+    if f["method"] not in ("fbp", "gridrec"):
+        raise NanoctError(f"--method {f['method']!r}: streaming with --out runs fbp or gridrec (Fourier space)")
+    if fbp_engine("auto") != "gridrec":
+        raise NanoctError("streaming with --out needs finufft (pip install finufft); or import with --store NEW_DIR")
+    center = _parse_center(f["center_offset"])
+    motion_rows: Any = f["motion_slices"]
+    if motion_rows not in ("auto", "all"):
+        motion_rows = list(_parse_ints(motion_rows, "--motion-slices", low=0))
+    elif motion_rows == "all":
+        raise NanoctError("--motion-slices all: give auto or the rows to use, e.g. 0,50,100, when streaming")
+    options = _reader_options(
+        f["data_path"], f["image_key_path"], f["angles_path"], f["angles_units"], f["allow_outside"],
+        f["tilt_axis"], f["angles_select"],
+    )  # fmt: skip
+    read = {
+        "fmt": f["fmt"], "angles_file": f["angles"], "degrees": not f["radians"], "flats": f["flats"],
+        "darks": f["darks"], "is_line_integral": f["line_integrals"], "entry": f["entry"], "options": options,
+    }  # fmt: skip
+    written = reconstruct_scan(
+        src, out, rows=_parse_range(f["rows"], "--rows", ":"), motion_rows=motion_rows,
+        center=None if center == "auto" else float(center), block=16 if f["block"] is None else f["block"],
+        read={k: v for k, v in read.items() if v is not None},
+        motion={"binning": f["binning"], "coarse_iter": f["coarse_iter"], "model": _parse_model(f["model"]),
+                "refine": None if f["refine"] == "auto" else _parse_ints(f["refine"], "--refine")},
+        overwrite=f["overwrite"], workers=f["workers"], scheduler=f["scheduler"], progress=not f["quiet"],
+    )  # fmt: skip
+    return _slab_summary(written)
+
+
+def _slab_summary(out: Path) -> str:
+    """What the streaming stack found and wrote."""
+    import numpy as np
+    import zarr
+
+    group = zarr.open_group(str(out), mode="r")
+    info, meta = dict(group.attrs.get("info") or {}), dict(group.attrs["nanoct"])
+    shifts = info.get("shifts") or [0.0]
+    first, stop = meta["rows"]
+    flags = np.asarray(group["done"][:])  # type: ignore[index]
+    lines = [
+        f"wrote {out}: rows {first}:{stop} in blocks of {meta['block']}, axis offset "
+        f"{info.get('center_offset', float('nan')):+.3f} px, {_how_found(info.get('center_method'))}",
+        f"  motion   {min(shifts):+.3f} to {max(shifts):+.3f} px over {len(shifts)} views "
+        f"(from rows {info.get('motion_rows')})",
+        *_motion_lines(info),
+        f"  slices   {int(flags.sum())} of {flags.size} blocks done; the images are the array 'slices' of {out}",
+    ]
+    return "\n".join(lines)
 
 
 def _parse_model(model: str | None) -> tuple[int, ...] | None:

@@ -91,7 +91,7 @@ def test_bad_input_and_other_parameters(tmp_path):
         reconstruct_slabs(scan, tmp_path / "a", block=0, read=read, progress=False)
     assert not (tmp_path / "a").exists()
     reconstruct_slabs(scan, tmp_path / "a", rows=(0, 2), read=read, progress=False)
-    with pytest.raises(NanoctError, match="other parameters"):
+    with pytest.raises(NanoctError, match="other rows, block"):
         reconstruct_slabs(scan, tmp_path / "a", rows=(0, 2), center_offset=2.0, read=read, progress=False)
 
 

@@ -168,6 +168,18 @@ def _polar_samples(geometry: Geometry, shifts: np.ndarray, period: int, interpol
     return rows.ravel().astype(real), cols.ravel().astype(real), weights.astype(dtype)
 
 
+#: finufft's upsampling factor on the CPU (double precision). Measured at 1800 views x 2048
+#: columns to a 2048^2 image, one pair of slices on one thread: 0.66 s with an error of 3.7e-6 of
+#: the image's L2 norm (2.2e-5 of its maximum) against a 1e-9 transform; single precision at the
+#: default 2.0 took 1.28 s for 9.5e-5 (1.3e-4), single at 1.25 0.43 s for 1.4e-4 (2.5e-4).
+UPSAMPFAC = 1.25
+
+
+def _options(engine: Any) -> dict[str, Any]:
+    """finufft's ``eps`` and ``upsampfac`` (:data:`UPSAMPFAC` down to ``eps = 1e-9``, where its kernel reaches)."""
+    return {"eps": engine.eps, "upsampfac": UPSAMPFAC if engine.eps >= 1e-9 else 2.0}
+
+
 class _FinufftEngine:
     """CPU: scipy FFTs and one single-threaded finufft type-1 plan per thread (points set once each).
 
@@ -186,7 +198,9 @@ class _FinufftEngine:
         while len(self._plans) <= index:
             import finufft
 
-            plan = finufft.Plan(1, (self.n, self.n), eps=self.eps, isign=1, dtype=np.dtype(self.dtype).name, nthreads=1)
+            plan = finufft.Plan(
+                1, (self.n, self.n), isign=1, dtype=np.dtype(self.dtype).name, nthreads=1, **_options(self)
+            )
             plan.setpts(*self.points)
             self._plans.append(plan)
         return self._plans[index]
@@ -273,8 +287,9 @@ class GridrecParams(MethodParams):
         interpolation of FBP's back projection does (images match FBP's), ``sinc`` is the exact
         band-limited one (a little sharper).
     eps : float
-        Relative tolerance of the non-uniform FFT, in [1e-12, 1e-2] (default 1e-5); at 1e-5 and
-        above it runs in single precision.
+        Relative tolerance of the non-uniform FFT, in [1e-12, 1e-2] (default 1e-5); on the CPU in
+        double precision at upsampling :data:`UPSAMPFAC`, on the GPU in single precision at 1e-5
+        and above.
     backend : {"auto", "finufft", "cufinufft"}
         Non-uniform FFT library; ``auto``: the GPU (cufinufft) where usable, else finufft.
     """
@@ -343,7 +358,8 @@ class GridrecPlan:
         d = np.zeros(k) if shifts is None else check_array(shifts, "shifts", shape=(k,), dtype=np.float64)
         self.geometry, self.backend = geometry, select_backend(params["backend"])
         self.period = _period(geometry, d, self.axis_range)
-        dtype = np.complex64 if params["eps"] >= 1e-5 else np.complex128
+        gpu_single = self.backend == "cufinufft" and params["eps"] >= 1e-5
+        dtype = np.complex64 if gpu_single else np.complex128  # the CPU: double (:data:`UPSAMPFAC`)
         *points, weights = _polar_samples(geometry, d, self.period, params["interpolation"], dtype)
         pad = int(2 ** np.ceil(np.log2(2 * geometry.n_det)))
         response = _filter_response(pad, geometry.det_spacing, params["filter"])

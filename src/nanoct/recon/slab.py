@@ -41,7 +41,7 @@ from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..core.geometry import Geometry
 from ..io.scanio import line_integrals, read_scan
 
-__all__ = ["SLAB_FORMAT", "read_block", "reconstruct_slabs", "slab_blocks"]
+__all__ = ["SLAB_FORMAT", "check_selection", "read_block", "reconstruct_slabs", "slab_blocks"]
 
 #: Version of the output layout.
 SLAB_FORMAT = 1
@@ -50,6 +50,22 @@ SLAB_FORMAT = 1
 def slab_blocks(first: int, stop: int, block: int) -> list[tuple[int, int]]:
     """Detector rows ``[first, stop)`` cut into ``[r0, r1)`` blocks of ``block`` rows (the last may be shorter)."""
     return [(r0, min(r0 + block, stop)) for r0 in range(first, stop, block)]
+
+
+def check_selection(rows: tuple[int, int] | None, block: Any, n_rows: int) -> tuple[int, int]:
+    """The detector rows ``[first, stop)`` to reconstruct (all for ``None``), checked with the block size.
+
+    Raises
+    ------
+    NanoctError
+        For rows outside the detector's ``n_rows`` or a block that is not a whole number >= 1.
+    """
+    first, stop = (0, n_rows) if rows is None else (int(rows[0]), int(rows[1]))
+    if not 0 <= first < stop <= n_rows:
+        raise NanoctError(f"--rows {first}:{stop} must satisfy 0 <= FIRST < STOP <= {n_rows} (the detector's rows)")
+    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
+        raise NanoctError(f"--block {block!r} must be a whole number of detector rows >= 1, e.g. 16")
+    return first, stop
 
 
 def _unshift_rows(data: np.ndarray, vertical: np.ndarray, top: int, rows: tuple[int, int], n_rows: int) -> np.ndarray:
@@ -135,7 +151,10 @@ def _open_output(out: Path, meta: dict[str, Any], shape: tuple[int, int, int], b
     if out.exists():
         group = zarr.open_group(str(out), mode="r+")
         if dict(group.attrs.get("nanoct", {})) != meta:
-            raise NanoctError(f"{out} holds slabs made with other parameters; choose another output or delete it")
+            raise NanoctError(
+                f"{out} holds slabs made with other rows, block, reading options or motion; "
+                "choose another --out or add --overwrite"
+            )
         return group
     tmp = out.parent / f".{out.name}.creating-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     group = zarr.open_group(str(tmp), mode="w")
@@ -199,12 +218,9 @@ def reconstruct_slabs(
     """
     source = {"path": str(scan), **(read or {})}
     head = read_scan(scan, rows=slice(0, 1), **(read or {}))
-    n_rows, n_cols = (int(v) for v in head.source["detector_shape"])
-    first, stop = (0, n_rows) if rows is None else (int(rows[0]), int(rows[1]))
-    if not 0 <= first < stop <= n_rows:
-        raise NanoctError(f"rows {first}:{stop} must satisfy 0 <= FIRST < STOP <= {n_rows} detector rows")
-    if isinstance(block, bool) or not isinstance(block, int) or block < 1:
-        raise NanoctError(f"block {block!r} must be a whole number of rows >= 1")
+    n_rows, n_cols = int(head.source["detector_shape"][0]), int(head.projections.shape[-1])
+    first, stop = check_selection(rows, block, n_rows)
+    block = int(block)
     k = head.n_views
     arrays = []
     for label, value in (("shifts", shifts), ("vertical", vertical)):
@@ -231,7 +247,7 @@ def reconstruct_slabs(
         "shifts": arrays[0],
         "vertical": arrays[1],
         "threads": threads,
-        "digest": meta["motion"] + str(threads),
+        "digest": _digest(*arrays) + json.dumps(meta["geometry"], sort_keys=True) + str(threads),
     }
     source["n_rows"] = n_rows
     task = partial(_block_task, str(Path(out)), source, setup, blocks)
