@@ -1089,6 +1089,8 @@ def _motion_lines(info: dict[str, Any]) -> list[str]:
     vertical = info.get("vertical")
     if vertical is not None and any(vertical):
         lines.append(f"  vertical {min(vertical):+.3f} to {max(vertical):+.3f} px ({info.get('vertical_method')})")
+    elif (info.get("vertical_guard") or {}).get("significant") is False:
+        lines.append(f"  vertical {info['vertical_guard']['note']}")
     tilt = info.get("tilt") or {}
     if "tilt_deg" in tilt:
         lines.append(f"  tilt     {tilt['tilt_deg']:+.3f} degrees of the axis on the detector")

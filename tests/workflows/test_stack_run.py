@@ -52,7 +52,7 @@ def test_stack_finds_axis_and_motion_and_resumes(store, monkeypatch):
     best = np.linalg.norm(reproject(truth, corrected_fbp(truth, sino, d), d) - sino)  # FBP with the true motion
     assert misfit < 1.1 * best and still > 1.5 * best, (misfit, still, best)
     # resume: the recorded motion is reused and finished slices are skipped
-    monkeypatch.setattr(stack_batch, "estimate_stack_motion", lambda *a, **k: pytest.fail("estimated again"))
+    monkeypatch.setattr(stack_batch, "horizontal_motion", lambda *a, **k: pytest.fail("estimated again"))
     monkeypatch.setattr(stack_batch, "corrected_fbp", lambda *a, **k: pytest.fail("reconstructed again"))
     assert reconstruct_stack(store, motion_slices="0,2", binning=4, refine=(2, 1, 1), workers=0, progress=False)
     with pytest.raises(NanoctError, match="other parameters"):

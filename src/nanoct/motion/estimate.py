@@ -5,8 +5,9 @@ of every view with the rotation axis, and a record of the estimators that ran:
 
 0. for a limited-angle series (no two views 180 degrees apart), a coarse pre-alignment of
    neighbouring frames (:func:`prealign_neighbours`), for jumps of tens of pixels;
-1. **vertical** from the views' row profiles (:func:`~nanoct.motion.vertical.vertical_shifts`);
-   the projections are then moved back vertically
+1. **vertical** from the views' row profiles (:func:`~nanoct.motion.vertical.vertical_motion`:
+   zero where the profiles do not show a significant motion, the reason in
+   ``record["vertical_guard"]``); the projections are then moved back vertically
    (:func:`~nanoct.motion.matching.apply_vertical`);
 2. **horizontal**, chosen as the method registry chooses solvers, by what the data allow:
 
@@ -50,7 +51,7 @@ from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth
 from .matching import apply_vertical, match_projections
 from .registration import register_shifts
-from .vertical import row_profiles, tilt_from_profiles, vertical_shifts
+from .vertical import row_profiles, tilt_from_profiles, vertical_motion
 
 __all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours"]
 
@@ -193,7 +194,11 @@ def estimate_motion(
     tilt_deg = _tilt(proj) if (limited if tilt == "auto" else tilt) else 0.0
     if tilt_deg:
         proj = apply_vertical(proj, np.zeros(phi.size), tilt_deg)
-    v = vertical_shifts(row_profiles(proj)) if vertical and proj.shape[1] >= 4 else np.zeros(phi.size)
+    guard: dict[str, Any] = {"note": "vertical motion not estimated"}
+    v = np.zeros(phi.size)
+    if vertical and proj.shape[1] >= 4:
+        found = vertical_motion(row_profiles(proj))
+        v, guard = found.shifts, found.to_dict()
     straight = apply_vertical(proj, v) if np.any(v) else proj
     tick("vertical")
     sinos = straight.transpose(1, 0, 2)
@@ -203,7 +208,7 @@ def estimate_motion(
     method = horizontal if horizontal != "auto" else ("centroid" if air else "matching")
     record: dict[str, Any] = {"vertical": "row profiles" if vertical else "none", "horizontal": method}
     record.update(air_removed=air, centroid_rows=int(rows.sum()), mass_spread=float(spread), prealign=bool(prealign))
-    record["tilt_deg"] = tilt_deg
+    record.update(tilt_deg=tilt_deg, vertical_guard=guard)
     if method == "centroid":
         d = d_centroid
     else:

@@ -8,12 +8,14 @@ hyperslab and flat/dark corrected), records it with the output, and hands the sc
 reconstructed with gridrec, written as Zarr chunks, resumable by block). The motion:
 
 * vertical: one pass over the selected rows in blocks summing each view's rows
-  (:func:`scan_profiles`), registered by :func:`~nanoct.motion.vertical.vertical_shifts`, for
-  selections of at least :data:`~nanoct.workflows.stack.MIN_VERTICAL_SLICES` rows (as the stack);
+  (:func:`scan_profiles`), registered by :func:`~nanoct.motion.vertical.vertical_motion` (zero
+  where not significant, the reason recorded as ``vertical_guard``), for selections of at least
+  :data:`~nanoct.workflows.stack.MIN_VERTICAL_SLICES` rows (as the stack);
 * horizontal and axis: from a few rows, each moved back by the vertical shift: the views'
   centroids where air is seen (the axis the centroids' as the stack chooses it, checked against
   opposite views; the slow ``find_center_vo`` is left out), else
-  :func:`~nanoct.workflows.stack.horizontal_motion` (Dremel and projection matching). The axis
+  :func:`~nanoct.workflows.stack.horizontal_motion` (autofocus and projection matching on a
+  central block of rows, as ``nanoct stack`` on a data set). The axis
   tilt is not estimated here (one axis for every row).
 
 A stopped run resumes with the recorded motion; the same command with other motion options is
@@ -35,7 +37,7 @@ from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..io.scanio import read_scan
 from ..motion.model import fit_motion_model
-from ..motion.vertical import vertical_shifts
+from ..motion.vertical import vertical_motion
 from ..recon.slab import SLAB_FORMAT, check_selection, read_block, reconstruct_slabs, slab_blocks
 from .stack import MIN_VERTICAL_SLICES, horizontal_motion
 
@@ -106,11 +108,16 @@ def _estimate(source: dict[str, Any], geometry: Geometry, selection: tuple[int, 
     """The motion of the selected rows (module docstring), as recorded with the output."""
     rows = ScanRows(source, *selection, geometry)
     vertical = np.zeros(geometry.n_angles)
-    if rows.n >= MIN_VERTICAL_SLICES and params["vertical"]:
-        vertical = vertical_shifts(scan_profiles(source, selection, params["block"], progress))
+    guard: dict[str, Any] = {"note": "no vertical motion estimated (vertical off)"}
+    if rows.n < MIN_VERTICAL_SLICES:
+        guard = {"note": f"fewer than {MIN_VERTICAL_SLICES} rows: no vertical motion estimated"}
+    elif params["vertical"]:
+        estimate = vertical_motion(scan_profiles(source, selection, params["block"], progress))
+        vertical, guard = estimate.shifts, estimate.to_dict()
     motion = {**params, "motion_slices": _motion_rows(params["motion_slices"], rows.n)}
     shifts, info = _horizontal(rows, motion, vertical, progress)
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
+    info["vertical_guard"] = guard
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     if params["model"] is not None:
         model = fit_motion_model(shifts, geometry.angles, *params["model"])

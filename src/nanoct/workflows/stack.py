@@ -1,13 +1,19 @@
 """``nanoct stack``: one motion and axis for a whole measured stack, then every slice with them fixed.
 
 The motion and the rotation axis are estimated once: the vertical shift per view from the row
-profiles of every slice (:func:`~nanoct.motion.vertical.vertical_shifts`, stacks of at least
-:data:`MIN_VERTICAL_SLICES` slices); the axis as the import estimated it, else from every axis
-estimator (:func:`~nanoct.motion.axis.estimate_axis`), so that ``import`` and ``stack`` give the
-same axis; the horizontal shift per view from a few slices, moved back vertically and with their
-open beam removed, by the views' centroids where air is seen around the object, else by Dremel
-and projection matching (:func:`~nanoct.motion.stack.estimate_stack_motion`, the axis held). The
-horizontal motion may be replaced by a smooth model (:func:`~nanoct.motion.model.fit_motion_model`).
+profiles of every slice (:func:`~nanoct.motion.vertical.vertical_motion`, stacks of at least
+:data:`MIN_VERTICAL_SLICES` slices; zero, with the reason recorded as ``vertical_guard``, where
+the profiles do not show a significant motion); the axis as the import estimated it, else from
+every axis estimator (:func:`~nanoct.motion.axis.estimate_axis`), so that ``import`` and
+``stack`` give the same axis; the horizontal shift per view from a few slices, moved back
+vertically and with their open beam removed, by the views' centroids where air is seen around
+the object, else (an object wider than the field of view) as
+:func:`~nanoct.motion.estimate.estimate_motion` finds it, from a central block of rows: an
+autofocus of the slow motion, projection matching, and the autofocus again with the axis
+(:func:`horizontal_motion`). The axis tilt on the detector is estimated from opposite views
+(:func:`~nanoct.motion.axis.axis_tilt`) only where air is seen (on a truncated object they gave
+-6.2 degrees where the scan has none). The horizontal motion may be replaced by a smooth model
+(:func:`~nanoct.motion.model.fit_motion_model`).
 Both are recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
 then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
@@ -37,8 +43,7 @@ from ..io.store import DataStore, open_cached
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
-from ..motion.stack import estimate_stack_motion
-from ..motion.vertical import vertical_shifts
+from ..motion.vertical import vertical_motion
 from ..names import stack_name
 from ..recon.stack import corrected_fbp, reproject, with_center
 
@@ -69,6 +74,13 @@ AUTO_ETA_FRACTION = 0.5
 #: Vertical motion is estimated from the row profiles of stacks of at least this many slices
 #: (a profile of fewer rows holds too little structure to register).
 MIN_VERTICAL_SLICES = 16
+
+#: Where no air is seen, the autofocus and projection matching read a central block of at most
+#: this many contiguous rows (all rows of the I13 crop wider than the field of view, 59) ...
+MATCH_ROWS = 64
+
+#: ... and of at most this many values (rows x views x columns; 8 rows at least).
+MATCH_VALUES = 2**25
 
 
 def _check_eta(eta: Any, n_views: int) -> str | float | list[float]:
@@ -244,6 +256,52 @@ def slice_center(info: dict[str, Any], index: int, n_slices: int) -> float:
     return float(info["center_offset"] + slope * (index - (n_slices - 1) / 2))
 
 
+def _matching_rows(store: DataStore) -> list[int]:
+    """The central contiguous block of rows the autofocus and projection matching read (:data:`MATCH_ROWS`)."""
+    count = min(store.n, MATCH_ROWS, max(8, MATCH_VALUES // (store.geometry.n_angles * store.geometry.n_det)))
+    first = (store.n - count) // 2
+    done = getattr(store, "done", None)  # a store's written slices (a scan file's rows are all there)
+    return [first + i for i in range(count) if done is None or done[first + i]]
+
+
+def _focus_matching(
+    store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
+) -> tuple[np.ndarray, dict[str, Any]] | None:
+    """No air seen: :func:`~nanoct.motion.estimate.estimate_motion`'s path (autofocus, matching, autofocus).
+
+    Reads the rows of :func:`_matching_rows`, moved back vertically, with their open beam removed;
+    the vertical motion stays the stack's. The axis is the last autofocus's where it was accepted,
+    else that of every axis estimator with the shifts undone; or the given one. ``None`` where a
+    first autofocus from the start axis runs to its bounds (too little structure to focus on: the
+    K11 interior crop, 22 x 26 pixels), so that the caller falls back to Dremel and matching.
+    """
+    from ..motion.estimate import estimate_motion
+    from ..motion.focus import focus_smooth
+
+    rows = _matching_rows(store) or [int(i) for i in params["motion_slices"]]
+    clean, _ = remove_air(read_straight(store, rows, vertical))
+    given = None if params["center"] == "auto" else float(params["center"])
+    start = estimate_axis(clean[axis_rows(len(rows))], store.geometry.angles).offset if given is None else given
+    projections = clean.transpose(1, 0, 2)
+    if not focus_smooth(projections, store.geometry.angles, start).accepted:
+        return None
+    with tqdm(total=3, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
+        motion = estimate_motion(
+            projections, store.geometry.angles, center=given, horizontal="matching",
+            vertical=False, prealign=False, tilt=False, progress=lambda stage: bar.update(),
+        )  # fmt: skip
+    accepted = motion.record["focus"]["accepted"]
+    method = "focus+matching" if any(accepted) else "matching"
+    center_method = "given" if given is not None else ", ".join(motion.axis.used)
+    info: dict[str, Any] = {"horizontal_method": method, "center_method": center_method, "refine_steps": []}
+    info.update(center_offset=motion.axis.offset, center_raw=motion.record["focus"]["start_axis"])
+    info.update(mass_spread=motion.record["mass_spread"], matching_rows=[rows[0], rows[-1] + 1])
+    info["focus"] = {"accepted": accepted, "axis": motion.record["focus"]["axis"]}
+    if given is None:
+        info["axis"] = motion.axis.to_dict()
+    return motion.horizontal, info
+
+
 def horizontal_motion(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
 ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -251,8 +309,13 @@ def horizontal_motion(
 
     From the chosen slices, moved back vertically and with their open beam removed: the views'
     centroids where air is seen around the object (the axis then from every estimator on the
-    rows the import uses, with the motion undone), else Dremel and projection matching
-    (:func:`~nanoct.motion.stack.estimate_stack_motion`).
+    rows the import uses, with the motion undone). Else (an object wider than the field of view)
+    the path of :func:`~nanoct.motion.estimate.estimate_motion` on a central block of rows
+    (:func:`_focus_matching`: autofocus of the slow motion, projection matching, autofocus with
+    the axis; ``horizontal_method`` ``"focus+matching"``, or ``"matching"`` where both autofocus
+    results were rejected); with ``refine`` given, or where a first autofocus runs to its bounds
+    (too little structure to focus on), Dremel and projection matching on the chosen slices
+    (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
     """
     geometry = store.geometry
     clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
@@ -267,18 +330,25 @@ def horizontal_motion(
         info.update(center_method="estimators" if params["center"] == "auto" else "given", horizontal_method="centroid")
         info.update(center_offset=center, center_raw=center, mass_spread=spread, refine_steps=[])
         return shifts, info
-    stages = None if params["refine"] is None else 3 + len(params["refine"])
-    with tqdm(total=stages, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
+    if params["refine"] is None:
+        found = _focus_matching(store, params, vertical, progress, name)
+        if found is not None:
+            return found
+        info["focus"] = {"note": "the autofocus ran to its bounds (too little structure): Dremel and matching"}
+    from ..motion.stack import estimate_stack_motion
+
+    refine = (2, 2, 2, 1) if params["refine"] is None else tuple(params["refine"])
+    with tqdm(total=3 + len(refine), desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
         motion = estimate_stack_motion(
             geometry,
             clean,
             binning=params["binning"],
             coarse_iter=params["coarse_iter"],
-            refine=None if params["refine"] is None else tuple(params["refine"]),
+            refine=refine,
             center=None if params["center"] == "auto" else float(params["center"]),
             progress=lambda stage: bar.update(),
         )
-    info.update(center_offset=motion.center_offset, center_raw=motion.center_raw, horizontal_method="matching")
+    info.update(center_offset=motion.center_offset, center_raw=motion.center_raw, horizontal_method="dremel+matching")
     info.update(center_method=motion.center_method, mass_spread=motion.mass_spread, refine_steps=motion.steps)
     return motion.shifts, info
 
@@ -286,12 +356,18 @@ def horizontal_motion(
 def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
     """Estimate the stack's vertical and horizontal motion and its axis, and record them with ``name``."""
     vertical = np.zeros(store.geometry.n_angles)
+    guard: dict[str, Any] = {"note": f"fewer than {MIN_VERTICAL_SLICES} slices: no vertical motion estimated"}
     if store.n >= MIN_VERTICAL_SLICES and store.done.all():
-        vertical = vertical_shifts(_profiles(store))
+        estimate = vertical_motion(_profiles(store))
+        vertical, guard = estimate.shifts, estimate.to_dict()
     shifts, info = horizontal_motion(store, params, vertical, progress, name)
     if params["center"] == "auto" and store.n >= MIN_VERTICAL_SLICES and store.done.all():
-        info.update(_tilt(store, vertical, shifts))
+        if info["horizontal_method"] == "centroid":
+            info.update(_tilt(store, vertical, shifts))
+        else:  # on the I13 crop wider than the field of view the opposite views gave -6.2 degrees for ~0
+            info["tilt"] = {"note": "no air seen: the opposite views of a truncated object do not fix the axis tilt"}
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
+    info["vertical_guard"] = guard
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     info["vertical"] = [float(v) for v in vertical]
     if params["model"] is not None:
