@@ -908,10 +908,16 @@ def stack(
     ),
     center_offset: str = typer.Option("auto", "--center-offset", help="Axis offset in detector pixels, or auto."),
     motion_slices: str = typer.Option("auto", "--motion-slices", help="auto (up to 4) | all | 0,5,9"),
-    binning: int = typer.Option(8, "--binning", help="Binning of the coarse Dremel estimate (used without centroids)."),
+    binning: int = typer.Option(
+        8,
+        "--binning",
+        help="Binning of the coarse Dremel estimate (used with --refine, or where autofocus is rejected).",
+    ),
     coarse_iter: int = typer.Option(8, "--coarse-iter", help="Dremel iterations on the binned data (0: none)."),
     refine: str = typer.Option(
-        "auto", "--refine", help="Binning of each projection-matching round, e.g. 2,2,1 (auto: see docs)."
+        "auto",
+        "--refine",
+        help="Dremel + projection matching with these binnings, e.g. 2,2,1 (auto: autofocus + matching, see docs).",
     ),
     model: str | None = typer.Option(None, "--model", help="DEGREE,HARMONICS: use a smooth model of the motion."),
     name: str | None = typer.Option(None, "--name", help="Output name (default METHOD_stack).", callback=_check_name),
