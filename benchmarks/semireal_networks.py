@@ -14,7 +14,7 @@ command:
    ``nanoct stack`` on it (the stack's motion and axis);
 2. ``nanoct generate --like MOVED --bin 2 --n N`` (80 x 80 images), ``nanoct reconstruct
    --method dremel --split all`` on it, and ``nanoct train`` of a UNet and of CiUNetRes on
-   (Dremel, phantom) with the tiny study's architectures (``docs/learn.md``) and a small budget
+   (Dremel, phantom) with the tiny study's architectures and learning rates (``docs/learn.md``) and a small budget
    (``--epochs-*``, bf16);
 3. the moved scan binned 2 x 2 into a data set of the matched set's geometry, ``nanoct
    reconstruct --method dremel`` (one joint motion for the stack) and ``nanoct predict`` of both
@@ -56,7 +56,7 @@ from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
 
 BIN = 2
 UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
-CIUNET = ["--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
+CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
           "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
 ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
 
@@ -74,7 +74,8 @@ def build_stores(work: Path, proj: np.ndarray, moved: np.ndarray, angles: np.nda
     """The moved scan (full size) and, after stack + generate --like, the binned moved scan in the matched geometry."""
     full = Geometry.from_angles(angles, proj.shape[2], proj.shape[2], degrees=True, center_offset=AXIS)
     scan = {"file": "I13 24737 with added motion", "format": "tiff", "shared_motion": True}
-    create_scan(work / "moved", full, moved.transpose(1, 0, 2), scan)
+    if not (work / "moved" / "zarr.json").is_file():  # a kept --work folder: the steps below resume
+        create_scan(work / "moved", full, moved.transpose(1, 0, 2), scan)
     return work / "moved", work / "moved_bin2"
 
 
@@ -140,7 +141,8 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
                                      *CIUNET)  # fmt: skip
     g = DataStore.open(matched).geometry
     sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
-    create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
+    if not (real / "zarr.json").is_file():
+        create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
     times["dremel (scan)"] = _cli("reconstruct", real, "--method", "dremel", "-q")
     times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "-q")
     # the intervals' calibration is fitted on the matched set's validation split, then reused on the scan
