@@ -7,6 +7,7 @@ import pytest
 import zarr
 
 from nanoct.core.errors import NanoctError, StoreError
+from nanoct.sim import matched
 from nanoct.sim.matched import generate_like, parse_mix, plan_matched
 from nanoct.sim.scan_stats import air_noise, binned_offset
 from scan_like import ANGLES_DEG, N_DET, OFFSET, SIGMA, SLICES, scan_store
@@ -97,3 +98,14 @@ def test_bad_input_is_named(scan, tiny_store, tmp_path):
     with pytest.raises(NanoctError, match="--n 0"):
         generate_like(tmp_path / "x", plan_matched(scan.path, binning=2), 0, workers=0, progress=False)
     assert not (tmp_path / "x").exists()
+
+
+def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
+    np.testing.assert_array_equal(matched._slice_groups(10, 2), np.arange(10).reshape(5, 2))
+    np.testing.assert_array_equal(matched._slice_groups(1, 2), [[0]])
+    monkeypatch.setattr(matched, "MAX_SLICES", 2)
+    np.testing.assert_array_equal(matched._slice_groups(11, 2), [[0, 1], [8, 9]])
+    plan = plan_matched(scan.path, binning=1)
+    assert plan.simulation["like"]["slices_measured"] == 2
+    full = scan.read_array("sinograms", [0, SLICES - 1])  # the first and the last slice
+    np.testing.assert_allclose(plan.slices, matched.scan_slices(full, plan.geometry), rtol=1e-6)

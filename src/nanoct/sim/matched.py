@@ -9,7 +9,8 @@ estimated for it) the matched set takes (estimators in :mod:`nanoct.sim.scan_sta
   stack result with a motion, else the store's own (``nanoct import --center-offset``), moved to
   the binned detector;
 * the **noise**: the std per ray measured in the air bands of the binned sinograms, added as
-  white Gaussian noise;
+  white Gaussian noise (measured, like the slices below, on at most ``MAX_SLICES`` binned slices
+  evenly spread over the stack);
 * the **motion**: with a stack motion, its smooth amplitude as the bound ``max_shift`` of the
   damped sinusoids and its jitter std as ``jitter_std_mean`` (``jitter_std_std`` = 0.2 times
   that, the paper's ratio 0.0254 / 0.127; the rotation jitter, which a detector shift does not
@@ -61,6 +62,7 @@ from .scan_stats import air_noise, bin_sinograms, binned_geometry, motion_stats
 from .simulate import SimulationConfig, sample_rngs, simulate_from_phantom
 
 __all__ = [
+    "MAX_SLICES",
     "MIN_CONTENT",
     "MIX",
     "SCALE_PERCENTILE",
@@ -80,6 +82,8 @@ _FAMILIES = ("shapes", "ellipses", "scan")
 SLICE_SMOOTH_PX = 0.7
 #: Percentile of the scan's slices (inside the field of view) that the paper's phantoms are scaled to.
 SCALE_PERCENTILE = 99.9
+#: At most this many (binned) slices of the scan are measured and reconstructed as phantoms, evenly spread.
+MAX_SLICES = 128
 #: A slice whose 99th percentile is below this fraction of ``value_scale`` is left out (nearly empty).
 MIN_CONTENT = 0.01
 #: jitter_std_std / jitter_std_mean of the paper (0.0254 / 0.127).
@@ -214,7 +218,8 @@ class MatchedPlan:
             f"scale      paper phantoms x {like['value_scale']:.4g} (the {SCALE_PERCENTILE}th percentile of the scan's "
             "slices)",
             f"phantoms   shapes {mix['shapes']:.2f}, ellipses {mix['ellipses']:.2f}, scan slices {mix['scan']:.2f} "
-            f"({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out)",
+            f"({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, of "
+            f"{like['slices_measured']} measured)",
         ]
 
 
@@ -252,7 +257,8 @@ def plan_matched(
     name, shifts, info = _stack_motion(store, motion_from)
     axis = float(info.get("center_offset", store.geometry.center_offset))
     geometry = binned_geometry(store.geometry, binning, axis)
-    sinos = bin_sinograms(store.read_array("sinograms", range(store.n)), binning)
+    groups = _slice_groups(store.n, binning)
+    sinos = bin_sinograms(store.read_array("sinograms", groups.ravel()), binning)
     noise = air_noise(sinos)
     noise.pop("values")
     shifts_b = None if shifts is None else shifts / binning
@@ -269,6 +275,7 @@ def plan_matched(
         "store": str(Path(like).resolve()),
         "bin": int(binning),
         "slices": int(slices.shape[0]),
+        "slices_measured": int(groups.shape[0]),
         "slices_left_out": int((~kept).sum()),
         "axis_from": f"the stack result '{name}'" if "center_offset" in info else "the imported scan",
         "noise": {k: _round(v) if isinstance(v, float) else v for k, v in noise.items()},
@@ -284,6 +291,18 @@ def plan_matched(
         noise_std=record["noise"]["sigma"],
     )
     return MatchedPlan(Path(like), geometry, {**config.to_dict(), "like": record}, slices)
+
+
+def _slice_groups(n_slices: int, binning: int) -> np.ndarray:
+    """Rows of the (binned) slices measured: at most ``MAX_SLICES`` groups of ``binning`` rows, evenly spread.
+
+    Returns an array (groups, rows per group); with fewer rows than ``binning``, one group of all.
+    """
+    if n_slices < binning:
+        return np.arange(n_slices)[None, :]
+    n_groups = n_slices // binning
+    chosen = np.unique(np.round(np.linspace(0, n_groups - 1, min(n_groups, MAX_SLICES))).astype(int))
+    return chosen[:, None] * binning + np.arange(binning)[None, :]
 
 
 def _motion_params(stats: dict[str, Any]) -> MotionParams:
@@ -325,7 +344,7 @@ def generate_like(
     group = zarr.open_group(str(store.path), mode="r+")
     if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
         array = group.create_array(
-            _SLICES, shape=plan.slices.shape, chunks=plan.slices.shape, dtype="float32", overwrite=True
+            _SLICES, shape=plan.slices.shape, chunks=(1, *plan.slices.shape[1:]), dtype="float32", overwrite=True
         )
         array[:] = plan.slices
         array.attrs["complete"] = True
