@@ -109,3 +109,12 @@ def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
     assert plan.simulation["like"]["slices_measured"] == 2
     full = scan.read_array("sinograms", [0, SLICES - 1])  # the first and the last slice
     np.testing.assert_allclose(plan.slices, matched.scan_slices(full, plan.geometry), rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_dask_workers_give_the_same_bytes_as_one_process(scan, tmp_path):
+    plan = plan_matched(scan.path, binning=2)
+    serial = generate_like(tmp_path / "serial", plan, 6, seed=4, workers=0, progress=False)
+    dask = generate_like(tmp_path / "dask", plan, 6, seed=4, workers=2, progress=False)
+    for name in ("phantoms", "sinograms", "sinograms_eta", "motion"):
+        np.testing.assert_array_equal(serial.read_array(name, range(6)), dask.read_array(name, range(6)))
