@@ -35,6 +35,8 @@ def test_generate_like_then_resume_is_a_no_op(scan, tmp_path, capsys):
     assert {p: p.stat().st_mtime_ns for p in (out / "sinograms").rglob("*") if p.is_file()} == stamp
     assert run([*argv[:-3], "--plan"]) == 0
     assert "(4 already made)" in capsys.readouterr().out
+    assert run([*argv[:-3], "--plan", "--seed", "9"]) == 0  # another seed: the run would stop
+    assert "holds ANOTHER data set" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(

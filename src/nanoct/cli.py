@@ -247,11 +247,14 @@ def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None
         like, binning=f["bin_"], mix=parse_mix(f["mix"]), motion_from=f["motion_from"],
         perturbed=not f["no_motion"], oversample=f["oversample"],
     )  # fmt: skip
+    fractions = _parse_fractions(f["split_fractions"])
     if f["plan"]:
         done = 0
         if (out / "zarr.json").is_file():
-            existing = DataStore.open(out)
-            done = int(existing.done.sum()) if existing.meta.get("simulation") == matched.simulation else -1
+            old = DataStore.open(out)
+            wanted = (matched.simulation, matched.geometry, n, f["seed"], list(fractions))
+            have = (old.meta.get("simulation"), old.geometry, old.n, old.seed, old.meta.get("split_fractions"))
+            done = int(old.done.sum()) if have == wanted else -1
         typer.echo("\n".join(matched.describe()))
         state = {-1: "holds ANOTHER data set (the run would stop)", 0: "new"}.get(done, f"{done} already made")
         typer.echo(f"would make {n} samples into {out} ({state}); nothing written (--plan)")
@@ -259,7 +262,7 @@ def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None
     if not f["quiet"]:
         typer.echo("\n".join(matched.describe()), err=True)
     store = generate_like(
-        out, matched, n, seed=f["seed"], split_fractions=_parse_fractions(f["split_fractions"]),
+        out, matched, n, seed=f["seed"], split_fractions=fractions,
         workers=f["workers"], scheduler=f["scheduler"], progress=not f["quiet"],
     )  # fmt: skip
     info = store.info()
