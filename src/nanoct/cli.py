@@ -164,17 +164,30 @@ def _parse_params(items: list[str]) -> dict[str, Any]:
 
 @app.command()
 def generate(
-    preset: str = typer.Option(..., "--preset", "-p", help="Geometry preset: tiny-/small-/paper- + parallel/fan."),
+    preset: str | None = typer.Option(
+        None, "--preset", "-p", help="Geometry preset: tiny-/small-/paper- + parallel/fan (or --like)."
+    ),
     n: int = typer.Option(..., "--n", help="Number of samples."),
     out: Path = typer.Option(..., "--out", "-o", help="Output store directory (Zarr v3)."),
+    like: Path | None = typer.Option(
+        None, "--like", help="A measured scan's data set ('nanoct import'): simulate a set matched to it."
+    ),
+    bin_: int = typer.Option(1, "--bin", help="With --like: bin the scan's detector (and slices) by this factor."),
+    mix: str = typer.Option(
+        "0.4,0.2,0.4", "--mix", help="With --like: proportions of paper shapes, ellipses, the scan's own slices."
+    ),
+    motion_from: str | None = typer.Option(
+        None, "--motion-from", help="With --like: the 'nanoct stack' result whose motion to match (default: any)."
+    ),
+    plan: bool = typer.Option(False, "--plan", help="Print what would be made and write nothing."),
     seed: int = typer.Option(0, "--seed", help="Data-set seed; sample i depends only on (seed, i)."),
     no_motion: bool = typer.Option(False, "--no-motion", help="Unperturbed data (the paper's sanity case)."),
     max_shift: float | None = typer.Option(
-        None, "--max-shift", help="Bound of the sinusoidal object shift in px (default 2.0)."
+        None, "--max-shift", help="Bound of the sinusoidal object shift in px (default 2.0; --like: measured)."
     ),
     oversample: int = typer.Option(2, "--oversample", help="Simulation grid refinement (1 = inverse crime)."),
-    noise_std: float = typer.Option(
-        0.0, "--noise-std", help="Std of additive Gaussian noise on y (default 0, as the paper)."
+    noise_std: float | None = typer.Option(
+        None, "--noise-std", help="Std of additive Gaussian noise on y (default 0, as the paper; --like: measured)."
     ),
     split_fractions: str = typer.Option("0.95,0.04,0.01", "--split-fractions", help="Train,val,test proportions."),
     workers: int = WORKERS,
@@ -183,33 +196,75 @@ def generate(
 ) -> None:
     """Simulate a data set: phantoms, motion, perturbed and model sinograms, eta, splits.
 
-    Resumable: running the same command again completes an interrupted run and is a no-op
-    when the data set is complete.
+    With --like STORE (a measured scan imported with 'nanoct import'), the set is matched to the
+    scan: its views, binned detector and axis, the noise measured in its air, the motion 'nanoct
+    stack' estimated for it (else the paper's), and its own slices among the phantoms (see
+    docs/data.md). Resumable: running the same command again completes an interrupted run and is
+    a no-op when the data set is complete.
     """
+    fractions = _parse_fractions(split_fractions)
+    if like is not None:
+        _generate_like(like, n, out, locals())
+        return
     from .core.geometry import get_preset
     from .sim.generate import generate_dataset
     from .sim.motion import MotionParams
     from .sim.simulate import SimulationConfig
 
+    if preset is None:
+        raise NanoctError("give --preset NAME (a simulated geometry) or --like STORE (a measured scan's data set)")
+    for flag, value in (("--bin", bin_ != 1), ("--motion-from", motion_from), ("--plan", plan)):
+        if value:
+            raise NanoctError(f"{flag} needs --like STORE (a measured scan to match); drop it for --preset")
     geometry = get_preset(preset)
     overrides = {} if max_shift is None else {"max_shift": max_shift}
     config = SimulationConfig(  # its ValueErrors name max_shift=...: the error boundary shows them as flags
         motion=MotionParams.for_kind(geometry.kind, **overrides),
         perturbed=not no_motion,
         oversample=oversample,
-        noise_std=noise_std,
+        noise_std=0.0 if noise_std is None else noise_std,
     )
     store = generate_dataset(
-        out,
-        geometry,
-        n,
-        seed=seed,
-        config=config,
-        split_fractions=_parse_fractions(split_fractions),
-        workers=workers,
-        scheduler=scheduler,
-        progress=not quiet,
-    )
+        out, geometry, n, seed=seed, config=config, split_fractions=fractions, workers=workers,
+        scheduler=scheduler, progress=not quiet,
+    )  # fmt: skip
+    info = store.info()
+    typer.echo(f"{store.path}: {info['done']}/{info['n']} samples, splits {info['splits']}")
+
+
+def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None:
+    """``generate --like``: measure the scan, print the plan, and (unless --plan) simulate the matched set."""
+    from .io.store import DataStore
+    from .sim.matched import generate_like, parse_mix, plan_matched
+
+    f = flags
+    for flag, value in (("--preset", f["preset"]), ("--max-shift", f["max_shift"]), ("--noise-std", f["noise_std"])):
+        if value is not None:
+            raise NanoctError(f"{flag} cannot be combined with --like (the scan gives it); drop {flag}")
+    if n <= 0:
+        raise NanoctError(f"--n {n} must be a positive number of samples")
+    matched = plan_matched(
+        like, binning=f["bin_"], mix=parse_mix(f["mix"]), motion_from=f["motion_from"],
+        perturbed=not f["no_motion"], oversample=f["oversample"],
+    )  # fmt: skip
+    fractions = _parse_fractions(f["split_fractions"])
+    if f["plan"]:
+        done = 0
+        if (out / "zarr.json").is_file():
+            old = DataStore.open(out)
+            wanted = (matched.simulation, matched.geometry, n, f["seed"], list(fractions))
+            have = (old.meta.get("simulation"), old.geometry, old.n, old.seed, old.meta.get("split_fractions"))
+            done = int(old.done.sum()) if have == wanted else -1
+        typer.echo("\n".join(matched.describe()))
+        state = {-1: "holds ANOTHER data set (the run would stop)", 0: "new"}.get(done, f"{done} already made")
+        typer.echo(f"would make {n} samples into {out} ({state}); nothing written (--plan)")
+        return
+    if not f["quiet"]:
+        typer.echo("\n".join(matched.describe()), err=True)
+    store = generate_like(
+        out, matched, n, seed=f["seed"], split_fractions=fractions,
+        workers=f["workers"], scheduler=f["scheduler"], progress=not f["quiet"],
+    )  # fmt: skip
     info = store.info()
     typer.echo(f"{store.path}: {info['done']}/{info['n']} samples, splits {info['splits']}")
 

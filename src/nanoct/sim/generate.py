@@ -13,14 +13,34 @@ from ..io.fileio import disk_space_needed
 from ..io.store import DataStore, open_cached
 from .simulate import SimulationConfig, simulate_sample
 
-__all__ = ["generate_dataset"]
+__all__ = ["fill_dataset", "generate_dataset"]
 
 
 def _simulate_into(path: str, index: int) -> int:
     store = open_cached(path)
-    config = SimulationConfig.from_dict(store.meta["simulation"])
-    store.write_sample(index, simulate_sample(store.geometry, config, store.seed, index))
+    if "like" in store.meta["simulation"]:  # a set matched to a measured scan
+        from .matched import simulate_matched_sample
+
+        sample = simulate_matched_sample(store, index)
+    else:
+        config = SimulationConfig.from_dict(store.meta["simulation"])
+        sample = simulate_sample(store.geometry, config, store.seed, index)
+    store.write_sample(index, sample)
     return index
+
+
+def fill_dataset(store: DataStore, *, workers: int = 2, scheduler: str | None = None, progress: bool = True) -> None:
+    """Simulate the samples of ``store`` not flagged done (over Dask; see :func:`nanoct.core.fanout.run_tasks`)."""
+    pending = [int(i) for i in (~store.done).nonzero()[0]]
+    with disk_space_needed(store.path, store.sample_nbytes * len(pending)):
+        run_tasks(
+            partial(_simulate_into, str(store.path)),
+            pending,
+            workers=workers,
+            scheduler=scheduler,
+            desc="generate",
+            progress=progress,
+        )
 
 
 def generate_dataset(
@@ -69,14 +89,5 @@ def generate_dataset(
         raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
-    pending = [int(i) for i in (~store.done).nonzero()[0]]
-    with disk_space_needed(store.path, store.sample_nbytes * len(pending)):
-        run_tasks(
-            partial(_simulate_into, str(store.path)),
-            pending,
-            workers=workers,
-            scheduler=scheduler,
-            desc="generate",
-            progress=progress,
-        )
+    fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
     return DataStore.open(store.path, mode="r+")

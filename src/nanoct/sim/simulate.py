@@ -25,7 +25,7 @@ from ..io.store import Sample
 from .motion import MotionParams, sample_motion
 from .phantoms import PHANTOM_FAMILIES, downsample, family_phantom
 
-__all__ = ["SimulationConfig", "model_error", "sample_rngs", "simulate_sample"]
+__all__ = ["SimulationConfig", "model_error", "sample_rngs", "simulate_from_phantom", "simulate_sample"]
 
 
 @dataclass(frozen=True)
@@ -83,8 +83,9 @@ class SimulationConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SimulationConfig:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (the key ``like`` of a matched set, :mod:`nanoct.sim.matched`, is left aside)."""
         data = dict(data)
+        data.pop("like", None)
         data["motion"] = MotionParams.from_dict(data["motion"])
         return cls(**data)
 
@@ -113,8 +114,36 @@ def simulate_sample(geometry: Geometry, config: SimulationConfig, seed: int, ind
         error of the noise-free data (the noise level is the separate ``delta``).
     """
     rng_phantom, rng_motion, rng_noise = sample_rngs(seed, index)
+    fine = family_phantom(config.phantoms, rng_phantom, geometry.n, oversample=config.oversample)
+    return simulate_from_phantom(geometry, config, fine, rng_motion, rng_noise)
+
+
+def simulate_from_phantom(
+    geometry: Geometry,
+    config: SimulationConfig,
+    fine: np.ndarray,
+    rng_motion: np.random.Generator,
+    rng_noise: np.random.Generator,
+) -> Sample:
+    """Simulate one sample of a given phantom: its motion, sinograms, eta and noise.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        Scan geometry.
+    config : SimulationConfig
+        Motion, noise and grid settings (``config.phantoms`` is not used).
+    fine : ndarray of shape (N * oversample, N * oversample)
+        The phantom on the simulation grid; its block mean is the ground truth.
+    rng_motion, rng_noise : numpy.random.Generator
+        Sources of the motion and of the noise (:func:`sample_rngs`).
+
+    Returns
+    -------
+    Sample
+        As :func:`simulate_sample`.
+    """
     s = config.oversample
-    fine = family_phantom(config.phantoms, rng_phantom, geometry.n, oversample=s)
     phantom = downsample(fine, s) if s > 1 else fine
     motion = sample_motion(rng_motion, geometry.n_angles, config.motion)
     if not config.perturbed:

@@ -1,0 +1,267 @@
+"""The post-processing networks on a real scan with a known added motion (semi-real evaluation).
+
+Usage::
+
+    PYTHONPATH=src python benchmarks/semireal_networks.py [--n 600] [--epochs-unet 8] [--epochs-ciunet 6]
+        [--slices 15,20,...,60] [--pictures docs/img] [--work DIR]
+
+Data: Diamond I13-2 scan 24737 with the known motion of ``benchmarks/semireal_methods.py``
+(its :func:`load_scan`, :func:`known_motion`, :func:`move`: horizontal drift, harmonics and jitter,
+the vertical motion undone), the workflow a user with that scan would run, each step one CLI
+command:
+
+1. the moved scan as a data set (all 135 rows, 160 columns, axis given at +6.2 px), then
+   ``nanoct stack`` on it (the stack's motion and axis);
+2. ``nanoct generate --like MOVED --bin 2 --n N`` (80 x 80 images), ``nanoct reconstruct
+   --method dremel --split all`` on it, and ``nanoct train`` of a UNet and of CiUNetRes on
+   (Dremel, phantom) with the tiny study's architectures and learning rates (``docs/learn.md``) and a small budget
+   (``--epochs-*``, bf16);
+3. the moved scan binned 2 x 2 into a data set of the matched set's geometry, ``nanoct
+   reconstruct --method dremel`` (one joint motion for the stack) and ``nanoct predict`` of both
+   runs (CiUNetRes: 16 antithetic samples, intervals calibrated on the matched set's validation
+   split, the out-of-distribution check of ``nanoct.learn.predict.ood_check``).
+
+Reference: FBP of the unmoved scan, binned the same way, with the axis at +6.2 raw px (the
+data's README: +6.4 by opposite views, +6.0 by algotom's ``find_center_vo``), the per-view air
+level removed. Scores on the chosen binned slices (default 15 to 60, the rows with the
+sample), inside the field-of-view disc (radius ``(L-1)/2 - |axis offset|``): PSNR (data range
+of the reference there) and SSIM (scikit-image's map averaged over the disc), plain and after
+the best sub-pixel translation onto the reference (the gauge no data fix,
+:func:`nanoct.evaluation.metrics.register`); 90 % interval coverage of CiUNetRes against the
+reference on the object (Gaussian-smoothed reference above 30 % of its 99th percentile in the
+disc) and on the rest of the disc, with the same translation applied to mean and half-width.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from skimage.metrics import structural_similarity
+
+from nanoct.cli import run
+from nanoct.core.geometry import Geometry
+from nanoct.evaluation.metrics import register
+from nanoct.io.store import DataStore, create_scan
+from nanoct.learn.calibration import half_width
+from nanoct.recon.fbp import fbp
+from nanoct.sim.scan_stats import bin_sinograms, binned_offset
+from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
+
+BIN = 2
+UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
+CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
+          "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
+ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
+
+
+def _cli(*args: str) -> float:
+    """Run one nanoct command in this process; its seconds (a failure stops the benchmark)."""
+    start = time.perf_counter()
+    code = run([str(a) for a in args])
+    if code != 0:
+        raise SystemExit(f"nanoct {' '.join(map(str, args))} failed with status {code}")
+    return time.perf_counter() - start
+
+
+def build_stores(work: Path, proj: np.ndarray, moved: np.ndarray, angles: np.ndarray) -> tuple[Path, Path]:
+    """The moved scan (full size) and, after stack + generate --like, the binned moved scan in the matched geometry."""
+    full = Geometry.from_angles(angles, proj.shape[2], proj.shape[2], degrees=True, center_offset=AXIS)
+    scan = {"file": "I13 24737 with added motion", "format": "tiff", "shared_motion": True}
+    if not (work / "moved" / "zarr.json").is_file():  # a kept --work folder: the steps below resume
+        create_scan(work / "moved", full, moved.transpose(1, 0, 2), scan)
+    return work / "moved", work / "moved_bin2"
+
+
+def reference(proj: np.ndarray, angles: np.ndarray, geometry: Geometry) -> tuple[np.ndarray, Geometry]:
+    """FBP of every binned slice of the unmoved scan (air removed), axis +6.2 raw px; and its geometry."""
+    sinos = bin_sinograms(proj.transpose(1, 0, 2), BIN)
+    offset = binned_offset(AXIS, proj.shape[2], BIN)
+    g = Geometry.from_dict({**geometry.to_dict(), "center_offset": offset})
+    return np.stack([fbp(g, air_removed(s)).image for s in sinos]), g
+
+
+def fov(g: Geometry) -> np.ndarray:
+    """The field-of-view disc of the binned images."""
+    yy, xx = np.mgrid[: g.n, : g.n] - (g.n - 1) / 2
+    return np.hypot(yy, xx) <= (g.n_det - 1) / 2 - abs(g.center_offset)
+
+
+def object_mask(ref: np.ndarray, disc: np.ndarray) -> np.ndarray:
+    """The object: the Gaussian-smoothed (1 px) reference above 30 % of its 99th percentile in the disc."""
+    smooth = ndimage.gaussian_filter(ref, 1.0)
+    return disc & (smooth > 0.3 * np.percentile(ref[disc], 99))
+
+
+def score(image: np.ndarray, ref: np.ndarray, disc: np.ndarray) -> dict[str, float]:
+    """PSNR and SSIM inside the disc, plain and registered; the translation."""
+    span = float(ref[disc].max() - ref[disc].min())
+    moved, shift = register(image, ref)
+    out = {"shift": shift.tolist()}
+    for key, x in (("plain", image), ("reg", moved)):
+        out[f"psnr_{key}"] = float(10 * np.log10(span**2 / np.mean((x[disc] - ref[disc]) ** 2)))
+        _, smap = structural_similarity(x, ref, data_range=span, full=True)
+        out[f"ssim_{key}"] = float(smap[disc].mean())
+    return out
+
+
+def coverage(mean: np.ndarray, hw: np.ndarray, ref: np.ndarray, disc: np.ndarray, shift: list) -> dict[str, float]:
+    """Fraction of object and background pixels (in the disc) whose reference lies in ``mean +- hw``."""
+    obj = object_mask(ref, disc)
+    out = {}
+    for key, (m, h) in {
+        "plain": (mean, hw),
+        "reg": (ndimage.shift(mean, shift, order=1), ndimage.shift(hw, shift, order=1)),
+    }.items():
+        inside = np.abs(ref - m) <= h
+        out[f"object_{key}"] = float(inside[obj].mean())
+        out[f"background_{key}"] = float(inside[disc & ~obj].mean())
+    out["object_px"] = int(obj.sum())
+    return out
+
+
+def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, float]) -> dict[str, str]:
+    """Generate the matched set, train both networks, predict the binned moved scan; the result names."""
+    moved, real, matched = work / "moved", work / "moved_bin2", work / "matched"
+    times["stack"] = _cli("stack", moved, "-w", 2, "-q")
+    times["generate"] = _cli("generate", "--like", moved, "--bin", BIN, "--n", args.n, "--out", matched,
+                             "--split-fractions", "0.85,0.14,0.01", "-q")  # fmt: skip
+    times["dremel (matched set)"] = _cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
+    runs = {"unet": work / "run_unet", "ciunet-res": work / "run_ciunet"}
+    times["train unet"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs", args.epochs_unet,
+                               "--precision", "bf16", "--out", runs["unet"], "-q", *UNET)  # fmt: skip
+    times["train ciunet-res"] = _cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
+                                     args.epochs_ciunet, "--precision", "bf16", "--out", runs["ciunet-res"], "-q",
+                                     *CIUNET)  # fmt: skip
+    g = DataStore.open(matched).geometry
+    sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
+    if not (real / "zarr.json").is_file():
+        create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
+    times["dremel (scan)"] = _cli("reconstruct", real, "--method", "dremel", "-q")
+    times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "-q")
+    # the intervals' calibration is fitted on the matched set's validation split, then reused on the scan
+    times["calibrate ciunet-res"] = _cli("predict", matched, "--run", runs["ciunet-res"], "--split", "val",
+                                         "--samples", 16, "--antithetic", "-q")  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        times["predict ciunet-res"] = _cli("predict", real, "--run", runs["ciunet-res"], "--samples", 16,
+                                           "--antithetic", "-q")  # fmt: skip
+    for w in caught:
+        print(f"warning: {w.message}")
+    return {"unet": "dremel+unet", "ciunet-res": "dremel+ciunet-res"}
+
+
+def evaluate(work: Path, refs: np.ndarray, g_ref: Geometry, slices: list[int]) -> tuple[dict, dict]:
+    """Scores per slice and row, coverage of CiUNetRes, and the images for the pictures."""
+    store = DataStore.open(work / "moved_bin2")
+    disc = fov(g_ref)
+    name = "dremel+ciunet-res"
+    params = store.reconstruction_params(name)
+    mean, std = store.read_reconstruction(name, slices), store.read_uncertainty(name, slices)
+    hws = half_width(params, std, 0.9, mean=mean)
+    images = {row: store.read_reconstruction(row, slices) for row in ROWS[1:]}
+    sinos = store.read_array("sinograms", slices)
+    images["fbp"] = np.stack([fbp(store.geometry, air_removed(s)).image for s in sinos])
+    table = {}
+    for i, s in enumerate(slices):
+        table[s] = {row: score(images[row][i], refs[s], disc) for row in ROWS}
+        shift = table[s][name]["shift"]
+        table[s]["coverage"] = coverage(mean[i], hws[i], refs[s], disc, shift)
+        table[s]["width"] = float(np.mean(2 * hws[i][object_mask(refs[s], disc)]))
+    images.update(std=std, reference=refs[slices])
+    table["ood"] = store.reconstruction_note(name, "ood")
+    return table, images
+
+
+def summarize(table: dict, slices: list[int]) -> None:
+    """Mean scores per row, coverage means, and the OOD record."""
+    print("\nrow | PSNR plain | PSNR registered | SSIM plain | SSIM registered (means over slices)")
+    for row in ROWS:
+        vals = {k: np.mean([table[s][row][k] for s in slices]) for k in ("psnr_plain", "psnr_reg", "ssim_plain",
+                                                                          "ssim_reg")}  # fmt: skip
+        print(f"{row} | {vals['psnr_plain']:.2f} | {vals['psnr_reg']:.2f} | {vals['ssim_plain']:.3f} | "
+              f"{vals['ssim_reg']:.3f}")  # fmt: skip
+    for row in ROWS[2:]:
+        d = [table[s][row]["psnr_reg"] - table[s]["dremel"]["psnr_reg"] for s in slices]
+        print(f"{row} - dremel (registered PSNR): mean {np.mean(d):+.2f} dB, worst {min(d):+.2f}, best {max(d):+.2f}")
+    cov = {k: np.mean([table[s]["coverage"][k] for s in slices]) for k in table[slices[0]]["coverage"]}
+    print("CiUNetRes 90 % intervals, mean over slices: " + ", ".join(f"{k} {v:.3f}" for k, v in cov.items()))
+    print(
+        "per slice (object coverage registered, interval width on the object): "
+        + ", ".join(f"{s}: {table[s]['coverage']['object_reg']:.2f}/{table[s]['width']:.4f}" for s in slices)
+    )
+    ood = table.get("ood") or {}
+    print(
+        f"OOD ({ood.get('statistic')}, alpha {ood.get('alpha')}): flagged {ood.get('flagged')}; "
+        f"by {json.dumps(ood.get('flagged_by'))}"
+    )
+
+
+def save_picture(folder: Path, table: dict, images: dict, slices: list[int], chosen: list[int]) -> None:
+    """Reference, FBP, Dremel, +UNet, +CiUNetRes and its std for the chosen slices."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = ("reference", *ROWS, "std")
+    fig, axes = plt.subplots(len(chosen), len(cols), figsize=(2.2 * len(cols), 2.3 * len(chosen)), squeeze=False)
+    for i, s in enumerate(chosen):
+        j = slices.index(s)
+        ref = images["reference"][j]
+        lo, hi = float(np.percentile(ref, 1)), float(np.percentile(ref, 99.8))
+        for k, col in enumerate(cols):
+            ax = axes[i, k]
+            image = images[col][j]
+            scale = {} if col == "std" else {"vmin": lo, "vmax": hi}
+            ax.imshow(image, cmap="magma" if col == "std" else "gray", **scale)
+            extra = f"\n{table[s][col]['psnr_reg']:.1f} dB" if col in ROWS else ""
+            ax.set_title(f"{col} {s}{extra}", fontsize=8)
+            ax.axis("off")
+    fig.suptitle("I13 24737 with added motion, binned 2: networks trained on the matched set", fontsize=10)
+    fig.tight_layout()
+    folder.mkdir(parents=True, exist_ok=True)
+    fig.savefig(folder / "semireal_networks.png", dpi=80)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--n", type=int, default=600)
+    parser.add_argument("--epochs-unet", type=int, default=8)
+    parser.add_argument("--epochs-ciunet", type=int, default=6)
+    parser.add_argument("--slices", default=",".join(str(s) for s in range(15, 61, 5)))
+    parser.add_argument("--pictures", default=None)
+    parser.add_argument("--picture-slices", default="20,35,50")
+    parser.add_argument("--work", default=None, help="keep the stores and runs here (default: a temporary folder)")
+    args = parser.parse_args()
+    slices = [int(s) for s in args.slices.split(",")]
+    start = time.perf_counter()
+    proj, angles = load_scan()
+    h, v = known_motion(proj.shape[0])
+    moved = move(proj, h, v)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(args.work or tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        build_stores(work, proj, moved, angles)
+        times: dict[str, float] = {}
+        train_and_predict(work, args, times)
+        refs, g_ref = reference(proj, angles, DataStore.open(work / "matched").geometry)
+        table, images = evaluate(work, refs, g_ref, slices)
+        print("\nseconds: " + ", ".join(f"{k} {v:.0f}" for k, v in times.items()))
+        print(f"matched set: {json.dumps(DataStore.open(work / 'matched').meta['simulation']['like'])}")
+        summarize(table, slices)
+        if args.pictures:
+            chosen = [s for s in (int(s) for s in args.picture_slices.split(",")) if s in slices]
+            save_picture(Path(args.pictures), table, images, slices, chosen)
+    print(f"\ntotal {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

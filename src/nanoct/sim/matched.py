@@ -1,0 +1,386 @@
+"""A simulated training set matched to a measured scan (``nanoct generate --like STORE``).
+
+From a data set made by ``nanoct import`` (and, where present, the motion ``nanoct stack``
+estimated for it) the matched set takes (estimators in :mod:`nanoct.sim.scan_stats`):
+
+* the scan's **views** (angles in acquisition order) and **detector**, binned by ``b``
+  (``--bin``): ``L / b`` detector pixels, image ``N / b``;
+* the **rotation axis**: the stack's (``motion_info["center_offset"]``) where the store has a
+  stack result with a motion, else the store's own (``nanoct import --center-offset``), moved to
+  the binned detector;
+* the **noise**: the std per ray measured in the air bands of the binned sinograms, added as
+  white Gaussian noise (measured, like the slices below, on at most ``MAX_SLICES`` binned slices
+  evenly spread over the stack);
+* the **motion**: with a stack motion, its smooth amplitude as the bound ``max_shift`` of the
+  damped sinusoids and its jitter std as ``jitter_std_mean`` (``jitter_std_std`` = 0.2 times
+  that, the paper's ratio 0.0254 / 0.127; the rotation jitter, which a detector shift does not
+  show, takes the same number in degrees), both in binned pixels; without one, the paper's
+  parallel-beam defaults (38 sinusoids, ``max_shift`` 2 px, jitter 0.127 +- 0.0254);
+* the **intensity scale**: the 99.9th percentile of the scan's own slices (below) inside the
+  field of view, ``value_scale``; the paper's phantoms (values in [0, 1]) are multiplied by it,
+  so that simulated and measured reconstructions share one scale (absorbance per binned pixel).
+
+Phantoms: per sample, drawn with the mix ``--mix SHAPES,ELLIPSES,SCAN`` (default 0.4, 0.2, 0.4):
+the paper's shapes (:func:`~nanoct.sim.phantoms.random_phantom`), the ellipse family
+(:func:`~nanoct.sim.phantoms.random_ellipse_phantom`), or one of the scan's own slices: the FBP
+of a binned slice with the axis above, the per-view air level removed
+(:func:`~nanoct.recon.measured.air_level`) and the stack's motion corrected where present
+(:func:`~nanoct.recon.stack.corrected_fbp`; the stack's axis tilt and vertical motion are not
+applied), smoothed by a Gaussian of ``SLICE_SMOOTH_PX`` px, negative values set to 0, zero
+outside the field-of-view disc; slices whose 99th percentile is below ``MIN_CONTENT`` times
+``value_scale`` (nearly empty, e.g. above or below the sample) are left out. Each sample's slice
+is turned by a uniform random angle and mirrored with probability 1/2. These slices are stored
+with the set (array ``like_slices``).
+
+Everything measured is recorded in ``attrs["nanoct"]["simulation"]["like"]``. The set resumes
+like any generated set: the same command again finds the same description (measurements are
+rounded to 6 significant digits, so the same scan gives the same record) and makes only the
+missing samples.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from scipy import ndimage
+
+from ..core.errors import NanoctError, StoreError
+from ..core.geometry import Geometry
+from ..io.store import DataStore, Sample
+from ..recon.measured import air_level
+from ..recon.stack import corrected_fbp
+from .motion import MotionParams
+from .phantoms import random_ellipse_phantom, random_phantom
+from .scan_stats import air_noise, bin_sinograms, binned_geometry, motion_stats
+from .simulate import SimulationConfig, sample_rngs, simulate_from_phantom
+
+__all__ = [
+    "MAX_SLICES",
+    "MIN_CONTENT",
+    "MIX",
+    "SCALE_PERCENTILE",
+    "SLICE_SMOOTH_PX",
+    "MatchedPlan",
+    "generate_like",
+    "parse_mix",
+    "plan_matched",
+    "scan_slices",
+    "simulate_matched_sample",
+]
+
+#: Default phantom mix: the paper's shapes, the ellipse family, the scan's own slices.
+MIX = (0.4, 0.2, 0.4)
+_FAMILIES = ("shapes", "ellipses", "scan")
+#: Gaussian smoothing (px std) of the scan's slices before they serve as phantoms.
+SLICE_SMOOTH_PX = 0.7
+#: Percentile of the scan's slices (inside the field of view) that the paper's phantoms are scaled to.
+SCALE_PERCENTILE = 99.9
+#: At most this many (binned) slices of the scan are measured and reconstructed as phantoms, evenly spread.
+MAX_SLICES = 128
+#: A slice whose 99th percentile is below this fraction of ``value_scale`` is left out (nearly empty).
+MIN_CONTENT = 0.01
+#: jitter_std_std / jitter_std_mean of the paper (0.0254 / 0.127).
+_JITTER_RATIO = 0.2
+_SLICES = "like_slices"
+
+
+def _round(value: float) -> float:
+    return float(f"{value:.6g}")
+
+
+def parse_mix(text: str) -> tuple[float, float, float]:
+    """``--mix SHAPES,ELLIPSES,SCAN``: three numbers >= 0 with a positive sum, normalised to 1."""
+    try:
+        parts = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) != 3 or not all(math.isfinite(p) and p >= 0 for p in parts) or sum(parts) <= 0:
+        raise NanoctError(
+            f"--mix {text!r} must be three numbers >= 0 (shapes, ellipses, scan slices) with a positive sum, "
+            "e.g. 0.4,0.2,0.4"
+        )
+    total = sum(parts)
+    return tuple(_round(p / total) for p in parts)  # type: ignore[return-value]
+
+
+def _open_scan(like: str | os.PathLike[str]) -> DataStore:
+    path = Path(like)
+    if not (path / "zarr.json").is_file():
+        raise NanoctError(
+            f"--like {path}: no data set there; import the measured scan first with 'nanoct import SCAN --out {path}'"
+        )
+    store = DataStore.open(path)
+    if not store.is_scan:
+        raise NanoctError(
+            f"--like {path} is a simulated data set, not a measured scan; give a data set made by 'nanoct import'"
+        )
+    if store.geometry.kind != "parallel":
+        raise NanoctError(f"--like {path} is a {store.geometry.kind}-beam scan; matched sets are parallel beam")
+    if not store.done.all():
+        raise StoreError(f"--like {path} is incomplete ({int(store.done.sum())} of {store.n} slices); import it again")
+    return store
+
+
+def _stack_motion(store: DataStore, name: str | None) -> tuple[str | None, np.ndarray | None, dict[str, Any]]:
+    """The stack result whose motion is used: ``name``, or (None) the first in name order that has one."""
+    names = store.reconstruction_names()
+    if name is not None and name not in names:
+        raise NanoctError(
+            f"--motion-from {name!r}: {store.path} has no such result (present: {', '.join(names) or 'none'}); "
+            "run 'nanoct stack' on it first or leave the flag out"
+        )
+    for candidate in [name] if name is not None else sorted(names):
+        shifts = store.recons.shared_shifts(candidate)
+        if shifts is not None and np.isfinite(shifts).all():
+            return candidate, shifts.astype(np.float64), store.recons.motion_info(candidate) or {}
+        if name is not None:
+            raise NanoctError(f"--motion-from {name!r} has no estimated motion (it is not a 'nanoct stack' result)")
+    return None, None, {}
+
+
+def scan_slices(sinograms: np.ndarray, geometry: Geometry, shifts: np.ndarray | None = None) -> np.ndarray:
+    """The scan's slices as phantoms (see the module docstring), before the random turn.
+
+    Parameters
+    ----------
+    sinograms : ndarray of shape (S, K, L)
+        Binned sinograms of the scan.
+    geometry : Geometry
+        Their (binned) geometry.
+    shifts : ndarray of shape (K,), optional
+        The stack's motion in binned detector pixels (:func:`~nanoct.recon.stack.corrected_fbp`).
+
+    Returns
+    -------
+    ndarray of shape (S, N, N), float32
+        Non-negative, zero outside the field-of-view disc.
+    """
+    disc = _fov_disc(geometry)
+    out = np.empty((sinograms.shape[0], *geometry.image_shape), dtype=np.float32)
+    for i, sino in enumerate(sinograms):
+        level = air_level(sino)
+        image = corrected_fbp(geometry, sino - level[:, None], shifts)
+        out[i] = np.clip(ndimage.gaussian_filter(image, SLICE_SMOOTH_PX), 0.0, None) * disc
+    return out
+
+
+def _fov_disc(geometry: Geometry) -> np.ndarray:
+    """Pixels every view sees: within ``(L - 1) / 2 - |axis offset|`` of the axis (at least 1 px)."""
+    n = geometry.n
+    radius = max((geometry.n_det - 1) / 2 * geometry.det_spacing - abs(geometry.center_offset), 1.0)
+    r = np.arange(n) - (n - 1) / 2
+    return ((r[None, :] ** 2 + r[:, None] ** 2) <= radius**2).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class MatchedPlan:
+    """What ``generate --like`` makes: the binned geometry, the simulation record and the scan's slices.
+
+    Attributes
+    ----------
+    like : Path
+        The measured scan's store.
+    geometry : Geometry
+        Geometry of the matched set.
+    simulation : dict
+        :class:`~nanoct.sim.simulate.SimulationConfig` description plus ``like`` (the measurements).
+    slices : ndarray of shape (S, N, N)
+        The scan's slices used as phantoms.
+    """
+
+    like: Path
+    geometry: Geometry
+    simulation: dict[str, Any]
+    slices: np.ndarray
+
+    def describe(self) -> list[str]:
+        """Lines saying what the plan takes from the scan."""
+        g, like = self.geometry, self.simulation["like"]
+        noise, motion, mix = like["noise"], like["motion"], like["mix"]
+        moved = (
+            f"from '{motion['from']}': smooth amplitude {motion['amplitude']:.3g} px, jitter {motion['jitter']:.3g} px"
+            if motion["from"]
+            else "none estimated: the paper's defaults (max shift 2 px, jitter 0.127 px)"
+        )
+        return [
+            f"like       {self.like} (bin {like['bin']})",
+            f"geometry   {g.n_angles} views, {g.n_det} detector pixels, image {g.n}x{g.n}, "
+            f"axis offset {g.center_offset:+.3f} px ({like['axis_from']})",
+            f"noise      {noise['sigma']:.4g} per ray ({noise['estimator']})",
+            f"motion     {moved}",
+            f"scale      paper phantoms x {like['value_scale']:.4g} (the {SCALE_PERCENTILE}th percentile of the scan's "
+            "slices)",
+            f"phantoms   shapes {mix['shapes']:.2f}, ellipses {mix['ellipses']:.2f}, scan slices {mix['scan']:.2f} "
+            f"({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, of "
+            f"{like['slices_measured']} measured)",
+        ]
+
+
+def plan_matched(
+    like: str | os.PathLike[str],
+    *,
+    binning: int = 1,
+    mix: tuple[float, float, float] = MIX,
+    motion_from: str | None = None,
+    perturbed: bool = True,
+    oversample: int = 2,
+) -> MatchedPlan:
+    """Measure a scan and describe the matched set (nothing is written).
+
+    Parameters
+    ----------
+    like : path
+        A data set made by ``nanoct import`` (optionally with a ``nanoct stack`` result).
+    binning : int
+        Detector (and slice) binning; must divide the detector width and the image size.
+    mix : tuple of float
+        Proportions of the paper's shapes, the ellipse family and the scan's slices (sum 1).
+    motion_from : str, optional
+        The stack result whose motion to use (default: the first that has one).
+    perturbed, oversample
+        As :class:`~nanoct.sim.simulate.SimulationConfig`.
+
+    Raises
+    ------
+    NanoctError
+        For a missing or simulated ``like`` store, a binning that does not divide its sizes, an
+        unknown ``motion_from``, or a detector too narrow to measure the noise.
+    """
+    store = _open_scan(like)
+    name, shifts, info = _stack_motion(store, motion_from)
+    axis = float(info.get("center_offset", store.geometry.center_offset))
+    geometry = binned_geometry(store.geometry, binning, axis)
+    groups = _slice_groups(store.n, binning)
+    sinos = bin_sinograms(store.read_array("sinograms", groups.ravel()), binning)
+    noise = air_noise(sinos)
+    noise.pop("values")
+    shifts_b = None if shifts is None else shifts / binning
+    slices = scan_slices(sinos, geometry, shifts_b)
+    scale = _round(float(np.percentile(slices[:, _fov_disc(geometry) > 0], SCALE_PERCENTILE)))
+    if not scale > 0:
+        raise NanoctError(f"--like {store.path}: its slices are empty (no absorbing object); nothing to match")
+    kept = np.percentile(slices.reshape(len(slices), -1), 99, axis=1) >= MIN_CONTENT * scale
+    if not kept.any():
+        raise NanoctError(f"--like {store.path}: every slice is nearly empty; nothing to match")
+    slices = slices[kept]
+    stats = {"from": None} if shifts_b is None else {"from": name, **motion_stats(shifts_b)}
+    record = {
+        "store": str(Path(like).resolve()),
+        "bin": int(binning),
+        "slices": int(slices.shape[0]),
+        "slices_measured": int(groups.shape[0]),
+        "slices_left_out": int((~kept).sum()),
+        "axis_from": f"the stack result '{name}'" if "center_offset" in info else "the imported scan",
+        "noise": {k: _round(v) if isinstance(v, float) else v for k, v in noise.items()},
+        "motion": {k: _round(v) if isinstance(v, float) else v for k, v in stats.items()},
+        "value_scale": scale,
+        "slice_smooth_px": SLICE_SMOOTH_PX,
+        "mix": dict(zip(_FAMILIES, (_round(m) for m in mix))),
+    }
+    config = SimulationConfig(
+        motion=_motion_params(record["motion"]),
+        perturbed=perturbed,
+        oversample=oversample,
+        noise_std=record["noise"]["sigma"],
+    )
+    return MatchedPlan(Path(like), geometry, {**config.to_dict(), "like": record}, slices)
+
+
+def _slice_groups(n_slices: int, binning: int) -> np.ndarray:
+    """Rows of the (binned) slices measured: at most ``MAX_SLICES`` groups of ``binning`` rows, evenly spread.
+
+    Returns an array (groups, rows per group); with fewer rows than ``binning``, one group of all.
+    """
+    if n_slices < binning:
+        return np.arange(n_slices)[None, :]
+    n_groups = n_slices // binning
+    chosen = np.unique(np.round(np.linspace(0, n_groups - 1, min(n_groups, MAX_SLICES))).astype(int))
+    return chosen[:, None] * binning + np.arange(binning)[None, :]
+
+
+def _motion_params(stats: dict[str, Any]) -> MotionParams:
+    if stats["from"] is None:
+        return MotionParams.for_kind("parallel")
+    jitter = stats["jitter"]
+    return MotionParams.for_kind(
+        "parallel", max_shift=stats["amplitude"], jitter_std_mean=jitter, jitter_std_std=_round(_JITTER_RATIO * jitter)
+    )
+
+
+def generate_like(
+    out: str | os.PathLike[str],
+    plan: MatchedPlan,
+    n: int,
+    *,
+    seed: int = 0,
+    split_fractions: tuple[float, float, float] = (0.95, 0.04, 0.01),
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> DataStore:
+    """Simulate the matched set of ``plan`` into ``out`` (resuming where it is partly there).
+
+    Raises
+    ------
+    NanoctError
+        For a bad ``n``, ``seed`` or ``workers``, or when ``out`` holds another data set.
+    """
+    from .generate import fill_dataset
+
+    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
+        raise NanoctError(f"--n {n} must be a positive number of samples")
+    if seed < 0:
+        raise NanoctError(f"--seed {seed} must be >= 0")
+    if workers < 0:
+        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
+    store = DataStore.create(Path(out), plan.geometry, n, seed, plan.simulation, split_fractions)
+    group = zarr.open_group(str(store.path), mode="r+")
+    if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
+        array = group.create_array(
+            _SLICES, shape=plan.slices.shape, chunks=(1, *plan.slices.shape[1:]), dtype="float32", overwrite=True
+        )
+        array[:] = plan.slices
+        array.attrs["complete"] = True
+    fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
+    return DataStore.open(store.path, mode="r+")
+
+
+@lru_cache(maxsize=4)
+def _stored_slices(path: str) -> np.ndarray:
+    group = zarr.open_group(path, mode="r")
+    if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
+        raise StoreError(f"{path} lacks the scan's slices of its matched set; run the same 'generate --like' again")
+    return np.asarray(group[_SLICES][:], dtype=np.float32)
+
+
+def _phantom(rng: np.random.Generator, like: dict[str, Any], slices: np.ndarray, n: int, s: int) -> np.ndarray:
+    """The fine (``n s`` square) phantom of one sample: a family drawn with the mix, then its draws."""
+    mix = np.array([like["mix"][f] for f in _FAMILIES], dtype=np.float64)
+    family = _FAMILIES[int(rng.choice(3, p=mix / mix.sum()))]
+    if family == "shapes":
+        return (random_phantom(rng, n, oversample=s) * like["value_scale"]).astype(np.float32)
+    if family == "ellipses":
+        return (random_ellipse_phantom(rng, n, oversample=s) * like["value_scale"]).astype(np.float32)
+    image = slices[int(rng.integers(slices.shape[0]))]
+    image = ndimage.rotate(image, float(rng.uniform(0.0, 360.0)), reshape=False, order=1, mode="constant")
+    if rng.random() < 0.5:
+        image = image[:, ::-1]
+    image = np.clip(image, 0.0, None)
+    return np.kron(image, np.ones((s, s))).astype(np.float32)
+
+
+def simulate_matched_sample(store: DataStore, index: int) -> Sample:
+    """Sample ``index`` of a matched set (a pure function of the set's seed, ``index`` and description)."""
+    simulation = store.meta["simulation"]
+    config = SimulationConfig.from_dict(simulation)
+    rng_phantom, rng_motion, rng_noise = sample_rngs(store.seed, index)
+    slices = _stored_slices(str(store.path))
+    fine = _phantom(rng_phantom, simulation["like"], slices, store.geometry.n, config.oversample)
+    return simulate_from_phantom(store.geometry, config, fine, rng_motion, rng_noise)

@@ -1,0 +1,120 @@
+"""A set matched to a measured scan: its geometry, noise and motion equal the scan's; it resumes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zarr
+
+from nanoct.core.errors import NanoctError, StoreError
+from nanoct.sim import matched
+from nanoct.sim.matched import generate_like, parse_mix, plan_matched
+from nanoct.sim.scan_stats import air_noise, binned_offset
+from scan_like import ANGLES_DEG, N_DET, OFFSET, SIGMA, SLICES, scan_store
+
+
+@pytest.fixture(scope="module")
+def scan(tmp_path_factory):
+    return scan_store(tmp_path_factory.mktemp("scan") / "scan")
+
+
+@pytest.fixture(scope="module")
+def moved_scan(tmp_path_factory):
+    k = ANGLES_DEG.size
+    shifts = 0.6 * np.sin(2 * np.pi * np.arange(k) / k) + np.random.default_rng(5).normal(0, 0.08, k)
+    return scan_store(tmp_path_factory.mktemp("moved") / "scan", shifts=shifts), shifts
+
+
+def test_the_plan_has_the_scans_views_binned_detector_axis_and_noise(scan):
+    plan = plan_matched(scan.path, binning=2)
+    g = plan.geometry
+    np.testing.assert_array_equal(g.angles, np.deg2rad(ANGLES_DEG))
+    assert (g.n_angles, g.n_det, g.n) == (ANGLES_DEG.size, N_DET // 2, N_DET // 2)
+    assert g.center_offset == pytest.approx(binned_offset(OFFSET, N_DET, 2))
+    like = plan.simulation["like"]
+    # 2 x 2 binning of white noise halves its std; the estimate is within 10 % of that
+    assert like["noise"]["sigma"] == pytest.approx(SIGMA / 2, rel=0.1)
+    assert plan.simulation["noise_std"] == like["noise"]["sigma"]
+    assert like["motion"] == {"from": None} and plan.simulation["motion"]["max_shift"] == 2.0  # the paper's
+    assert like["axis_from"] == "the imported scan" and like["bin"] == 2 and like["store"] == str(scan.path.resolve())
+    assert plan.slices.shape == (SLICES // 2, N_DET // 2, N_DET // 2) and (plan.slices >= 0).all()
+    assert like["value_scale"] == pytest.approx(float(np.percentile(plan.slices[plan.slices > 0], 99.9)), rel=0.3)
+
+
+def test_the_generated_noise_and_geometry_equal_the_scans(scan, tmp_path):
+    plan = plan_matched(scan.path, binning=2, perturbed=False)
+    store = generate_like(tmp_path / "matched", plan, 8, seed=1, workers=0, progress=False)
+    assert store.geometry == plan.geometry and store.done.all()
+    y, y_eta = store.read_array("sinograms", range(8)), store.read_array("sinograms_eta", range(8))
+    sigma = plan.simulation["like"]["noise"]["sigma"]
+    assert np.std(y - y_eta) == pytest.approx(sigma, rel=0.05)  # unmoved: the difference is the noise alone
+    # the same estimator on the matched set's air finds the scan's noise again
+    assert air_noise(y)["sigma"] == pytest.approx(sigma, rel=0.15)
+    phantoms = store.read_phantoms(range(8))
+    assert phantoms.max() <= plan.simulation["like"]["value_scale"] * 1.5 and phantoms.min() >= 0
+
+
+def test_a_stack_motion_gives_the_motion_statistics_and_axis(moved_scan):
+    store, shifts = moved_scan
+    plan = plan_matched(store.path, binning=2)
+    motion = plan.simulation["like"]["motion"]
+    assert motion["from"] == "fbp_stack"
+    assert motion["amplitude"] == pytest.approx(0.6 / 2, rel=0.15)  # binned pixels
+    assert motion["jitter"] == pytest.approx(0.08 / 2, rel=0.25)
+    assert plan.simulation["motion"]["max_shift"] == motion["amplitude"]
+    assert plan.simulation["motion"]["jitter_std_mean"] == motion["jitter"]
+    assert plan.geometry.center_offset == pytest.approx(binned_offset(OFFSET + 0.5, N_DET, 2))
+    assert "fbp_stack" in plan.simulation["like"]["axis_from"]
+    with pytest.raises(NanoctError, match="--motion-from 'nope'"):
+        plan_matched(store.path, motion_from="nope")
+
+
+def test_resume_makes_only_the_missing_samples_with_the_same_bytes(scan, tmp_path):
+    plan = plan_matched(scan.path, binning=2, mix=(0.0, 0.0, 1.0))
+    out = tmp_path / "matched"
+    store = generate_like(out, plan, 5, seed=3, workers=0, progress=False)
+    before = store.read_array("sinograms", range(5)), store.read_phantoms(range(5))
+    assert (before[1].reshape(5, -1).max(axis=1) > 0).all()  # scan slices as phantoms
+    zarr.open_group(str(out), mode="r+")["done"][2] = False
+    again = generate_like(out, plan_matched(scan.path, binning=2, mix=(0.0, 0.0, 1.0)), 5, seed=3, workers=0,
+                          progress=False)  # fmt: skip
+    assert again.done.all()
+    np.testing.assert_array_equal(again.read_array("sinograms", range(5)), before[0])
+    np.testing.assert_array_equal(again.read_phantoms(range(5)), before[1])
+    with pytest.raises(StoreError, match="holds a different data set"):
+        generate_like(out, plan_matched(scan.path, binning=1), 5, seed=3, workers=0, progress=False)
+
+
+def test_bad_input_is_named(scan, tiny_store, tmp_path):
+    with pytest.raises(NanoctError, match="no data set there"):
+        plan_matched(tmp_path / "missing")
+    with pytest.raises(NanoctError, match="is a simulated data set, not a measured scan"):
+        plan_matched(tiny_store.path)
+    with pytest.raises(NanoctError, match="--bin 3 does not divide"):
+        plan_matched(scan.path, binning=3)
+    with pytest.raises(NanoctError, match="--mix"):
+        parse_mix("1,2")
+    assert parse_mix("2,1,1") == (0.5, 0.25, 0.25)
+    with pytest.raises(NanoctError, match="--n 0"):
+        generate_like(tmp_path / "x", plan_matched(scan.path, binning=2), 0, workers=0, progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
+    np.testing.assert_array_equal(matched._slice_groups(10, 2), np.arange(10).reshape(5, 2))
+    np.testing.assert_array_equal(matched._slice_groups(1, 2), [[0]])
+    monkeypatch.setattr(matched, "MAX_SLICES", 2)
+    np.testing.assert_array_equal(matched._slice_groups(11, 2), [[0, 1], [8, 9]])
+    plan = plan_matched(scan.path, binning=1)
+    assert plan.simulation["like"]["slices_measured"] == 2
+    full = scan.read_array("sinograms", [0, SLICES - 1])  # the first and the last slice
+    np.testing.assert_allclose(plan.slices, matched.scan_slices(full, plan.geometry), rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_dask_workers_give_the_same_bytes_as_one_process(scan, tmp_path):
+    plan = plan_matched(scan.path, binning=2)
+    serial = generate_like(tmp_path / "serial", plan, 6, seed=4, workers=0, progress=False)
+    dask = generate_like(tmp_path / "dask", plan, 6, seed=4, workers=2, progress=False)
+    for name in ("phantoms", "sinograms", "sinograms_eta", "motion"):
+        np.testing.assert_array_equal(serial.read_array(name, range(6)), dask.read_array(name, range(6)))
