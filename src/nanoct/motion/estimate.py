@@ -49,7 +49,7 @@ from ..recon.shared import remove_translation
 from .axis import AxisEstimate, axis_rows, estimate_axis, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth
-from .matching import apply_vertical, match_projections
+from .matching import apply_vertical, match_projections, views_and_angles
 from .registration import register_shifts
 from .vertical import row_profiles, tilt_from_profiles, vertical_motion
 
@@ -178,10 +178,7 @@ def estimate_motion(
     -------
     Motion3D
     """
-    proj = np.asarray(projections, dtype=np.float32)
-    phi = np.asarray(angles, dtype=np.float64)
-    if proj.ndim != 3 or proj.shape[0] != phi.size:
-        raise NanoctError(f"projections of shape {proj.shape} do not match {phi.size} angles (views, rows, columns)")
+    proj, phi = views_and_angles(projections, angles)
     if horizontal not in HORIZONTAL_ESTIMATORS:
         raise NanoctError(f"horizontal estimator {horizontal!r}: choose one of {', '.join(HORIZONTAL_ESTIMATORS)}")
     tick = progress or (lambda stage: None)

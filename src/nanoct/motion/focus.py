@@ -28,10 +28,9 @@ import numba
 import numpy as np
 from scipy.optimize import minimize
 
-from ..core.errors import NanoctError
 from ..core.validation import check_int
 from ..recon.fbp import ramp_filter
-from .matching import extend_edges
+from .matching import extend_edges, views_and_angles
 
 __all__ = ["FocusResult", "focus_smooth", "smooth_basis", "tv_score"]
 
@@ -183,10 +182,7 @@ def focus_smooth(
     -------
     FocusResult
     """
-    proj = np.asarray(projections, dtype=np.float64)
-    phi = np.asarray(angles, dtype=np.float64)
-    if proj.ndim != 3 or proj.shape[0] != phi.size:
-        raise NanoctError(f"projections of shape {proj.shape} do not match {phi.size} angles (views, rows, columns)")
+    proj, phi = views_and_angles(projections, angles, np.float64)
     modes = check_int(modes, "modes", 1)
     n_views, n_rows, n_det = proj.shape
     start = np.zeros(n_views) if horizontal is None else np.asarray(horizontal, dtype=np.float64).copy()

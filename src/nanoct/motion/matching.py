@@ -45,7 +45,7 @@ from ..recon.shared import remove_translation
 from ..recon.stack import corrected_fbp, reproject
 from .registration import register_shifts
 
-__all__ = ["MatchedMotion", "apply_vertical", "extend_edges", "match_projections", "register_views"]
+__all__ = ["MatchedMotion", "apply_vertical", "extend_edges", "match_projections", "register_views", "views_and_angles"]
 
 
 @dataclass
@@ -69,6 +69,21 @@ class MatchedMotion:
     center_offset: float
     tilt_deg: float = 0.0
     steps: list[tuple[int, float, float]] = field(default_factory=list)
+
+
+def views_and_angles(projections: Any, angles: Any, dtype: Any = np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """``(K, R, L)`` projections as ``dtype`` and their ``K`` angles as float64, checked against each other.
+
+    Raises
+    ------
+    NanoctError
+        The projections are not 3-D or their number differs from the angles'.
+    """
+    proj = np.asarray(projections, dtype=dtype)
+    phi = np.asarray(angles, dtype=np.float64)
+    if proj.ndim != 3 or phi.shape != (proj.shape[0],):
+        raise NanoctError(f"projections of shape {proj.shape} do not match {phi.size} angles (views, rows, columns)")
+    return proj, phi
 
 
 def extend_edges(sinograms: np.ndarray, pad: int) -> np.ndarray:
@@ -265,12 +280,7 @@ def match_projections(
     -------
     MatchedMotion
     """
-    proj = np.asarray(projections, dtype=np.float32)
-    if proj.ndim != 3:
-        raise NanoctError(f"projections have shape {proj.shape}; expected (views, rows, columns)")
-    phi = np.asarray(angles, dtype=np.float64)
-    if phi.shape != (proj.shape[0],):
-        raise NanoctError(f"{phi.size} angles for {proj.shape[0]} projections")
+    proj, phi = views_and_angles(projections, angles)
     check_int(rounds, "rounds", 1)
     n_views, n_rows, n_det = proj.shape
     d = np.zeros(n_views) if horizontal is None else np.asarray(horizontal, dtype=np.float64).copy()
