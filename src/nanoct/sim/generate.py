@@ -13,7 +13,7 @@ from ..io.fileio import disk_space_needed
 from ..io.store import DataStore, open_cached
 from .simulate import SimulationConfig, simulate_sample
 
-__all__ = ["fill_dataset", "generate_dataset"]
+__all__ = ["check_run", "fill_dataset", "generate_dataset"]
 
 
 def _simulate_into(path: str, index: int) -> int:
@@ -41,6 +41,16 @@ def fill_dataset(store: DataStore, *, workers: int = 2, scheduler: str | None = 
             desc="generate",
             progress=progress,
         )
+
+
+def check_run(n: int, seed: int, workers: int) -> None:
+    """Refuse a bad sample count, seed or worker count of a simulation run (:class:`NanoctError`)."""
+    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
+        raise NanoctError(f"--n {n} must be a positive number of samples")
+    if seed < 0:
+        raise NanoctError(f"--seed {seed} must be >= 0")
+    if workers < 0:
+        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
 
 
 def generate_dataset(
@@ -81,12 +91,7 @@ def generate_dataset(
     DataStore
         The complete data set.
     """
-    if not isinstance(n, int) or n <= 0:
-        raise NanoctError(f"--n {n} must be a positive number of samples")
-    if seed < 0:
-        raise NanoctError(f"--seed {seed} must be >= 0")
-    if workers < 0:
-        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
+    check_run(n, seed, workers)
     config = config or SimulationConfig.for_geometry(geometry)
     store = DataStore.create(Path(out), geometry, n, seed, config.to_dict(), split_fractions)
     fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)

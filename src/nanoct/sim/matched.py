@@ -332,14 +332,9 @@ def generate_like(
     NanoctError
         For a bad ``n``, ``seed`` or ``workers``, or when ``out`` holds another data set.
     """
-    from .generate import fill_dataset
+    from .generate import check_run, fill_dataset
 
-    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
-        raise NanoctError(f"--n {n} must be a positive number of samples")
-    if seed < 0:
-        raise NanoctError(f"--seed {seed} must be >= 0")
-    if workers < 0:
-        raise NanoctError(f"--workers {workers} must be >= 0 (0: run in this process)")
+    check_run(n, seed, workers)
     store = DataStore.create(Path(out), plan.geometry, n, seed, plan.simulation, split_fractions)
     group = zarr.open_group(str(store.path), mode="r+")
     if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
