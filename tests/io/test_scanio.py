@@ -260,6 +260,19 @@ def test_a_dead_flat_pixel_gives_line_integral_zero(truth):
                                np.delete(truth["sino"].reshape(K, -1), 1 * L + 4, axis=1), atol=2e-5)  # fmt: skip
 
 
+def test_the_flat_tolerance_is_apart_from_the_transmissions(truth):
+    """A dead flat pixel above `tolerance` is refused, unless `flat_tolerance` (a reader of a few rows) allows it."""
+    from nanoct.io.scanio import RawScan
+
+    flats = truth["flats"].copy()
+    flats[:, 1, 4] = truth["darks"][:, 1, 4].mean()
+    scan = RawScan(truth["proj"], np.deg2rad(truth["deg"]), flats=flats, darks=truth["darks"])
+    with pytest.raises(NanoctError, match="flat minus dark is not positive"):
+        line_integrals(scan, tolerance=1e-6)
+    out = line_integrals(scan, tolerance=1e-6, flat_tolerance=0.5)
+    assert (out[:, 1, 4] == 0).all() and np.isfinite(out).all()
+
+
 def test_selection_outside_the_detector_and_bad_options_are_refused(tmp_path, truth):
     from nanoct.io.scanio import import_scan
 

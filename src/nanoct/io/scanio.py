@@ -346,7 +346,9 @@ def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, fla
     )
 
 
-def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-6) -> np.ndarray:
+def line_integrals(
+    scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-6, flat_tolerance: float | None = None
+) -> np.ndarray:
     """Flat/dark-corrected line integrals ``-log((p - d) / (f - d))`` of a scan, ``(K, R, L)``.
 
     Mean flat and dark fields are used; without flats the projections are taken as already
@@ -354,7 +356,9 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     not above the dark (at most a fraction ``tolerance`` of them) get line integral 0. Transmissions that are not
     positive (dead pixels, a dark field above the signal) are raised to ``floor`` when they are
     at most a fraction ``tolerance`` of all values; more than that is taken for a wrong flat,
-    dark or unit and refused.
+    dark or unit and refused. ``flat_tolerance`` (default ``tolerance``) is the fraction of
+    detector pixels whose flat may lie at or below the dark: a reader of a few rows at a time
+    sets it higher, since a detector's dead pixels gather in some rows.
 
     Raises
     ------
@@ -374,7 +378,7 @@ def line_integrals(scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-
     else:
         gain = flat - dark
         bad = ~(gain > 0)
-        if bad.mean() > tolerance:
+        if bad.mean() > (tolerance if flat_tolerance is None else flat_tolerance):
             raise NanoctError(
                 f"flat minus dark is not positive in {bad.mean():.1%} of detector pixels; "
                 "check the flat and dark fields"
