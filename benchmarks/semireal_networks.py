@@ -35,6 +35,7 @@ disc) and on the rest of the disc, with the same translation applied to mean and
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -59,6 +60,11 @@ UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
 CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
           "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
 ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
+
+
+def rows(normalize: str) -> tuple[str, ...]:
+    """The rows of one variant: the networks' predictions carry ``-image`` when trained on normalised images."""
+    return ROWS if normalize == "none" else (*ROWS[:2], *(f"{r}-image" for r in ROWS[2:]))
 
 
 def _cli(*args: str) -> float:
@@ -87,6 +93,22 @@ def reference(proj: np.ndarray, angles: np.ndarray, geometry: Geometry) -> tuple
     return np.stack([fbp(g, air_removed(s)).image for s in sinos]), g
 
 
+def reference_noise(proj: np.ndarray, g: Geometry) -> np.ndarray:
+    """Half the difference of the references from the even and from the odd views (per binned slice).
+
+    With independent noise in the views, FBP from half the views has twice the variance of the
+    reference, and the difference of the two halves four times: its half has the reference's noise
+    level. The halves' own angular undersampling adds to it, so this over-states the noise.
+    """
+    sinos = bin_sinograms(proj.transpose(1, 0, 2), BIN)
+    halves = []
+    for part in (slice(0, None, 2), slice(1, None, 2)):
+        angles = g.angles[part]
+        gh = dataclasses.replace(g, n_angles=angles.size, view_angles=tuple(float(a) for a in angles))
+        halves.append(np.stack([fbp(gh, air_removed(s[part])).image for s in sinos]))
+    return (halves[0] - halves[1]) / 2
+
+
 def fov(g: Geometry) -> np.ndarray:
     """The field-of-view disc of the binned images."""
     yy, xx = np.mgrid[: g.n, : g.n] - (g.n - 1) / 2
@@ -111,8 +133,16 @@ def score(image: np.ndarray, ref: np.ndarray, disc: np.ndarray) -> dict[str, flo
     return out
 
 
-def coverage(mean: np.ndarray, hw: np.ndarray, ref: np.ndarray, disc: np.ndarray, shift: list) -> dict[str, float]:
-    """Fraction of object and background pixels (in the disc) whose reference lies in ``mean +- hw``."""
+def coverage(
+    mean: np.ndarray, hw: np.ndarray, ref: np.ndarray, disc: np.ndarray, shift: list, noise: np.ndarray
+) -> dict[str, float]:
+    """Fraction of object and background pixels (in the disc) whose reference lies in ``mean +- hw``.
+
+    ``*_noisy``: registered, the interval widened by the reference's own noise, ``sqrt(hw**2 + (z s)**2)``
+    with z = 1.645 (90 %) and ``s`` the standard deviation of :func:`reference_noise` on the object or
+    on the background of the slice: the interval an estimate of the truth gives for a reference
+    that is the truth plus that noise.
+    """
     obj = object_mask(ref, disc)
     out = {}
     for key, (m, h) in {
@@ -122,7 +152,12 @@ def coverage(mean: np.ndarray, hw: np.ndarray, ref: np.ndarray, disc: np.ndarray
         inside = np.abs(ref - m) <= h
         out[f"object_{key}"] = float(inside[obj].mean())
         out[f"background_{key}"] = float(inside[disc & ~obj].mean())
+        if key == "reg":
+            for part, where in (("object", obj), ("background", disc & ~obj)):
+                wide = np.hypot(h, 1.645 * float(noise[where].std()))
+                out[f"{part}_noisy"] = float((np.abs(ref - m) <= wide)[where].mean())
     out["object_px"] = int(obj.sum())
+    out["reference_noise_object"] = float(noise[obj].std())
     return out
 
 
@@ -133,61 +168,70 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
     times["generate"] = _cli("generate", "--like", moved, "--bin", BIN, "--n", args.n, "--out", matched,
                              "--split-fractions", "0.85,0.14,0.01", "-q")  # fmt: skip
     times["dremel (matched set)"] = _cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
-    runs = {"unet": work / "run_unet", "ciunet-res": work / "run_ciunet"}
+    image = args.normalize == "image"
+    suffix = "_image" if image else ""
+    runs = {"unet": work / f"run_unet{suffix}", "ciunet-res": work / f"run_ciunet{suffix}"}
+    names = dict(zip(runs, rows(args.normalize)[2:]))
+    # on normalised images the UNet's targets are of order one: no large negative output bias
+    unet = ["--param", "skip_channels=32", "--param", "normalize=image"] if image else UNET
+    ciunet = [*CIUNET, "--param", "normalize=image"] if image else CIUNET
     times["train unet"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs", args.epochs_unet,
-                               "--precision", "bf16", "--out", runs["unet"], "-q", *UNET)  # fmt: skip
+                               "--precision", "bf16", "--out", runs["unet"], "-q", *unet)  # fmt: skip
     times["train ciunet-res"] = _cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
                                      args.epochs_ciunet, "--precision", "bf16", "--out", runs["ciunet-res"], "-q",
-                                     *CIUNET)  # fmt: skip
+                                     *ciunet)  # fmt: skip
     g = DataStore.open(matched).geometry
     sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
     if not (real / "zarr.json").is_file():
         create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
     times["dremel (scan)"] = _cli("reconstruct", real, "--method", "dremel", "-q")
-    times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "-q")
+    times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "--name", names["unet"], "-q")
     # the intervals' calibration is fitted on the matched set's validation split, then reused on the scan
     times["calibrate ciunet-res"] = _cli("predict", matched, "--run", runs["ciunet-res"], "--split", "val",
-                                         "--samples", 16, "--antithetic", "-q")  # fmt: skip
+                                         "--samples", 16, "--antithetic", "--name", names["ciunet-res"],
+                                         "-q")  # fmt: skip
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         times["predict ciunet-res"] = _cli("predict", real, "--run", runs["ciunet-res"], "--samples", 16,
-                                           "--antithetic", "-q")  # fmt: skip
+                                           "--antithetic", "--name", names["ciunet-res"], "-q")  # fmt: skip
     for w in caught:
         print(f"warning: {w.message}")
-    return {"unet": "dremel+unet", "ciunet-res": "dremel+ciunet-res"}
+    return names
 
 
-def evaluate(work: Path, refs: np.ndarray, g_ref: Geometry, slices: list[int]) -> tuple[dict, dict]:
+def evaluate(
+    work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, slices: list[int], names: tuple[str, ...] = ROWS
+) -> tuple[dict, dict]:
     """Scores per slice and row, coverage of CiUNetRes, and the images for the pictures."""
     store = DataStore.open(work / "moved_bin2")
     disc = fov(g_ref)
-    name = "dremel+ciunet-res"
+    name = names[3]
     params = store.reconstruction_params(name)
     mean, std = store.read_reconstruction(name, slices), store.read_uncertainty(name, slices)
     hws = half_width(params, std, 0.9, mean=mean)
-    images = {row: store.read_reconstruction(row, slices) for row in ROWS[1:]}
+    images = {row: store.read_reconstruction(row, slices) for row in names[1:]}
     sinos = store.read_array("sinograms", slices)
     images["fbp"] = np.stack([fbp(store.geometry, air_removed(s)).image for s in sinos])
     table = {}
     for i, s in enumerate(slices):
-        table[s] = {row: score(images[row][i], refs[s], disc) for row in ROWS}
+        table[s] = {row: score(images[row][i], refs[s], disc) for row in names}
         shift = table[s][name]["shift"]
-        table[s]["coverage"] = coverage(mean[i], hws[i], refs[s], disc, shift)
+        table[s]["coverage"] = coverage(mean[i], hws[i], refs[s], disc, shift, noise[s])
         table[s]["width"] = float(np.mean(2 * hws[i][object_mask(refs[s], disc)]))
     images.update(std=std, reference=refs[slices])
     table["ood"] = store.reconstruction_note(name, "ood")
     return table, images
 
 
-def summarize(table: dict, slices: list[int]) -> None:
+def summarize(table: dict, slices: list[int], names: tuple[str, ...] = ROWS) -> None:
     """Mean scores per row, coverage means, and the OOD record."""
     print("\nrow | PSNR plain | PSNR registered | SSIM plain | SSIM registered (means over slices)")
-    for row in ROWS:
+    for row in names:
         vals = {k: np.mean([table[s][row][k] for s in slices]) for k in ("psnr_plain", "psnr_reg", "ssim_plain",
                                                                           "ssim_reg")}  # fmt: skip
         print(f"{row} | {vals['psnr_plain']:.2f} | {vals['psnr_reg']:.2f} | {vals['ssim_plain']:.3f} | "
               f"{vals['ssim_reg']:.3f}")  # fmt: skip
-    for row in ROWS[2:]:
+    for row in names[2:]:
         d = [table[s][row]["psnr_reg"] - table[s]["dremel"]["psnr_reg"] for s in slices]
         print(f"{row} - dremel (registered PSNR): mean {np.mean(d):+.2f} dB, worst {min(d):+.2f}, best {max(d):+.2f}")
     cov = {k: np.mean([table[s]["coverage"][k] for s in slices]) for k in table[slices[0]]["coverage"]}
@@ -203,14 +247,16 @@ def summarize(table: dict, slices: list[int]) -> None:
     )
 
 
-def save_picture(folder: Path, table: dict, images: dict, slices: list[int], chosen: list[int]) -> None:
+def save_picture(
+    folder: Path, table: dict, images: dict, slices: list[int], chosen: list[int], names: tuple[str, ...] = ROWS
+) -> None:
     """Reference, FBP, Dremel, +UNet, +CiUNetRes and its std for the chosen slices."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cols = ("reference", *ROWS, "std")
+    cols = ("reference", *names, "std")
     fig, axes = plt.subplots(len(chosen), len(cols), figsize=(2.2 * len(cols), 2.3 * len(chosen)), squeeze=False)
     for i, s in enumerate(chosen):
         j = slices.index(s)
@@ -221,13 +267,14 @@ def save_picture(folder: Path, table: dict, images: dict, slices: list[int], cho
             image = images[col][j]
             scale = {} if col == "std" else {"vmin": lo, "vmax": hi}
             ax.imshow(image, cmap="magma" if col == "std" else "gray", **scale)
-            extra = f"\n{table[s][col]['psnr_reg']:.1f} dB" if col in ROWS else ""
+            extra = f"\n{table[s][col]['psnr_reg']:.1f} dB" if col in names else ""
             ax.set_title(f"{col} {s}{extra}", fontsize=8)
             ax.axis("off")
     fig.suptitle("I13 24737 with added motion, binned 2: networks trained on the matched set", fontsize=10)
     fig.tight_layout()
     folder.mkdir(parents=True, exist_ok=True)
-    fig.savefig(folder / "semireal_networks.png", dpi=80)
+    suffix = "_image" if names[3].endswith("-image") else ""
+    fig.savefig(folder / f"semireal_networks{suffix}.png", dpi=80)
     plt.close(fig)
 
 
@@ -239,6 +286,12 @@ def main() -> None:
     parser.add_argument("--slices", default=",".join(str(s) for s in range(15, 61, 5)))
     parser.add_argument("--pictures", default=None)
     parser.add_argument("--picture-slices", default="20,35,50")
+    parser.add_argument(
+        "--normalize",
+        choices=("none", "image"),
+        default="none",
+        help="train both networks on per-image normalised intensities (nanoct.learn.scaled)",
+    )
     parser.add_argument("--work", default=None, help="keep the stores and runs here (default: a temporary folder)")
     args = parser.parse_args()
     slices = [int(s) for s in args.slices.split(",")]
@@ -253,13 +306,15 @@ def main() -> None:
         times: dict[str, float] = {}
         train_and_predict(work, args, times)
         refs, g_ref = reference(proj, angles, DataStore.open(work / "matched").geometry)
-        table, images = evaluate(work, refs, g_ref, slices)
+        names = rows(args.normalize)
+        noise = reference_noise(proj, g_ref)
+        table, images = evaluate(work, refs, noise, g_ref, slices, names)
         print("\nseconds: " + ", ".join(f"{k} {v:.0f}" for k, v in times.items()))
         print(f"matched set: {json.dumps(DataStore.open(work / 'matched').meta['simulation']['like'])}")
-        summarize(table, slices)
+        summarize(table, slices, names)
         if args.pictures:
             chosen = [s for s in (int(s) for s in args.picture_slices.split(",")) if s in slices]
-            save_picture(Path(args.pictures), table, images, slices, chosen)
+            save_picture(Path(args.pictures), table, images, slices, chosen, names)
     print(f"\ntotal {time.perf_counter() - start:.0f} s")
 
 

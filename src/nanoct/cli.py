@@ -456,6 +456,12 @@ def predict(
         "smoothly: images of any size in bounded memory.",
     ),
     tile_overlap: int = typer.Option(16, "--tile-overlap", help="With --tile: pixels shared by neighbouring tiles."),
+    out_name: str | None = typer.Option(
+        None,
+        "--name",
+        help="Store the result as reconstructions/NAME (default: <input>+<model>), e.g. to keep two "
+        "runs' predictions side by side.",
+    ),
     quiet: bool = QUIET,
 ) -> None:
     """Post-process reconstructions/<input> with a trained network.
@@ -491,6 +497,7 @@ def predict(
         levels=tuple(_parse_levels(levels)),
         tile=tile,
         overlap=tile_overlap,
+        name=out_name,
     )
     typer.echo(f"wrote reconstructions/{name}")
 
