@@ -41,7 +41,7 @@ from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
-from ..motion.center import centroid_motion, opposite_pairs
+from ..motion.center import centroid_motion
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
@@ -236,9 +236,10 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
 
 
 def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
-    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone."""
-    if not opposite_pairs(store.geometry.angles)[0].size:
-        return {"tilt": {"note": "no views 180 degrees apart: the axis tilt is not estimated"}}
+    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone.
+
+    Called where air is seen: from opposite views, or (a limited-angle series) from the views' centroids.
+    """
     firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
     rows = [int(r) for first in firsts for r in range(first, first + 4)]
     straight = read_straight(store, rows, vertical)
