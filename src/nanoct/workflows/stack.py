@@ -10,9 +10,10 @@ vertically and with their open beam removed, by the views' centroids where air i
 the object, else (an object wider than the field of view) as
 :func:`~nanoct.motion.estimate.estimate_motion` finds it, from a central block of rows: an
 autofocus of the slow motion, projection matching, and the autofocus again with the axis
-(:func:`horizontal_motion`). The axis tilt on the detector is estimated from opposite views
-(:func:`~nanoct.motion.axis.axis_tilt`) only where air is seen (on a truncated object they gave
--6.2 degrees where the scan has none). The horizontal motion may be replaced by a smooth model
+(:func:`horizontal_motion`). The axis tilt on the detector is estimated from opposite views, or
+on a limited-angle series from the views' centroids (:func:`~nanoct.motion.axis.axis_tilt`), only
+where air is seen (on a truncated object the opposite views gave -6.2 degrees where the scan has
+none). The horizontal motion may be replaced by a smooth model
 (:func:`~nanoct.motion.model.fit_motion_model`).
 Both are recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
