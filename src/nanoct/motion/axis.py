@@ -344,7 +344,7 @@ def axis_tilt(sinograms: Any, angles: Any, *, group: int = 4, rows: Any = None, 
     of a group is the constant of its views' centroids fitted on ``(1, cos phi, sin phi)``
     (:func:`~nanoct.motion.center.centroid_motion`); a per-view horizontal shift moves every
     group's constant alike and leaves the slope, so only the vertical motion must be undone
-    first. Measured on ETSpy's STEM needle series (+-76 degrees): 2.71 degrees, where ETSpy's own
+    first. Measured on ETSpy's STEM needle series (+-76 degrees): 2.70 to 2.73 degrees, where ETSpy's own
     alignment records 2.79 and the row profiles
     (:func:`~nanoct.motion.vertical.tilt_from_profiles`) gave 0.4 to 2.4 degrees depending on how
     the motion was undone.
