@@ -78,5 +78,5 @@ def test_real_tilt_series_matches_the_acquiring_groups_alignment():
     assert result.record["tilt_method"] == "centroid axis of row groups"
     errors = needle_errors(result.horizontal, result.vertical, result.axis.offset, result.tilt_deg, angles, ref, 4)
     assert errors["horizontal"] <= 0.3 and errors["vertical"] <= 0.4  # measured 0.03 and 0.14 px
-    assert abs(errors["tilt"]) <= 0.3  # measured 2.70 degrees against ETSpy's 2.79
+    assert abs(errors["tilt"]) <= 0.3  # measured 2.84 degrees against ETSpy's 2.79
     assert abs(errors["axis"]) <= 1.5  # measured +0.53 px

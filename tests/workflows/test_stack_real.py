@@ -134,5 +134,5 @@ def test_stack_aligns_the_real_tilt_series_as_its_acquiring_group(tmp_path):
     errors = needle_errors(shifts, info["vertical"], info["center_offset"], info["tilt"]["tilt_deg"], angles, ref, 2)
     assert info["horizontal_method"] == "centroid"
     assert errors["horizontal"] <= 0.4 and errors["vertical"] <= 0.4  # measured 0.13 and 0.10 px
-    assert abs(errors["tilt"]) <= 0.3 and abs(errors["axis"]) <= 1.0  # measured 2.73 against 2.79 degrees; +0.14 px
+    assert abs(errors["tilt"]) <= 0.3 and abs(errors["axis"]) <= 1.0  # measured 2.83 against 2.79 degrees; +0.14 px
     assert np.isfinite(data.read_reconstruction("fbp_stack", [64])).all()

@@ -30,7 +30,7 @@ of every view with the rotation axis, and a record of the estimators that ran:
 
 For a limited-angle series the in-plane tilt of the axis on the detector is estimated and undone
 first: where air is seen, from the centroid axis of groups of rows
-(:func:`~nanoct.motion.axis.axis_tilt`), else from the row profiles
+(:func:`~nanoct.motion.axis.limited_angle_tilt`), else from the row profiles
 (:func:`~nanoct.motion.vertical.tilt_from_profiles`).
 
 The horizontal shifts are given without the term ``a cos(phi) + b sin(phi)`` (a translation of the
@@ -48,7 +48,7 @@ import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
-from .axis import AxisEstimate, axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
+from .axis import AxisEstimate, axis_rows, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth
 from .matching import apply_vertical, match_projections, views_and_angles
@@ -239,8 +239,9 @@ def _tilt(proj: np.ndarray, phi: np.ndarray, limited: bool) -> tuple[float, str]
     """The axis tilt and how it was found (0 for too few rows).
 
     A limited-angle series with air around the object: the line through the centroid axes of
-    groups of rows (:func:`~nanoct.motion.axis.axis_tilt`), the views moved back by their
-    vertical shifts (row profiles) first. Otherwise, or where that finds too few rows holding
+    groups of rows, the views rotated back until it is vertical
+    (:func:`~nanoct.motion.axis.limited_angle_tilt`), the views moved back by their vertical
+    shifts (row profiles) first. Otherwise, or where that finds too few rows holding
     the object: the row profiles of the views with their open beam removed
     (:func:`~nanoct.motion.vertical.tilt_from_profiles`).
     """
@@ -250,9 +251,9 @@ def _tilt(proj: np.ndarray, phi: np.ndarray, limited: bool) -> tuple[float, str]
     clean, air = remove_air(sinos)
     if limited and air:
         v = vertical_motion(row_profiles(proj)).shifts
-        straight = apply_vertical(proj, v).transpose(1, 0, 2) if np.any(v) else sinos
+        straight = apply_vertical(proj, v) if np.any(v) else proj
         try:
-            return axis_tilt(straight, phi).tilt_deg, "centroid axis of row groups"
+            return limited_angle_tilt(straight, phi)[0].tilt_deg, "centroid axis of row groups"
         except NanoctError:
             pass
     return tilt_from_profiles(clean.transpose(1, 0, 2))[0], "row profiles"

@@ -41,8 +41,8 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
-from ..motion.center import centroid_motion
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
+from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
@@ -239,8 +239,11 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
 def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
     """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone.
 
-    Called where air is seen: from opposite views, or (a limited-angle series) from the views' centroids.
+    Called where air is seen: from opposite views, or (a limited-angle series) from the views'
+    centroids, on contiguous rows rotated back until the line is vertical (:func:`_limited_tilt`).
     """
+    if not opposite_pairs(store.geometry.angles)[0].size:
+        return _limited_tilt(store, vertical, shifts)
     firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
     rows = [int(r) for first in firsts for r in range(first, first + 4)]
     straight = read_straight(store, rows, vertical)
@@ -250,6 +253,24 @@ def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[st
     except NanoctError as exc:
         return {"tilt": {"note": str(exc)}}
     return {"tilt": {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual}}
+
+
+def _limited_tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
+    """A limited-angle series' axis tilt (:func:`~nanoct.motion.axis.limited_angle_tilt`), motion undone.
+
+    On a central block of contiguous rows (all of them where at most :data:`MATCH_VALUES` values).
+    """
+    geometry = store.geometry
+    count = min(store.n, max(24, MATCH_VALUES // (geometry.n_angles * geometry.n_det)))
+    first = (store.n - count) // 2
+    straight = read_straight(store, list(range(first, first + count)), vertical)
+    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    try:
+        tilt, trials = limited_angle_tilt(corrected.transpose(1, 0, 2), geometry.angles)
+    except NanoctError as exc:
+        return {"tilt": {"note": str(exc)}}
+    found = {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual, "trials": trials}
+    return {"tilt": {**found, "method": "centroid axis of row groups, rotated back until vertical"}}
 
 
 def slice_center(info: dict[str, Any], index: int, n_slices: int) -> float:
