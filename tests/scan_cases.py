@@ -79,3 +79,39 @@ def write_raw_scan(tmp_path: Path, data: np.ndarray, phi: np.ndarray) -> tuple[P
     read = {"angles_file": str(tmp_path / "angles.txt"), "flats": str(tmp_path / "flats.npy")}
     read["darks"] = str(tmp_path / "darks.npy")
     return tmp_path / "proj.npy", read
+
+
+#: ETSpy's STEM needle tilt series (77 tilts, +-76 degrees), binned 2 x 2, with the group's alignment.
+NEEDLE = Path(__file__).resolve().parent / "data" / "realdata" / "etspy-needle-tilt"
+
+
+def needle_series(binning: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Projections ``(K, R, L)`` as nanoct reads the vendored copy (tilt axis along the rows), further
+    averaged over ``binning`` x ``binning`` pixels; angles (radians); the reference (``reference.npz``)."""
+    from nanoct.io.scanio import ReaderOptions, read_scan
+
+    scan = read_scan(NEEDLE / "needle_bin2.mrc", is_line_integral=True, options=ReaderOptions(tilt_axis="rows"))
+    proj = np.asarray(scan.projections, dtype=np.float64)
+    k, r, c = proj.shape
+    proj = proj.reshape(k, r // binning, binning, c // binning, binning).mean(axis=(2, 4))
+    return proj, np.asarray(scan.angles), dict(np.load(NEEDLE / "reference.npz"))
+
+
+def needle_errors(d, v, center: float, tilt_deg: float, angles: np.ndarray, ref: dict, binning: int) -> dict:
+    """nanoct's alignment of the needle against ETSpy's, in full-size pixels (``binning``: of ``d``, ``v``, ``center``).
+
+    Both move the raw frames, then rotate: horizontal ``binning * d`` against the reference's row
+    shifts, gauge-free; vertical ``binning * v`` against its column shifts less the mean; the axis:
+    view ``k``'s axis row ``127.5 + binning (c - d_k)`` against the row ETSpy levels to 128 at the
+    middle column less the shift, their difference's constant on ``(1, cos, sin)``; the tilt against
+    ``-tiltaxis_deg`` (ETSpy's rotation that levels the axis).
+    """
+    shifts = ref["shifts_yx"]
+    horizontal = gauge_free_rms(binning * np.asarray(d), shifts[:, 0], angles)
+    vertical = gauge_free_rms(binning * np.asarray(v), shifts[:, 1], angles, vertical=True)
+    theta = np.deg2rad(float(ref["tiltaxis_deg"]))
+    row = 128.0 + (float(ref["yshift"]) + 0.5 * np.sin(theta)) / np.cos(theta)
+    basis = np.stack([np.ones_like(angles), np.cos(angles), np.sin(angles)], axis=1)
+    axis_diff = 127.5 + binning * (center - np.asarray(d)) - (row - shifts[:, 0])
+    axis = float(np.linalg.lstsq(basis, axis_diff, rcond=None)[0][0])
+    return {"horizontal": horizontal, "vertical": vertical, "axis": axis, "tilt": tilt_deg + float(ref["tiltaxis_deg"])}

@@ -28,8 +28,10 @@ of every view with the rotation axis, and a record of the estimators that ran:
    views moved back by their horizontal shifts, so that the axis goes with the shifts; on the
    ``matching`` path the axis of the last autofocus (``focus``) is used; unless given.
 
-For a limited-angle series the in-plane tilt of the axis on the detector is estimated from the
-row profiles (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undone first.
+For a limited-angle series the in-plane tilt of the axis on the detector is estimated and undone
+first: where air is seen, from the centroid axis of groups of rows
+(:func:`~nanoct.motion.axis.limited_angle_tilt`), else from the row profiles
+(:func:`~nanoct.motion.vertical.tilt_from_profiles`).
 
 The horizontal shifts are given without the term ``a cos(phi) + b sin(phi)`` (a translation of the
 object, which the data do not fix); their constant, if any, goes with the axis found in step 3.
@@ -46,7 +48,7 @@ import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
 from ..recon.shared import remove_translation
-from .axis import AxisEstimate, axis_rows, estimate_axis, object_rows, remove_air
+from .axis import AxisEstimate, axis_rows, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth
 from .matching import apply_vertical, match_projections, views_and_angles
@@ -168,9 +170,11 @@ def estimate_motion(
         ``"auto"``: for a limited-angle series (no two views 180 degrees apart), where frames
         of a tilt series are acquired in angular order.
     tilt : bool or "auto"
-        Estimate the in-plane tilt of the axis from the row profiles
-        (:func:`~nanoct.motion.vertical.tilt_from_profiles`) and undo it first; ``"auto"``: for a
-        limited-angle series (a scan with opposite views has :func:`~nanoct.motion.axis.axis_tilt`).
+        Estimate the in-plane tilt of the axis and undo it first (on a limited-angle series with
+        air around the object from the centroid axis of groups of rows, else from the row profiles,
+        :func:`~nanoct.motion.vertical.tilt_from_profiles`; ``record["tilt_method"]`` says which);
+        ``"auto"``: for a limited-angle series (a scan with opposite views has
+        :func:`~nanoct.motion.axis.axis_tilt`).
     progress : callable, optional
         Called with the name of each finished stage.
 
@@ -188,7 +192,7 @@ def estimate_motion(
     if prealign:
         proj = np.stack([ndi.shift(p, (a, b), order=1, mode="nearest") for p, a, b in zip(proj, v0, d0)])
     limited = not opposite_pairs(phi)[0].size
-    tilt_deg = _tilt(proj) if (limited if tilt == "auto" else tilt) else 0.0
+    tilt_deg, tilt_method = _tilt(proj, phi, limited) if (limited if tilt == "auto" else tilt) else (0.0, "none")
     if tilt_deg:
         proj = apply_vertical(proj, np.zeros(phi.size), tilt_deg)
     guard: dict[str, Any] = {"note": "vertical motion not estimated"}
@@ -205,7 +209,7 @@ def estimate_motion(
     method = horizontal if horizontal != "auto" else ("centroid" if air else "matching")
     record: dict[str, Any] = {"vertical": "row profiles" if vertical else "none", "horizontal": method}
     record.update(air_removed=air, centroid_rows=int(rows.sum()), mass_spread=float(spread), prealign=bool(prealign))
-    record.update(tilt_deg=tilt_deg, vertical_guard=guard)
+    record.update(tilt_deg=tilt_deg, tilt_method=tilt_method, vertical_guard=guard)
     if method == "centroid":
         d = d_centroid
     else:
@@ -231,9 +235,25 @@ def estimate_motion(
     return Motion3D(d, v - v.mean(), axis, method, record, tilt_deg)
 
 
-def _tilt(proj: np.ndarray) -> float:
-    """The axis tilt from the row profiles of the views with their open beam removed (0 for too few rows)."""
+def _tilt(proj: np.ndarray, phi: np.ndarray, limited: bool) -> tuple[float, str]:
+    """The axis tilt and how it was found (0 for too few rows).
+
+    A limited-angle series with air around the object: the line through the centroid axes of
+    groups of rows, the views rotated back until it is vertical
+    (:func:`~nanoct.motion.axis.limited_angle_tilt`), the views moved back by their vertical
+    shifts (row profiles) first. Otherwise, or where that finds too few rows holding
+    the object: the row profiles of the views with their open beam removed
+    (:func:`~nanoct.motion.vertical.tilt_from_profiles`).
+    """
     if proj.shape[1] < 24:
-        return 0.0
-    clean, _ = remove_air(proj.transpose(1, 0, 2))
-    return tilt_from_profiles(clean.transpose(1, 0, 2))[0]
+        return 0.0, "none"
+    sinos = proj.transpose(1, 0, 2)
+    clean, air = remove_air(sinos)
+    if limited and air:
+        v = vertical_motion(row_profiles(proj)).shifts
+        straight = apply_vertical(proj, v) if np.any(v) else proj
+        try:
+            return limited_angle_tilt(straight, phi)[0].tilt_deg, "centroid axis of row groups"
+        except NanoctError:
+            pass
+    return tilt_from_profiles(clean.transpose(1, 0, 2))[0], "row profiles"

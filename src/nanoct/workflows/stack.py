@@ -10,9 +10,10 @@ vertically and with their open beam removed, by the views' centroids where air i
 the object, else (an object wider than the field of view) as
 :func:`~nanoct.motion.estimate.estimate_motion` finds it, from a central block of rows: an
 autofocus of the slow motion, projection matching, and the autofocus again with the axis
-(:func:`horizontal_motion`). The axis tilt on the detector is estimated from opposite views
-(:func:`~nanoct.motion.axis.axis_tilt`) only where air is seen (on a truncated object they gave
--6.2 degrees where the scan has none). The horizontal motion may be replaced by a smooth model
+(:func:`horizontal_motion`). The axis tilt on the detector is estimated from opposite views, or
+on a limited-angle series from the views' centroids (:func:`~nanoct.motion.axis.axis_tilt`), only
+where air is seen (on a truncated object the opposite views gave -6.2 degrees where the scan has
+none). The horizontal motion may be replaced by a smooth model
 (:func:`~nanoct.motion.model.fit_motion_model`).
 Both are recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
@@ -40,7 +41,7 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, axis_tilt, estimate_axis, object_rows, remove_air
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
@@ -236,9 +237,13 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
 
 
 def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
-    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone."""
+    """The axis tilt on the detector (:func:`~nanoct.motion.axis.axis_tilt`) from 16 groups of 4 rows, motion undone.
+
+    Called where air is seen: from opposite views, or (a limited-angle series) from the views'
+    centroids, on contiguous rows rotated back until the line is vertical (:func:`_limited_tilt`).
+    """
     if not opposite_pairs(store.geometry.angles)[0].size:
-        return {"tilt": {"note": "no views 180 degrees apart: the axis tilt is not estimated"}}
+        return _limited_tilt(store, vertical, shifts)
     firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
     rows = [int(r) for first in firsts for r in range(first, first + 4)]
     straight = read_straight(store, rows, vertical)
@@ -248,6 +253,24 @@ def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[st
     except NanoctError as exc:
         return {"tilt": {"note": str(exc)}}
     return {"tilt": {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual}}
+
+
+def _limited_tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[str, Any]:
+    """A limited-angle series' axis tilt (:func:`~nanoct.motion.axis.limited_angle_tilt`), motion undone.
+
+    On a central block of contiguous rows (all of them where at most :data:`MATCH_VALUES` values).
+    """
+    geometry = store.geometry
+    count = min(store.n, max(24, MATCH_VALUES // (geometry.n_angles * geometry.n_det)))
+    first = (store.n - count) // 2
+    straight = read_straight(store, list(range(first, first + count)), vertical)
+    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    try:
+        tilt, trials = limited_angle_tilt(corrected.transpose(1, 0, 2), geometry.angles)
+    except NanoctError as exc:
+        return {"tilt": {"note": str(exc)}}
+    found = {"tilt_deg": tilt.tilt_deg, "slope": tilt.slope, "residual": tilt.residual, "trials": trials}
+    return {"tilt": {**found, "method": "centroid axis of row groups, rotated back until vertical"}}
 
 
 def slice_center(info: dict[str, Any], index: int, n_slices: int) -> float:
