@@ -108,8 +108,6 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     assert code == 0 and "reconstructions/second" in out and "second" in DataStore.open(d).reconstruction_names()
     code, _, err = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--name", "a/b", "-q")
     assert code == 2 and "a/b" in err
-    code, _, err = run(monkeypatch, capsys, "train", d, "--input", "fbp", "--param", "normalize=pixel", "-q")
-    assert code == 2 and "normalize='pixel' is unknown" in err
     code, _, err = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--samples", 0)
     assert code == 2 and "--samples 0" in err
     code, _, err = run(monkeypatch, capsys, "predict", d, "--run", tmp_path / "nope")

@@ -173,38 +173,3 @@ def test_tiled_prediction(setup, tmp_path):
     np.testing.assert_allclose(out, expected, atol=1e-5)
     with pytest.raises(NanoctError, match="overlap"):
         predict(big, run, progress=False, tile=0, overlap=40, name="bad")
-
-
-def test_normalised_run_predicts_in_data_units_and_tiles_share_one_scale(setup, tmp_path):
-    """A UNet trained with normalize=image: its checkpoint rebuilds the wrapper, predict stores the network's
-    output on each image's normalised intensities times the image's scale (under the name asked for), and a
-    tiled prediction of a larger slice gives every tile the whole slice's scale."""
-    from nanoct.learn.scaled import image_scale
-    from nanoct.learn.tiling import predict_tiled
-
-    path, _ = setup
-    config = TrainConfig("unet", "fbp", epochs=1, batch_size=2, model_kwargs={**SMALL, "normalize": "image"})
-    run = train(path, tmp_path / "run", config, progress=False)
-    model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
-    assert model.hparams["normalize"] == "image"
-    assert predict(path, run, progress=False, name="fbp+unet-image") == "fbp+unet-image"
-    store = DataStore.open(path)
-    test = store.indices("test")
-    x = torch.from_numpy(store.read_reconstruction("fbp", test))[:, None]
-    expected, _ = model.reconstruct(x)
-    np.testing.assert_allclose(store.read_reconstruction("fbp+unet-image", test), expected[:, 0].numpy(), atol=1e-6)
-    absolute, _ = model.inner.reconstruct(x)  # the same weights on unnormalised images: another output
-    assert np.abs(absolute - expected).max() > 1e-3
-    big = tmp_path / "big"
-    generate_dataset(big, get_preset("small-parallel"), 1, seed=1, workers=0, progress=False, split_fractions=(0, 0, 1))
-    reconstruct_dataset(big, "fbp", workers=0, progress=False)
-    predict(big, run, progress=False, tile=0, overlap=20)
-    image = DataStore.open(big).read_reconstruction("fbp", [0])[0]
-    scale = float(image_scale(image))
-
-    def network(tiles, seed):
-        mean, _ = model.reconstruct(torch.from_numpy(tiles)[:, None], scale=scale)
-        return mean[:, 0].numpy(), None
-
-    stitched, _ = predict_tiled(image, network, 63, overlap=20, margin=2)
-    np.testing.assert_allclose(DataStore.open(big).read_reconstruction("fbp+unet", [0])[0], stitched, atol=1e-5)

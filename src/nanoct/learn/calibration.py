@@ -124,15 +124,11 @@ class Inference:
         model.eval()
         self.model, self.kwargs, self.sampling = model, kwargs, sampling
 
-    def __call__(
-        self, x_tilde: np.ndarray, first_index: int, scale: float | None = None
-    ) -> tuple[np.ndarray, np.ndarray | None]:
+    def __call__(self, x_tilde: np.ndarray, first_index: int) -> tuple[np.ndarray, np.ndarray | None]:
         x = torch.from_numpy(np.ascontiguousarray(x_tilde, np.float32))[:, None].to(self.dev)
         if self.channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
-        call = {"seed": first_index, **self.kwargs} if self.sampling else dict(self.kwargs)
-        if scale is not None:  # tiles of one image share its intensity scale (nanoct.learn.scaled)
-            call["scale"] = scale
+        call = {"seed": first_index, **self.kwargs} if self.sampling else self.kwargs
         with torch.no_grad():
             mean, std = self.model.reconstruct(x, **call)
         mean_np = mean.float().cpu().numpy()[:, 0]

@@ -20,7 +20,6 @@ if TYPE_CHECKING:  # the registry itself does not import torch (the study planne
 
 __all__ = [
     "MODELS",
-    "NORMALIZE_CHOICES",
     "ModelSpec",
     "build_model",
     "model_class",
@@ -62,11 +61,6 @@ MODELS: dict[str, ModelSpec] = {
 }
 
 
-#: Values of the ``normalize`` model parameter: absolute intensities, or per-image normalisation
-#: (:class:`~nanoct.learn.scaled.ImageScaled`).
-NORMALIZE_CHOICES = ("none", "image")
-
-
 def model_names() -> list[str]:
     """Registered model names."""
     return sorted(MODELS)
@@ -104,24 +98,13 @@ def model_class(name: str) -> type[PostProcessor]:
 def build_model(name: str, **kwargs: Any) -> PostProcessor:
     """Build model ``name`` with architecture keyword arguments ``kwargs``.
 
-    ``normalize="image"`` among them wraps the network in
-    :class:`~nanoct.learn.scaled.ImageScaled` (per-image intensity normalisation).
-
     Raises
     ------
     NanoctError
         If the name is unknown or the keyword arguments are not accepted.
     """
     cls = model_class(name)
-    normalize = kwargs.pop("normalize", "none")
-    if normalize not in NORMALIZE_CHOICES:
-        raise NanoctError(f"normalize={normalize!r} is unknown; use none (absolute intensities) or image (per image)")
     try:
-        model = cls(**kwargs)
+        return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise NanoctError(f"cannot build model {name!r} with {kwargs}: {exc}") from exc
-    if normalize == "image":
-        from .scaled import ImageScaled
-
-        model = ImageScaled(model)
-    return model

@@ -21,7 +21,6 @@ and a different checkpoint under the same name is refused unless ``overwrite``.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import warnings
@@ -42,7 +41,6 @@ from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
-from .scaled import ImageScaled, image_scale
 from .scan_ood import store_scan_scores
 from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, parallel_tiles, predict_tiled
 
@@ -331,13 +329,9 @@ def _write_tiled(
     single-threaded network calls at once as torch has threads (:func:`nanoct.learn.tiling.parallel_tiles`)."""
     with parallel_tiles(infer.dev) as workers:
         for i in todo:
-            image = store.read_reconstruction(input_name, [int(i)])[0]
-            network: Any = infer
-            if isinstance(infer.model, ImageScaled):  # every tile gets the whole image's scale
-                network = functools.partial(infer, scale=float(image_scale(image)))
             mean, std = predict_tiled(
-                image,
-                network,
+                store.read_reconstruction(input_name, [int(i)])[0],
+                infer,
                 tiling["size"],
                 overlap=tiling["overlap"],
                 margin=tiling["margin"],
