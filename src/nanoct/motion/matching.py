@@ -124,11 +124,15 @@ def register_views(
     be trusted). Filtering first matters where the object is wider than the field of view: a
     taper applied to the raw views turns their high edges into a step at the same place in both
     images, which pins the correlation peak at zero. The outer 15 % of the columns, where the
-    reconstruction from truncated views is least right, are tapered away.
+    reconstruction from truncated views is least right, are tapered away. Views of a single row
+    (four slices binned four times) give a vertical shift of zero.
     """
     margin = (margin[0], max(margin[1], int(0.15 * measured.shape[2])))
-    rows_model, rows_measured = np.gradient(model, axis=1), np.gradient(measured, axis=1)
-    vertical = register_shifts(rows_model, rows_measured, sigma=0.0, margin=margin)[:, 0]
+    if measured.shape[1] < 2:  # one row (a few slices binned): no vertical shift to see
+        vertical = np.zeros(measured.shape[0])
+    else:
+        rows_model, rows_measured = np.gradient(model, axis=1), np.gradient(measured, axis=1)
+        vertical = register_shifts(rows_model, rows_measured, sigma=0.0, margin=margin)[:, 0]
     sigma = max(8.0 / factor, 2.0)
     high_model = model - ndi.gaussian_filter(model, (0, sigma, sigma), mode="nearest")
     high_measured = measured - ndi.gaussian_filter(measured, (0, sigma, sigma), mode="nearest")
