@@ -41,7 +41,15 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
+from ..motion.axis import (
+    air_at_zero,
+    axis_rows,
+    axis_tilt,
+    estimate_axis,
+    limited_angle_tilt,
+    object_rows,
+    remove_air,
+)
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
@@ -343,7 +351,7 @@ def horizontal_motion(
     geometry = store.geometry
     clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
     info: dict[str, Any] = {}
-    if air:
+    if air or air_at_zero(clean):  # air seen, or noisy air already at zero absorbance
         rows = object_rows(clean)
         _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
         if params["center"] == "auto":
