@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import re
 import uuid
+import warnings
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -81,7 +82,11 @@ class ReconstructionArrays:
         """Names of the reconstruction image arrays present (``<name>_shifts`` excluded)."""
         if "reconstructions" not in self._group:
             return []
-        keys = self._group["reconstructions"].array_keys()  # type: ignore[union-attr]
+        with warnings.catch_warnings():
+            # another process writing the group's metadata leaves Zarr's zarr.<hex>.partial for a moment,
+            # which Zarr's listing reports as an unknown object: not ours to show
+            warnings.filterwarnings("ignore", message=r"Object at .*\.partial is not recognized")
+            keys = list(self._group["reconstructions"].array_keys())  # type: ignore[union-attr]
         return sorted(k for k in keys if not k.endswith("_shifts"))  # names never end in _shifts (check_name)
 
     def _array(self, key: str) -> zarr.Array:
