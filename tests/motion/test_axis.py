@@ -159,5 +159,7 @@ def test_noisy_air_at_zero_is_air():
     with pytest.raises(NanoctError, match="no (flat )?air"):
         estimate_open_beam(np.exp(-noisy.transpose(1, 0, 2)))
     assert remove_air(noisy)[1] is False and air_at_zero(noisy)
+    clean, found = remove_air(noisy, zero_air=True)
+    assert found and np.array_equal(clean, noisy)
     assert not air_at_zero(noisy[:, :, L // 4 : -L // 4])
     assert not air_at_zero(noisy + 0.4)

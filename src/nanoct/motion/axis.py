@@ -134,7 +134,7 @@ def object_rows(sinograms: np.ndarray, fraction: float = 0.2) -> np.ndarray:
     return mass > fraction * max(float(mass.max()), 0.0)
 
 
-def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
+def remove_air(sinograms: np.ndarray, *, zero_air: bool = False) -> tuple[np.ndarray, bool]:
     """Line integrals ``(S, K, L)`` less each view's open-beam absorbance, where air is seen.
 
     Returns the data unchanged and ``False`` when no air is found in some view, or when in the
@@ -142,15 +142,18 @@ def remove_air(sinograms: np.ndarray) -> tuple[np.ndarray, bool]:
     than absorbance (99th percentile above :data:`MAX_ABSORBANCE`) where no air was found are
     tried again divided by that percentile (the open beam of ``exp(-data)`` is otherwise lost to
     the exponential: on the counts of a STEM tilt series, a background of 22 counts read as a
-    transmission of 3e-10), and the absorbance removed is scaled back.
+    transmission of 3e-10), and the absorbance removed is scaled back. With ``zero_air``, data
+    whose outer columns read zero within their noise (:func:`air_at_zero`) are returned unchanged
+    with ``True`` where the open-beam fit found no air (``nanoct stack`` chooses its centroid path
+    so; :func:`~nanoct.motion.estimate.estimate_motion` does not use it).
     """
     sino = np.asarray(sinograms, dtype=np.float64)
     clean, air = _remove_air(sino)
     scale = float(np.percentile(sino, 99)) if sino.size else 0.0
-    if air or not scale > MAX_ABSORBANCE:
-        return clean, air
-    clean, air = _remove_air(sino / scale)
-    return (clean * scale, True) if air else (sino, False)
+    if not air and scale > MAX_ABSORBANCE:
+        clean, air = _remove_air(sino / scale)
+        clean = clean * scale if air else sino
+    return clean, air or (zero_air and air_at_zero(sino))
 
 
 def air_at_zero(sinograms: np.ndarray) -> bool:
@@ -163,8 +166,7 @@ def air_at_zero(sinograms: np.ndarray) -> bool:
     view is compared with the noise of one pixel (``1.4826 MAD / sqrt(6)`` of the second
     differences along the detector): air is at zero when the median is within three noise
     levels of zero in at least 90 % of the views of every row. An object wider than the detector
-    (its absorbance in those columns) or an open beam not removed fails the test. ``nanoct
-    stack`` takes its centroid path where :func:`remove_air` or this test finds air.
+    (its absorbance in those columns) or an open beam not removed fails the test.
     """
     sino = np.asarray(sinograms, dtype=np.float64)
     if sino.ndim != 3 or sino.shape[2] < 8 * AIR_BAND:

@@ -138,13 +138,12 @@ def _horizontal(
     estimator (``find_center_vo``, about a minute per row at 2048 columns and 1800 views) is not
     run. Otherwise :func:`~nanoct.workflows.stack.horizontal_motion`, as on a data set.
     """
-    from ..motion.axis import AGREEMENT_PX, air_at_zero, object_rows, remove_air
+    from ..motion.axis import AGREEMENT_PX, object_rows, remove_air
     from ..motion.center import centroid_motion, fit_center
     from .stack import read_straight
 
     phi = rows.geometry.angles
-    clean, air = remove_air(read_straight(rows, params["motion_slices"], vertical))  # type: ignore[arg-type]
-    air = air or air_at_zero(clean)  # noisy air already at zero absorbance
+    clean, air = remove_air(read_straight(rows, params["motion_slices"], vertical), zero_air=True)  # type: ignore[arg-type]
     held = object_rows(clean)
     center, shifts, spread = centroid_motion(clean[held] if held.any() else clean, phi)
     if not air or not spread <= 0.01:

@@ -41,15 +41,7 @@ from tqdm.auto import tqdm
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.store import DataStore, open_cached
-from ..motion.axis import (
-    air_at_zero,
-    axis_rows,
-    axis_tilt,
-    estimate_axis,
-    limited_angle_tilt,
-    object_rows,
-    remove_air,
-)
+from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
@@ -349,9 +341,9 @@ def horizontal_motion(
     (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
     """
     geometry = store.geometry
-    clean, air = remove_air(read_straight(store, params["motion_slices"], vertical))
+    clean, air = remove_air(read_straight(store, params["motion_slices"], vertical), zero_air=True)
     info: dict[str, Any] = {}
-    if air or air_at_zero(clean):  # air seen, or noisy air already at zero absorbance
+    if air:
         rows = object_rows(clean)
         _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
         if params["center"] == "auto":
