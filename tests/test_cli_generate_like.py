@@ -43,7 +43,7 @@ def test_generate_like_then_resume_is_a_no_op(scan, tmp_path, capsys):
     ("extra", "message"),
     [
         (["--bin", "3"], "--bin 3 does not divide the scan's detector width"),
-        (["--mix", "1,x,1"], "--mix '1,x,1' must be three numbers"),
+        (["--mix", "1,x,1"], "--mix '1,x,1' must be three or four numbers"),
         (["--preset", "tiny-parallel"], "--preset cannot be combined with --like"),
         (["--noise-std", "0.1"], "--noise-std cannot be combined with --like"),
         (["--motion-from", "nope"], "--motion-from 'nope'"),

@@ -174,7 +174,10 @@ def generate(
     ),
     bin_: int = typer.Option(1, "--bin", help="With --like: bin the scan's detector (and slices) by this factor."),
     mix: str = typer.Option(
-        "0.4,0.2,0.4", "--mix", help="With --like: proportions of paper shapes, ellipses, the scan's own slices."
+        "0.4,0.2,0.4",
+        "--mix",
+        help="With --like: proportions of paper shapes, ellipses, the scan's own slices[, measured pairs: the "
+        "scan's own views with a motion added, its FBP as reference, for --calibrate-on].",
     ),
     motion_from: str | None = typer.Option(
         None, "--motion-from", help="With --like: the 'nanoct stack' result whose motion to match (default: any)."
@@ -462,6 +465,12 @@ def predict(
         help="Store the result as reconstructions/NAME (default: <input>+<model>), e.g. to keep two "
         "runs' predictions side by side.",
     ),
+    calibrate_on: Path | None = typer.Option(
+        None,
+        "--calibrate-on",
+        help="Invertible nets: fit the intervals on this data set's validation split instead, e.g. a scan's own "
+        "measured pairs (generate --like SCAN --mix 0,0,0,1).",
+    ),
     quiet: bool = QUIET,
 ) -> None:
     """Post-process reconstructions/<input> with a trained network.
@@ -473,7 +482,9 @@ def predict(
     (background, and the five std fifths of the object's support), are fitted once on the
     validation split of the data it was trained on (group-conditional split conformal, with the
     coverage guaranteed with probability 90 %) and stored with the result (export them with
-    'nanoct export --interval'). Images whose std level is above the validation split's, or
+    'nanoct export --interval'); --calibrate-on fits them on another data set's validation split,
+    e.g. a measured scan's own slices with a known motion added and its FBP as reference
+    (docs/uncertainty.md). Images whose std level is above the validation split's, or
     whose sinogram shows more apparent motion than the training scans, are reported as out of
     distribution (docs/uncertainty.md).
     """
@@ -498,6 +509,7 @@ def predict(
         tile=tile,
         overlap=tile_overlap,
         name=out_name,
+        calibrate_on=calibrate_on,
     )
     typer.echo(f"wrote reconstructions/{name}")
 

@@ -70,6 +70,9 @@ def _copy(setup, tmp_path):
     path, run = setup
     shutil.copytree(path, tmp_path / "data")
     shutil.copytree(run, tmp_path / "run")
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    config["store"] = str((tmp_path / "data").resolve())  # the copy is the run's own data set
+    (tmp_path / "run" / "config.json").write_text(json.dumps(config))
     return tmp_path / "data", tmp_path / "run"
 
 
@@ -256,3 +259,47 @@ def test_prediction_under_a_refitted_calibration_is_redone(setup, tmp_path):
     assert store.reconstruction_params(name)["calibration"] == old
     assert predict(path, run, progress=False, reconstruct_kwargs=M) == name
     assert DataStore.open(path).reconstruction_params(name)["calibration"] == load_calibration(run)["best"]
+
+
+@pytest.mark.slow
+def test_calibrate_on_another_data_set_keeps_both_fits(setup, tmp_path):
+    """--calibrate-on: the intervals fitted on another data set's validation split, stored beside the run's own."""
+    path, run = _copy(setup, tmp_path)
+    own = calibrate(path, run, reconstruct_kwargs=M)
+    other = tmp_path / "pairs"
+    generate_dataset(other, get_preset("tiny-parallel"), 3, seed=11, workers=0, progress=False,
+                     split_fractions=(0.0, 1.0, 0.0))  # fmt: skip
+    with pytest.raises(NanoctError, match="has no reconstruction .fbp."):
+        predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=other)
+    reconstruct_dataset(other, "fbp", workers=0, progress=False)
+    name = predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=other, name="on-other")
+    entries = load_calibration(run)
+    key = cal_mod.entry_name(run, "best", other)
+    assert key == f"best@{other.resolve()}" and cal_mod.entry_name(run, "best", path) == "best"
+    assert entries["best"] == own and entries[key]["store"] == str(other.resolve())
+    params = DataStore.open(path).reconstruction_params(name)
+    assert params["calibration"] == entries[key] == calibrate(other, run, reconstruct_kwargs=M)
+    assert entries[key]["levels"] != own["levels"]  # fitted on the other images
+    assert entries[key]["ood"]["val"] != own["ood"]["val"]
+    # the default prediction still takes the run's own fit, and a refit of one leaves the other
+    default = predict(path, run, progress=False, reconstruct_kwargs=M)
+    assert DataStore.open(path).reconstruction_params(default)["calibration"] == own
+    assert load_calibration(run)[key] == entries[key]
+
+
+@pytest.mark.slow
+def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):
+    path, run = _copy(setup, tmp_path)
+    with pytest.raises(NanoctError, match="no data set there"):
+        predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=tmp_path / "missing")
+    no_val = tmp_path / "noval"
+    generate_dataset(no_val, get_preset("tiny-parallel"), 4, workers=0, progress=False, split_fractions=(0.5, 0, 0.5))
+    with pytest.raises(NanoctError, match="no validation samples"):
+        predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=no_val)
+    fan = tmp_path / "fan"
+    generate_dataset(fan, get_preset("tiny-fan"), 3, workers=0, progress=False, split_fractions=(0.0, 1.0, 0.0))
+    with pytest.raises(NanoctError, match="another geometry"):
+        predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=fan)
+    with pytest.raises(NanoctError, match="--no-calibrate switches off"):
+        predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=no_val, calibrate=False)
+    assert not any(n.startswith("fbp+") for n in DataStore.open(path).reconstruction_names())

@@ -7,6 +7,7 @@ import pytest
 import zarr
 
 from nanoct.core.errors import NanoctError, StoreError
+from nanoct.core.operators import RayTransform
 from nanoct.sim import matched
 from nanoct.sim.matched import generate_like, parse_mix, plan_matched
 from nanoct.sim.scan_stats import air_noise, binned_offset
@@ -118,3 +119,55 @@ def test_dask_workers_give_the_same_bytes_as_one_process(scan, tmp_path):
     dask = generate_like(tmp_path / "dask", plan, 6, seed=4, workers=2, progress=False)
     for name in ("phantoms", "sinograms", "sinograms_eta", "motion"):
         np.testing.assert_array_equal(serial.read_array(name, range(6)), dask.read_array(name, range(6)))
+
+
+def _centroids(sino: np.ndarray) -> np.ndarray:
+    """Per-view centroid (detector pixels) of a sinogram with its air level removed."""
+    body = np.clip(sino - matched.air_level(sino)[:, None], 0.0, None)
+    return (body * np.arange(sino.shape[1])).sum(axis=1) / body.sum(axis=1)
+
+
+def test_measured_pairs_are_the_scans_views_moved_as_the_simulator_moves_a_phantom(moved_scan, tmp_path):
+    store, _ = moved_scan
+    plan = plan_matched(store.path, binning=2, mix=parse_mix("0,0,0,1"))
+    assert plan.simulation["like"]["mix"] == {"shapes": 0.0, "ellipses": 0.0, "scan": 0.0, "measured": 1.0}
+    out = generate_like(tmp_path / "pairs", plan, 4, seed=2, split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)
+    assert out.indices("val").size == 4
+    stored = zarr.open_group(str(out.path), mode="r")["like_measured"]
+    assert stored.attrs["rows"] == plan.rows.tolist() == [0, 2, 4]  # the first scan row of each binned slice
+    np.testing.assert_array_equal(stored[:], plan.measured)
+    g = out.geometry
+    for i in range(4):
+        family, j = matched.matched_source(out, i)
+        assert family == "measured"
+        sample = out.read_sample(i)
+        raw = plan.measured[j].astype(np.float64)
+        # the unmoved views: the scan's with its estimated motion undone; no noise added to the moved ones
+        np.testing.assert_allclose(sample.sinogram_eta, matched.read_moved(raw, plan.shifts), atol=1e-6)
+        phi = g.angles
+        along = sample.motion[:, 0] * np.cos(phi) + sample.motion[:, 1] * np.sin(phi)
+        np.testing.assert_allclose(sample.sinogram, matched.read_moved(raw, plan.shifts - along), atol=1e-6)
+        assert np.all(sample.motion[:, 2] == 0) and np.abs(along).max() > 0.1
+        # the phantom is the reference: FBP of the unmoved views, air level removed, zero outside the view
+        reference = matched.fbp(g, sample.sinogram_eta - matched.air_level(sample.sinogram_eta)[:, None]).image
+        np.testing.assert_allclose(sample.phantom, reference * matched._fov_disc(g), atol=1e-5)
+    # the views move as the simulator moves a phantom under the same translation (sign and size): the
+    # centroid of a noise-free simulated view moves by -t . e_u, as the pair's views are read
+    k = g.n_angles
+    motion = np.zeros((k, 3), np.float32)
+    motion[:, 0], motion[:, 1] = 1.5 * np.sin(np.linspace(0, 3, k)), np.cos(np.linspace(0, 2, k))
+    yy, xx = np.mgrid[: 2 * g.n, : 2 * g.n] - (2 * g.n - 1) / 2
+    fine = (0.1 * np.exp(-((yy - 6) ** 2 + (xx + 4) ** 2) / (2 * 6.0**2))).astype(np.float32)  # a smooth blob
+    moved = RayTransform(g, motion, oversample=2).forward(fine)
+    still = RayTransform(g, np.zeros_like(motion), oversample=2).forward(fine)
+    along = motion[:, 0] * np.cos(g.angles) + motion[:, 1] * np.sin(g.angles)
+    np.testing.assert_allclose(_centroids(moved) - _centroids(still), -along, atol=0.05)
+    pair = matched.measured_pair(g, still, np.zeros(k), motion)  # the still views as if measured
+    np.testing.assert_allclose(_centroids(pair.sinogram) - _centroids(still), -along, atol=0.05)
+
+
+def test_a_zero_fourth_mix_is_the_three_family_set():
+    assert parse_mix("2,1,1,0") == parse_mix("2,1,1") == (0.5, 0.25, 0.25)
+    assert parse_mix("0,0,1,1") == (0.0, 0.0, 0.5, 0.5)
+    with pytest.raises(NanoctError, match="three or four numbers"):
+        parse_mix("1,1,1,1,1")

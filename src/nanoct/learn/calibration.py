@@ -19,7 +19,10 @@ validation images' std level and the apparent-motion scores of the train and val
 sinograms (:func:`nanoct.learn.scan_ood.scan_reference`) are kept for the out-of-distribution
 check of :func:`nanoct.learn.predict.predict`.
 
-The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``).
+The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``) for
+the data set the run was trained on, and one per checkpoint and data set for a fit on another data
+set's validation split (``nanoct predict --calibrate-on``: e.g. a scan's own measured pairs,
+:func:`nanoct.sim.matched.measured_pair`; :func:`entry_name`).
 An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
 input, sampling arguments (M), levels and delta; otherwise it is fitted again. Validation
 outputs are made as :func:`nanoct.learn.predict.predict` makes them: one image at a time,
@@ -74,6 +77,7 @@ __all__ = [
     "Inference",
     "OOD_ALPHA",
     "calibrate",
+    "entry_name",
     "fit_intervals",
     "half_width",
     "image_statistic",
@@ -343,7 +347,7 @@ def half_width(
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
-    """The entries of ``<run>/calibration.json`` by checkpoint name (empty if absent or unreadable)."""
+    """The entries of ``<run>/calibration.json`` by name (:func:`entry_name`; empty if absent or unreadable)."""
     path = Path(run_dir) / CALIBRATION_FILE
     try:
         data = json.loads(path.read_text())
@@ -404,6 +408,7 @@ def calibrate(
     run = Path(run_dir)
     ckpt_path = run / f"{checkpoint}.pt"
     entries = load_calibration(run)
+    name = entry_name(run, checkpoint, store.path)
     key = {
         "format": CALIBRATION_FORMAT,
         "checkpoint": checkpoint,
@@ -416,14 +421,15 @@ def calibrate(
     }
     if not 0 < delta < 1:
         raise NanoctError(f"delta {delta} must lie strictly between 0 and 1 (e.g. 0.1)")
-    old = entries.get(checkpoint)
+    old = entries.get(name)
     if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
         return old  # the same checkpoint file (so the same model, input and epoch), data set and M
-    if isinstance(old, dict) and store.indices("val").size == 0:
+    own = entries.get(checkpoint)
+    if isinstance(own, dict) and store.indices("val").size == 0:
         # a data set without validation samples (an imported scan): the fit on the run's own
         # validation data holds for the same checkpoint file and M
-        if all(old.get(k) == v for k, v in key.items() if k != "store"):
-            return old
+        if all(own.get(k) == v for k, v in key.items() if k != "store"):
+            return own
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:
         raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
@@ -448,6 +454,18 @@ def calibrate(
     reference = scan_reference(store)
     if reference is not None:
         entry["ood"]["scan"] = reference
-    entries[checkpoint] = entry
+    entries[name] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry
+
+
+def entry_name(run_dir: str | os.PathLike[str], checkpoint: str, store_path: str | os.PathLike[str]) -> str:
+    """The key of a calibration in ``calibration.json``: the checkpoint's name for a fit on the data set
+    the run was trained on (its ``config.json``), ``<checkpoint>@<data set>`` for a fit on another
+    (e.g. measured pairs of a scan, ``nanoct predict --calibrate-on``), so that both are kept."""
+    try:
+        trained_on = json.loads((Path(run_dir) / "config.json").read_text()).get("store")
+    except (OSError, ValueError, AttributeError):
+        trained_on = None
+    here = str(Path(store_path).resolve())
+    return checkpoint if trained_on is None or str(Path(trained_on).resolve()) == here else f"{checkpoint}@{here}"

@@ -106,6 +106,7 @@ def predict(
     delta: float = DEFAULT_DELTA,
     tile: int | None = None,
     overlap: int = DEFAULT_OVERLAP,
+    calibrate_on: str | os.PathLike[str] | None = None,
 ) -> str:
     """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
 
@@ -150,6 +151,12 @@ def predict(
         split.
     overlap : int
         Pixels shared by neighbouring tiles.
+    calibrate_on : path, optional
+        Fit the intervals on the validation split of this data set instead (it must have the
+        geometry the run was trained on and hold the input reconstruction for its validation
+        split): e.g. the scan's own measured pairs (``nanoct generate --like SCAN --mix 0,0,0,1``,
+        :func:`nanoct.sim.matched.measured_pair`), whose references are the scan's FBP with its
+        noise and ring artefacts. Its images also become the out-of-distribution reference.
 
     Returns
     -------
@@ -202,9 +209,17 @@ def predict(
         "train_input": train_input,
         "reconstruct": kwargs,
     } | ({"tiling": tiling} if tiling else {})
+    if calibrate_on is not None and not (sampling and calibrate):
+        raise NanoctError(
+            f"--calibrate-on {calibrate_on}: the run at {run} holds a '{ckpt['model']}' network, whose output "
+            "is not calibrated (or calibration is switched off); leave the flag out"
+            if not sampling
+            else f"--calibrate-on {calibrate_on} fits the intervals that --no-calibrate switches off: choose one"
+        )
     if sampling and calibrate:
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
-        params["calibration"] = calibrate_run(store, run, checkpoint, delta=delta, **fit)
+        on = store if calibrate_on is None else _calibration_store(calibrate_on, run, ckpt, train_input)
+        params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
         params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
@@ -224,6 +239,24 @@ def predict(
         if "calibration" in params:
             ood_check(store, out, indices)
     return out
+
+
+def _calibration_store(path: str | os.PathLike[str], run: Path, ckpt: dict[str, Any], train_input: str) -> DataStore:
+    """The data set of ``--calibrate-on``, checked: it exists, has the run's geometry and a validation split."""
+    if not (Path(path) / "zarr.json").is_file():
+        raise NanoctError(
+            f"--calibrate-on {path}: no data set there; make one, e.g. the scan's own measured pairs with "
+            "'nanoct generate --like SCAN --bin B --mix 0,0,0,1 --split-fractions 0,1,0 --n 300 --out PAIRS' "
+            f"and 'nanoct reconstruct PAIRS --method {train_input}'"
+        )
+    cal = DataStore.open(path)
+    _check_geometry(cal, run, ckpt)
+    if cal.indices("val").size == 0:
+        raise NanoctError(
+            f"--calibrate-on {path} has no validation samples to fit the intervals on; generate it with a validation "
+            "split (e.g. --split-fractions 0,1,0)"
+        )
+    return cal
 
 
 def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any]:

@@ -20,8 +20,8 @@ estimated for it) the matched set takes (estimators in :mod:`nanoct.sim.scan_sta
   field of view, ``value_scale``; the paper's phantoms (values in [0, 1]) are multiplied by it,
   so that simulated and measured reconstructions share one scale (absorbance per binned pixel).
 
-Phantoms: per sample, drawn with the mix ``--mix SHAPES,ELLIPSES,SCAN`` (default 0.4, 0.2, 0.4):
-the paper's shapes (:func:`~nanoct.sim.phantoms.random_phantom`), the ellipse family
+Phantoms: per sample, drawn with the mix ``--mix SHAPES,ELLIPSES,SCAN[,MEASURED]`` (default 0.4,
+0.2, 0.4, 0): the paper's shapes (:func:`~nanoct.sim.phantoms.random_phantom`), the ellipse family
 (:func:`~nanoct.sim.phantoms.random_ellipse_phantom`), or one of the scan's own slices: the FBP
 of a binned slice with the axis above, the per-view air level removed
 (:func:`~nanoct.recon.measured.air_level`) and the stack's motion corrected where present
@@ -31,6 +31,20 @@ outside the field-of-view disc; slices whose 99th percentile is below ``MIN_CONT
 ``value_scale`` (nearly empty, e.g. above or below the sample) are left out. Each sample's slice
 is turned by a uniform random angle and mirrored with probability 1/2. These slices are stored
 with the set (array ``like_slices``).
+
+**Measured pairs** (the fourth family, ``MEASURED``; :func:`measured_pair`): not simulated at all
+but the scan's own binned sinogram of one of those slices, its estimated motion undone and a
+motion drawn from the matched motion model added by reading each view at shifted detector
+positions (the translation's component along the detector; the rotation jitter, which the
+projections cannot be turned by, is left out and stored as zero); no noise is added (the data
+carry their own); the "phantom" is the reference a user holds for the scan: the FBP of the
+unmoved sinogram, the per-view air level removed, zero outside the field of view (not smoothed,
+not clipped: its noise and ring artefacts stay). A set of measured pairs alone (``--mix 0,0,0,1
+--split-fractions 0,1,0``) calibrates a network's intervals on the scan itself (``nanoct predict
+--calibrate-on``): the residuals are then those of the real detector (its noise, stripes and
+open-beam drift) against the reference the scan's own FBP gives. The sinograms are stored with
+the set (array ``like_measured``, the motion undone in its attribute ``shifts``, the first scan row
+of each slice in ``rows``; :func:`matched_source` names a sample's slice).
 
 Everything measured is recorded in ``attrs["nanoct"]["simulation"]["like"]``. The set resumes
 like any generated set: the same command again finds the same description (measurements are
@@ -54,14 +68,16 @@ from scipy import ndimage
 from ..core.errors import NanoctError, StoreError
 from ..core.geometry import Geometry
 from ..io.store import DataStore, Sample
-from ..recon.measured import air_level
+from ..recon.fbp import fbp
+from ..recon.measured import air_level, read_moved
 from ..recon.stack import corrected_fbp
-from .motion import MotionParams
+from .motion import MotionParams, sample_motion
 from .phantoms import random_ellipse_phantom, random_phantom
 from .scan_stats import air_noise, bin_sinograms, binned_geometry, motion_stats
-from .simulate import SimulationConfig, sample_rngs, simulate_from_phantom
+from .simulate import SimulationConfig, model_error, sample_rngs, simulate_from_phantom
 
 __all__ = [
+    "FAMILIES",
     "MAX_SLICES",
     "MIN_CONTENT",
     "MIX",
@@ -69,15 +85,18 @@ __all__ = [
     "SLICE_SMOOTH_PX",
     "MatchedPlan",
     "generate_like",
+    "matched_source",
+    "measured_pair",
     "parse_mix",
     "plan_matched",
     "scan_slices",
     "simulate_matched_sample",
 ]
 
-#: Default phantom mix: the paper's shapes, the ellipse family, the scan's own slices.
+#: Default phantom mix: the paper's shapes, the ellipse family, the scan's own slices (no measured pairs).
 MIX = (0.4, 0.2, 0.4)
-_FAMILIES = ("shapes", "ellipses", "scan")
+#: The families of a matched set's samples, in ``--mix`` order.
+FAMILIES = ("shapes", "ellipses", "scan", "measured")
 #: Gaussian smoothing (px std) of the scan's slices before they serve as phantoms.
 SLICE_SMOOTH_PX = 0.7
 #: Percentile of the scan's slices (inside the field of view) that the paper's phantoms are scaled to.
@@ -89,25 +108,31 @@ MIN_CONTENT = 0.01
 #: jitter_std_std / jitter_std_mean of the paper (0.0254 / 0.127).
 _JITTER_RATIO = 0.2
 _SLICES = "like_slices"
+_MEASURED = "like_measured"
 
 
 def _round(value: float) -> float:
     return float(f"{value:.6g}")
 
 
-def parse_mix(text: str) -> tuple[float, float, float]:
-    """``--mix SHAPES,ELLIPSES,SCAN``: three numbers >= 0 with a positive sum, normalised to 1."""
+def parse_mix(text: str) -> tuple[float, ...]:
+    """``--mix SHAPES,ELLIPSES,SCAN[,MEASURED]``: three or four numbers >= 0 with a positive sum, normalised to 1.
+
+    A fourth number of 0 is dropped (the same set as the three alone).
+    """
     try:
         parts = tuple(float(v) for v in text.split(","))
     except ValueError:
         parts = ()
-    if len(parts) != 3 or not all(math.isfinite(p) and p >= 0 for p in parts) or sum(parts) <= 0:
+    if len(parts) not in (3, 4) or not all(math.isfinite(p) and p >= 0 for p in parts) or sum(parts) <= 0:
         raise NanoctError(
-            f"--mix {text!r} must be three numbers >= 0 (shapes, ellipses, scan slices) with a positive sum, "
-            "e.g. 0.4,0.2,0.4"
+            f"--mix {text!r} must be three or four numbers >= 0 (shapes, ellipses, scan slices[, measured pairs]) "
+            "with a positive sum, e.g. 0.4,0.2,0.4 (training) or 0,0,0,1 (the scan's own pairs, for calibration)"
         )
+    if len(parts) == 4 and parts[3] == 0:
+        parts = parts[:3]
     total = sum(parts)
-    return tuple(_round(p / total) for p in parts)  # type: ignore[return-value]
+    return tuple(_round(p / total) for p in parts)
 
 
 def _open_scan(like: str | os.PathLike[str]) -> DataStore:
@@ -193,12 +218,21 @@ class MatchedPlan:
         :class:`~nanoct.sim.simulate.SimulationConfig` description plus ``like`` (the measurements).
     slices : ndarray of shape (S, N, N)
         The scan's slices used as phantoms.
+    measured : ndarray of shape (S, K, L), optional
+        With measured pairs in the mix: the binned sinograms of those slices, as measured.
+    shifts : ndarray of shape (K,), optional
+        With measured pairs: the motion undone in them (the stack's, binned; zeros without one).
+    rows : ndarray of shape (S,), optional
+        With measured pairs: the first detector row of the scan that each binned slice averages.
     """
 
     like: Path
     geometry: Geometry
     simulation: dict[str, Any]
     slices: np.ndarray
+    measured: np.ndarray | None = None
+    shifts: np.ndarray | None = None
+    rows: np.ndarray | None = None
 
     def describe(self) -> list[str]:
         """Lines saying what the plan takes from the scan."""
@@ -217,8 +251,9 @@ class MatchedPlan:
             f"motion     {moved}",
             f"scale      paper phantoms x {like['value_scale']:.4g} (the {SCALE_PERCENTILE}th percentile of the scan's "
             "slices)",
-            f"phantoms   shapes {mix['shapes']:.2f}, ellipses {mix['ellipses']:.2f}, scan slices {mix['scan']:.2f} "
-            f"({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, of "
+            f"phantoms   shapes {mix['shapes']:.2f}, ellipses {mix['ellipses']:.2f}, scan slices {mix['scan']:.2f}"
+            + (f", measured pairs {mix['measured']:.2f}" if "measured" in mix else "")
+            + f" ({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, of "
             f"{like['slices_measured']} measured)",
         ]
 
@@ -227,7 +262,7 @@ def plan_matched(
     like: str | os.PathLike[str],
     *,
     binning: int = 1,
-    mix: tuple[float, float, float] = MIX,
+    mix: tuple[float, ...] = MIX,
     motion_from: str | None = None,
     perturbed: bool = True,
     oversample: int = 2,
@@ -241,7 +276,8 @@ def plan_matched(
     binning : int
         Detector (and slice) binning; must divide the detector width and the image size.
     mix : tuple of float
-        Proportions of the paper's shapes, the ellipse family and the scan's slices (sum 1).
+        Proportions of the paper's shapes, the ellipse family, the scan's slices and (optional
+        fourth) measured pairs (sum 1; :func:`parse_mix`).
     motion_from : str, optional
         The stack result whose motion to use (default: the first that has one).
     perturbed, oversample
@@ -282,7 +318,7 @@ def plan_matched(
         "motion": {k: _round(v) if isinstance(v, float) else v for k, v in stats.items()},
         "value_scale": scale,
         "slice_smooth_px": SLICE_SMOOTH_PX,
-        "mix": dict(zip(_FAMILIES, (_round(m) for m in mix))),
+        "mix": dict(zip(FAMILIES, (_round(m) for m in mix))),
     }
     config = SimulationConfig(
         motion=_motion_params(record["motion"]),
@@ -290,7 +326,10 @@ def plan_matched(
         oversample=oversample,
         noise_std=record["noise"]["sigma"],
     )
-    return MatchedPlan(Path(like), geometry, {**config.to_dict(), "like": record}, slices)
+    measured = None
+    if len(mix) > 3 and mix[3] > 0:
+        measured = (sinos[kept], np.zeros(geometry.n_angles) if shifts_b is None else shifts_b, groups[kept, 0])
+    return MatchedPlan(Path(like), geometry, {**config.to_dict(), "like": record}, slices, *(measured or ()))
 
 
 def _slice_groups(n_slices: int, binning: int) -> np.ndarray:
@@ -343,6 +382,14 @@ def generate_like(
         )
         array[:] = plan.slices
         array.attrs["complete"] = True
+    if plan.measured is not None and (_MEASURED not in group or not group[_MEASURED].attrs.get("complete")):
+        array = group.create_array(
+            _MEASURED, shape=plan.measured.shape, chunks=(1, *plan.measured.shape[1:]), dtype="float32", overwrite=True
+        )
+        array[:] = plan.measured
+        array.attrs["shifts"] = [float(v) for v in plan.shifts]
+        array.attrs["rows"] = [int(v) for v in plan.rows]
+        array.attrs["complete"] = True
     fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
     return DataStore.open(store.path, mode="r+")
 
@@ -355,10 +402,28 @@ def _stored_slices(path: str) -> np.ndarray:
     return np.asarray(group[_SLICES][:], dtype=np.float32)
 
 
-def _phantom(rng: np.random.Generator, like: dict[str, Any], slices: np.ndarray, n: int, s: int) -> np.ndarray:
-    """The fine (``n s`` square) phantom of one sample: a family drawn with the mix, then its draws."""
-    mix = np.array([like["mix"][f] for f in _FAMILIES], dtype=np.float64)
-    family = _FAMILIES[int(rng.choice(3, p=mix / mix.sum()))]
+@lru_cache(maxsize=4)
+def _stored_measured(path: str) -> tuple[np.ndarray, np.ndarray]:
+    group = zarr.open_group(path, mode="r")
+    if _MEASURED not in group or not group[_MEASURED].attrs.get("complete"):
+        raise StoreError(
+            f"{path} lacks the scan's sinograms of its measured pairs; run the same 'generate --like' again"
+        )
+    array = group[_MEASURED]
+    return np.asarray(array[:], dtype=np.float32), np.asarray(array.attrs["shifts"], dtype=np.float64)
+
+
+def _family(rng: np.random.Generator, like: dict[str, Any]) -> str:
+    """The family of one sample, drawn with the mix (three families: the draws of the first matched sets)."""
+    families = [f for f in FAMILIES if f in like["mix"]]
+    mix = np.array([like["mix"][f] for f in families], dtype=np.float64)
+    return families[int(rng.choice(len(families), p=mix / mix.sum()))]
+
+
+def _phantom(
+    rng: np.random.Generator, family: str, like: dict[str, Any], slices: np.ndarray, n: int, s: int
+) -> np.ndarray:
+    """The fine (``n s`` square) phantom of one sample of a simulated ``family``: its draws."""
     if family == "shapes":
         return (random_phantom(rng, n, oversample=s) * like["value_scale"]).astype(np.float32)
     if family == "ellipses":
@@ -371,11 +436,68 @@ def _phantom(rng: np.random.Generator, like: dict[str, Any], slices: np.ndarray,
     return np.kron(image, np.ones((s, s))).astype(np.float32)
 
 
+def measured_pair(geometry: Geometry, sinogram: np.ndarray, shifts: np.ndarray, motion: np.ndarray) -> Sample:
+    """A measured pair: the scan's sinogram with its motion undone, moved by ``motion``; the reference as phantom.
+
+    Parameters
+    ----------
+    geometry : Geometry
+        The (binned) parallel-beam geometry of the sinogram.
+    sinogram : ndarray of shape (K, L)
+        A slice's binned sinogram as measured (open-beam level included).
+    shifts : ndarray of shape (K,)
+        Its estimated per-view detector shift ``d_k`` (the convention of ``nanoct stack``), undone.
+    motion : ndarray of shape (K, 3)
+        The object motion to add (``docs/conventions.md``); its translation moves each view by
+        ``t_k . e_u`` along the detector, the rotation is not applied (and returned as zero).
+
+    Returns
+    -------
+    Sample
+        ``sinogram`` the moved views ``y_k(u) = m_k(u - d_k + t_k . e_u)`` (one linear interpolation,
+        :func:`~nanoct.recon.measured.read_moved`), ``sinogram_eta`` the unmoved views ``m_k(u - d_k)``,
+        ``phantom`` the FBP of the unmoved views with the per-view air level removed, zero outside the
+        field of view; ``motion`` with zero rotation; ``eta`` the model error of the two.
+    """
+    motion = np.array(motion, dtype=np.float32)
+    motion[:, 2] = 0.0
+    phi = geometry.angles
+    along = (motion[:, 0] * np.cos(phi) + motion[:, 1] * np.sin(phi)) / geometry.det_spacing
+    y_eta = read_moved(sinogram, shifts)
+    y = read_moved(sinogram, np.asarray(shifts, np.float64) - along)
+    reference = fbp(geometry, y_eta - air_level(y_eta)[:, None]).image * _fov_disc(geometry)
+    return Sample(
+        phantom=reference.astype(np.float32),
+        sinogram=y.astype(np.float32),
+        sinogram_eta=y_eta.astype(np.float32),
+        motion=motion,
+        eta=model_error(y, y_eta),
+    )
+
+
+def matched_source(store: DataStore, index: int) -> tuple[str, int | None]:
+    """Where sample ``index`` of a matched set comes from: its family and, for ``scan`` and ``measured``,
+    the index of the scan slice (in ``like_slices`` / ``like_measured``), replaying its draws."""
+    like = store.meta["simulation"]["like"]
+    rng = sample_rngs(store.seed, index)[0]
+    family = _family(rng, like)
+    if family not in ("scan", "measured"):
+        return family, None
+    count = (_stored_slices if family == "scan" else lambda p: _stored_measured(p)[0])(str(store.path)).shape[0]
+    return family, int(rng.integers(count))
+
+
 def simulate_matched_sample(store: DataStore, index: int) -> Sample:
     """Sample ``index`` of a matched set (a pure function of the set's seed, ``index`` and description)."""
     simulation = store.meta["simulation"]
     config = SimulationConfig.from_dict(simulation)
     rng_phantom, rng_motion, rng_noise = sample_rngs(store.seed, index)
+    family = _family(rng_phantom, simulation["like"])
+    if family == "measured":
+        sinograms, shifts = _stored_measured(str(store.path))
+        sinogram = sinograms[int(rng_phantom.integers(sinograms.shape[0]))]
+        motion = sample_motion(rng_motion, store.geometry.n_angles, config.motion)
+        return measured_pair(store.geometry, sinogram, shifts, motion if config.perturbed else 0 * motion)
     slices = _stored_slices(str(store.path))
-    fine = _phantom(rng_phantom, simulation["like"], slices, store.geometry.n, config.oversample)
+    fine = _phantom(rng_phantom, family, simulation["like"], slices, store.geometry.n, config.oversample)
     return simulate_from_phantom(store.geometry, config, fine, rng_motion, rng_noise)
