@@ -45,6 +45,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import zarr
 from scipy import ndimage
 from skimage.metrics import structural_similarity
 
@@ -52,8 +53,9 @@ from nanoct.cli import run
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import register
 from nanoct.io.store import DataStore, create_scan
-from nanoct.learn.calibration import half_width
+from nanoct.learn.calibration import fit_intervals, half_width
 from nanoct.recon.fbp import fbp
+from nanoct.sim.matched import matched_source
 from nanoct.sim.scan_stats import bin_sinograms, binned_offset
 from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
 
@@ -62,6 +64,8 @@ UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
 CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
           "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
 ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
+#: The same CiUNetRes predictions, their intervals calibrated on the scan's own measured pairs.
+SCAN_CALIBRATED = "dremel+ciunet-res@pairs"
 
 
 def _cli(*args: str) -> float:
@@ -177,6 +181,17 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
         create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
     times["dremel (scan)"] = _cli("reconstruct", real, "--method", "dremel", "-q")
     times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "-q")
+    # the scan's own measured pairs (its views, the stack's motion undone, a drawn motion added; its FBP as
+    # reference): a second calibration of the same predictions, on the scan itself
+    pairs = work / "pairs"
+    times["generate pairs"] = _cli("generate", "--like", moved, "--bin", BIN, "--mix", "0,0,0,1", "--n", args.n_pairs,
+                                   "--split-fractions", "0,1,0", "--seed", 1, "--out", pairs, "-q")  # fmt: skip
+    times["dremel (pairs)"] = _cli("reconstruct", pairs, "--method", "dremel", "--split", "all", "-q")
+    times["predict pairs"] = _cli("predict", pairs, "--run", runs["ciunet-res"], "--split", "val", "--samples", 16,
+                                  "--antithetic", "-q")  # fmt: skip
+    times["predict ciunet-res (scan-calibrated)"] = _cli(
+        "predict", real, "--run", runs["ciunet-res"], "--samples", 16, "--antithetic", "--calibrate-on", pairs,
+        "--name", SCAN_CALIBRATED, "-q")  # fmt: skip
     # the intervals' calibration is fitted on the matched set's validation split, then reused on the scan
     times["calibrate ciunet-res"] = _cli("predict", matched, "--run", runs["ciunet-res"], "--split", "val",
                                          "--samples", 16, "--antithetic", "-q")  # fmt: skip
@@ -200,15 +215,35 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
     images = {row: store.read_reconstruction(row, slices) for row in ROWS[1:]}
     sinos = store.read_array("sinograms", slices)
     images["fbp"] = np.stack([fbp(store.geometry, air_removed(s)).image for s in sinos])
+    calibrations = {
+        "matched": hws,
+        "pairs": half_width(store.reconstruction_params(SCAN_CALIBRATED), std, 0.9, mean=mean),
+        "pairs_other_slices": half_width({"calibration": pairs_fit_without(work, slices)}, std, 0.9, mean=mean),
+    }
     table = {}
     for i, s in enumerate(slices):
         table[s] = {row: score(images[row][i], refs[s], disc) for row in ROWS}
         shift = table[s][name]["shift"]
-        table[s]["coverage"] = coverage(mean[i], hws[i], refs[s], disc, shift, noise[s])
-        table[s]["width"] = float(np.mean(2 * hws[i][object_mask(refs[s], disc)]))
+        for key, hw in calibrations.items():
+            table[s][f"coverage_{key}"] = coverage(mean[i], hw[i], refs[s], disc, shift, noise[s])
+            table[s][f"width_{key}"] = float(np.mean(2 * hw[i][object_mask(refs[s], disc)]))
     images.update(std=std, reference=refs[slices])
     table["ood"] = store.reconstruction_note(name, "ood")
     return table, images
+
+
+def pairs_fit_without(work: Path, slices: list[int]) -> dict:
+    """The calibration on the measured pairs whose scan slice is none of the evaluated ``slices`` (the pairs'
+    validation predictions of ``predict pairs --split val``, refitted here without those slices)."""
+    pairs = DataStore.open(work / "pairs")
+    rows = zarr.open_group(str(pairs.path), mode="r")["like_measured"].attrs["rows"]
+    val = pairs.indices("val")
+    keep = np.array([rows[matched_source(pairs, int(i))[1]] // BIN not in slices for i in val])
+    kept = val[keep]
+    name = "dremel+ciunet-res"
+    print(f"pairs without the evaluated slices: {kept.size} of {val.size}")
+    means, stds = pairs.read_reconstruction(name, kept), pairs.read_uncertainty(name, kept)
+    return fit_intervals(means, stds, pairs.read_phantoms(kept), levels=(0.9,))
 
 
 def summarize(table: dict, slices: list[int]) -> None:
@@ -222,12 +257,18 @@ def summarize(table: dict, slices: list[int]) -> None:
     for row in ROWS[2:]:
         d = [table[s][row]["psnr_reg"] - table[s]["dremel"]["psnr_reg"] for s in slices]
         print(f"{row} - dremel (registered PSNR): mean {np.mean(d):+.2f} dB, worst {min(d):+.2f}, best {max(d):+.2f}")
-    cov = {k: np.mean([table[s]["coverage"][k] for s in slices]) for k in table[slices[0]]["coverage"]}
-    print("CiUNetRes 90 % intervals, mean over slices: " + ", ".join(f"{k} {v:.3f}" for k, v in cov.items()))
-    print(
-        "per slice (object coverage registered, interval width on the object): "
-        + ", ".join(f"{s}: {table[s]['coverage']['object_reg']:.2f}/{table[s]['width']:.4f}" for s in slices)
-    )
+    for key in ("matched", "pairs", "pairs_other_slices"):
+        cov = {
+            k: np.mean([table[s][f"coverage_{key}"][k] for s in slices]) for k in table[slices[0]]["coverage_matched"]
+        }
+        print(f"CiUNetRes 90 % intervals calibrated on {key}, mean over slices: "
+              + ", ".join(f"{k} {v:.3f}" for k, v in cov.items()))  # fmt: skip
+        print(
+            "  per slice (object coverage registered, interval width on the object): "
+            + ", ".join(
+                f"{s}: {table[s][f'coverage_{key}']['object_reg']:.2f}/{table[s][f'width_{key}']:.4f}" for s in slices
+            )  # fmt: skip
+        )
     ood = table.get("ood") or {}
     print(
         f"OOD ({ood.get('statistic')}, alpha {ood.get('alpha')}): flagged {ood.get('flagged')}; "
@@ -268,6 +309,7 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=600)
     parser.add_argument("--epochs-unet", type=int, default=8)
     parser.add_argument("--epochs-ciunet", type=int, default=6)
+    parser.add_argument("--n-pairs", type=int, default=300, help="measured pairs of the scan for the calibration")
     parser.add_argument("--slices", default=",".join(str(s) for s in range(15, 61, 5)))
     parser.add_argument("--pictures", default=None)
     parser.add_argument("--picture-slices", default="20,35,50")

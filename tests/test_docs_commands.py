@@ -13,7 +13,8 @@ so that a command written for a cluster or a paper-scale run finishes in seconds
 * absolute paths (``/data/par``, ``/tmp/eta``) lie inside the document's folder;
 * placeholder files: ``scan.nxs`` is an NXtomo file written here (112 detector rows, 63
   columns, 60 views of a phantom, flats and darks); a ``predict --run RUN`` whose run does not
-  exist gets a small ciunet-res run (3 scales) trained here for one epoch on resesop images of 16 samples
+  exist gets a small ciunet-res run (3 scales) trained here for one epoch on images of 16 samples
+  (reconstructed by the command's ``--input`` method, default resesop)
   simulated with the geometry of the data set it is applied to (``predict`` refuses a run of
   another geometry) and calibrated by a prediction on that simulated set;
 * sizes: ``generate`` uses the tiny preset of the same beam and at most 50 samples (the
@@ -183,8 +184,8 @@ def _write_scan_nxs(path: Path) -> None:
         f["entry/sample/rotation_angle"] = np.r_[0, 0, 0, 0, np.rad2deg(phi)]
 
 
-def _train_run(run_dir: Path, data: Path) -> None:
-    """A placeholder run: a small ciunet-res trained one epoch on resesop images simulated with ``data``'s geometry.
+def _train_run(run_dir: Path, data: Path, method: str = "resesop") -> None:
+    """A placeholder run: a small ciunet-res trained one epoch on ``method`` images simulated with ``data``'s geometry.
 
     ``predict`` refuses a run trained on another geometry, and an imported scan has no ground
     truth to train on: the network is trained on a simulated data set of the same geometry.
@@ -195,12 +196,12 @@ def _train_run(run_dir: Path, data: Path) -> None:
     sim = run_dir.parent / f"simulated_{run_dir.name}"
     geometry = DataStore.open(data).geometry
     generate_dataset(sim, geometry, 16, split_fractions=(0.75, 0.125, 0.125), workers=0, progress=False)
-    assert run(["reconstruct", str(sim), "--method", "resesop", "-w", "0", "-q"]) == 0
-    argv = ["train", str(sim), "--model", "ciunet-res", "--input", "resesop", "--epochs", "1", "-q", "--out"]
+    assert run(["reconstruct", str(sim), "--method", method, "-w", "0", "-q"]) == 0
+    argv = ["train", str(sim), "--model", "ciunet-res", "--input", method, "--epochs", "1", "-q", "--out"]
     small = ["--param", "n_scales=3", "--param", "blocks_per_scale=1", "--param", "cond_channels=[4,4,4]"]
     assert run([*argv, str(run_dir), *small]) == 0
     # its std is calibrated on the validation split of the data it was trained on (an imported scan has none)
-    assert run(["predict", str(sim), "--run", str(run_dir), "--input", "resesop", "-q"]) == 0
+    assert run(["predict", str(sim), "--run", str(run_dir), "--input", method, "-q"]) == 0
 
 
 PLACEHOLDERS = {"scan.nxs": _write_scan_nxs}
@@ -245,7 +246,8 @@ def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
     for line, argv in commands(document):
         command = _rewrite(argv, tmp_path)
         if command[0] == "predict" and not Path(command[command.index("--run") + 1]).exists():
-            _train_run(Path(command[command.index("--run") + 1]), Path(command[1]))
+            method = command[command.index("--input") + 1] if "--input" in command else "resesop"
+            _train_run(Path(command[command.index("--run") + 1]), Path(command[1]), method)
         capsys.readouterr()
         status = run(command)
         output = capsys.readouterr()

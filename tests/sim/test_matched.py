@@ -166,6 +166,21 @@ def test_measured_pairs_are_the_scans_views_moved_as_the_simulator_moves_a_phant
     np.testing.assert_allclose(_centroids(pair.sinogram) - _centroids(still), -along, atol=0.05)
 
 
+def test_a_set_of_measured_pairs_alone_is_reconstructed_as_the_scan(moved_scan, tmp_path):
+    """RESESOP takes eta from Dremel's residual by default, as on the imported scan (not the drawn motion's eta)."""
+    from nanoct.recon.batch import reconstruct_dataset
+
+    store, _ = moved_scan
+    pairs = generate_like(tmp_path / "pairs", plan_matched(store.path, binning=2, mix=parse_mix("0,0,0,1")), 3,
+                          split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)  # fmt: skip
+    with pytest.raises(NanoctError, match="estimate:residual needs the first reconstruction 'dremel'"):
+        reconstruct_dataset(pairs.path, "resesop", workers=0, progress=False)
+    mixed = generate_like(tmp_path / "mixed", plan_matched(store.path, binning=2, mix=parse_mix("1,0,0,1")), 3,
+                          split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)  # fmt: skip
+    name = reconstruct_dataset(mixed.path, "resesop", workers=0, progress=False)  # a simulation's true eta
+    assert "eta" not in mixed.reconstruction_params(name) or mixed.reconstruction_params(name)["eta"] == "true"
+
+
 def test_a_zero_fourth_mix_is_the_three_family_set():
     assert parse_mix("2,1,1,0") == parse_mix("2,1,1") == (0.5, 0.25, 0.25)
     assert parse_mix("0,0,1,1") == (0.0, 0.0, 0.5, 0.5)

@@ -10,7 +10,8 @@ estimated once and kept with the reconstruction, so a resumed run does not estim
 Measured data (:func:`~nanoct.recon.eta_source.carries_motion`: an open beam not at zero or an
 object cut by the detector edges, the rule of the methods and of ``nanoct stack``) get the
 defaults of ``nanoct stack``: RESESOP on an imported scan estimates eta from the residual of
-Dremel (``eta="estimate:residual"`` unless given) and runs after Dremel's motion, its model
+Dremel (``eta="estimate:residual"`` unless given; so does a set of a scan's measured pairs alone,
+``generate --like --mix 0,0,0,1``) and runs after Dremel's motion, its model
 carrying that motion and eta the residual left after it
 (:class:`~nanoct.recon.eta_source.EtaPlan`); Dremel starts each slice from a joint motion of
 the stack and refines it (a simulation holds the joint motion fixed and RESESOP keeps the
@@ -94,6 +95,13 @@ def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any],
     return index
 
 
+def _measured_only(store: DataStore) -> bool:
+    """Whether every sample is measured data: an imported scan, or a set of a scan's measured pairs alone
+    (``generate --like --mix 0,0,0,1``, reconstructed as the scan is to calibrate on it)."""
+    mix = (store.meta.get("simulation") or {}).get("like", {}).get("mix", {})
+    return store.is_scan or mix.get("measured") == 1.0
+
+
 def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """Checked parameters (all), and the user's parameters with the batch ones normalised, defaults left out.
 
@@ -102,7 +110,7 @@ def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tupl
     ``eta="estimate:residual"`` (from Dremel's reconstruction) on an imported scan unless given.
     """
     spec = method_spec(method)
-    if spec.needs_eta and store.is_scan and params.get("eta") is None:
+    if spec.needs_eta and _measured_only(store) and params.get("eta") is None:
         params = {**params, "eta": "estimate:residual"}
     checked = check_method_params(method, params, store.geometry)
     shared = store.is_scan and bool(store.meta["scan"].get("shared_motion"))
