@@ -8,10 +8,11 @@ import zarr
 
 from nanoct.core.errors import NanoctError, StoreError
 from nanoct.core.operators import RayTransform
+from nanoct.recon.measured import looks_measured
 from nanoct.sim import matched
 from nanoct.sim.matched import generate_like, parse_mix, plan_matched
 from nanoct.sim.scan_stats import air_noise, binned_offset
-from scan_like import ANGLES_DEG, N_DET, OFFSET, SIGMA, SLICES, scan_store
+from scan_like import AIR, ANGLES_DEG, N_DET, OFFSET, SIGMA, SLICES, scan_store
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +54,22 @@ def test_the_generated_noise_and_geometry_equal_the_scans(scan, tmp_path):
     assert air_noise(y)["sigma"] == pytest.approx(sigma, rel=0.15)
     phantoms = store.read_phantoms(range(8))
     assert phantoms.max() <= plan.simulation["like"]["value_scale"] * 1.5 and phantoms.min() >= 0
+
+
+def test_the_simulated_sinograms_carry_the_scans_open_beam(scan, tmp_path):
+    """The scan's air level per view is added, so the methods treat the matched set as they treat the scan."""
+    plan = plan_matched(scan.path, binning=2)
+    level = np.asarray(plan.simulation["like"]["open_beam"]["level"])
+    angles = np.deg2rad(ANGLES_DEG)
+    assert level == pytest.approx(AIR + 0.005 * np.sin(angles), abs=0.012)  # within the air bands' noise
+    store = generate_like(tmp_path / "m", plan, 4, seed=1, workers=0, progress=False)
+    for i in range(4):
+        sample = store.read_sample(i)
+        found = matched.air_level(sample.sinogram)  # the median of 2 x 3 noisy air pixels per view
+        assert np.abs(found - level).mean() < 0.01 and np.abs(found - level).max() < 0.04
+        model = matched.air_level(sample.sinogram_eta) - level  # noise-free: the level and the object's fringe
+        assert model.min() >= -1e-6 and model.max() < 0.005
+        assert looks_measured(sample.sinogram) and looks_measured(scan.read_array("sinograms", [0])[0])
 
 
 def test_a_stack_motion_gives_the_motion_statistics_and_axis(moved_scan):

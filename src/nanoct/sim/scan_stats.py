@@ -14,6 +14,9 @@ Stated estimators (used by :mod:`nanoct.sim.matched`):
   per ray is ``1.4826 MAD(d) / sqrt(6)`` over all bands, views and slices (exact for white
   Gaussian noise on a locally linear level). Measured on the binned sinograms, so it is the noise
   of the data the network will see.
+* **Open beam** (:func:`open_beam_level`): per view, the median of the air bands (the level the
+  row-action methods remove from a measured view), median over slices: a flat/dark-corrected scan
+  rarely reads zero in air, and its level drifts with the beam.
 * **Motion** (:func:`motion_stats`): the stack's estimated per-view shift along the detector
   (``nanoct stack``, in acquisition order), mean removed, is split into a smooth part (a Gaussian
   filter over the views, ``MOTION_SMOOTH_VIEWS`` views std) and jitter (the rest). The smooth
@@ -31,7 +34,7 @@ from scipy import ndimage
 
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
-from ..recon.measured import edge_width
+from ..recon.measured import air_level, edge_width
 
 __all__ = [
     "MOTION_SMOOTH_VIEWS",
@@ -40,6 +43,7 @@ __all__ = [
     "binned_geometry",
     "binned_offset",
     "motion_stats",
+    "open_beam_level",
 ]
 
 #: Standard deviation, in views, of the Gaussian filter that gives the smooth part of a motion.
@@ -137,6 +141,23 @@ def air_noise(sinograms: np.ndarray) -> dict[str, Any]:
         "estimator": f"1.4826 MAD / sqrt(6) of the second differences along the detector in the {w} outermost "
         "pixels on each side of every view (air bands)",
     }
+
+
+def open_beam_level(sinograms: np.ndarray) -> np.ndarray:
+    """The scan's open-beam level per view: :func:`~nanoct.recon.measured.air_level` of every slice, median over slices.
+
+    Parameters
+    ----------
+    sinograms : ndarray of shape (S, K, L)
+
+    Returns
+    -------
+    ndarray of shape (K,), float64
+        In the data's units (absorbance): the level a flat/dark-corrected scan reads in air when
+        the flat is brighter than the projections' open beam, and its drift over the views.
+    """
+    y = np.asarray(sinograms, dtype=np.float64)
+    return np.median(np.stack([air_level(s) for s in y]), axis=0)
 
 
 def _white_factor(sigma: float, size: int) -> float:
