@@ -46,6 +46,7 @@ from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
+from ..recon.measured import read_moved
 from ..recon.stack import corrected_fbp, reproject, with_center
 
 __all__ = [
@@ -231,7 +232,7 @@ def _axis(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> tuple[f
     """
     rows = [int(i) for i in axis_rows(store.n)]
     straight = read_straight(store, rows, vertical)
-    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    corrected = np.stack([read_moved(sino, shifts) for sino in straight])  # the open beam held at the edges
     estimate = estimate_axis(corrected, store.geometry.angles)
     return estimate.offset, estimate.to_dict()
 
@@ -247,7 +248,7 @@ def _tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) -> dict[st
     firsts = np.unique(np.linspace(0, store.n - 4, min(16, store.n // 4)).round().astype(int))
     rows = [int(r) for first in firsts for r in range(first, first + 4)]
     straight = read_straight(store, rows, vertical)
-    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    corrected = np.stack([read_moved(sino, shifts) for sino in straight])  # the open beam held at the edges
     try:
         tilt = axis_tilt(corrected, store.geometry.angles, rows=rows, n_rows=store.n)
     except NanoctError as exc:
@@ -264,7 +265,7 @@ def _limited_tilt(store: DataStore, vertical: np.ndarray, shifts: np.ndarray) ->
     count = min(store.n, max(24, MATCH_VALUES // (geometry.n_angles * geometry.n_det)))
     first = (store.n - count) // 2
     straight = read_straight(store, list(range(first, first + count)), vertical)
-    corrected = np.stack([shift_corrected(sino, shifts) for sino in straight])
+    corrected = np.stack([read_moved(sino, shifts) for sino in straight])  # the open beam held at the edges
     try:
         tilt, trials = limited_angle_tilt(corrected.transpose(1, 0, 2), geometry.angles)
     except NanoctError as exc:
