@@ -53,9 +53,9 @@ from nanoct.cli import run
 from nanoct.core.geometry import Geometry
 from nanoct.evaluation.metrics import register
 from nanoct.io.store import DataStore, create_scan
-from nanoct.learn.calibration import fit_intervals, half_width
+from nanoct.learn.calibration import fit_intervals, half_width, reference_rule
 from nanoct.recon.fbp import fbp
-from nanoct.sim.matched import matched_source
+from nanoct.sim.matched import fov_disc, matched_source
 from nanoct.sim.scan_stats import bin_sinograms, binned_offset
 from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
 
@@ -234,7 +234,8 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
 
 def pairs_fit_without(work: Path, slices: list[int]) -> dict:
     """The calibration on the measured pairs whose scan slice is none of the evaluated ``slices`` (the pairs'
-    validation predictions of ``predict pairs --split val``, refitted here without those slices)."""
+    validation predictions of ``predict pairs --split val``, refitted here without those slices, as
+    ``predict --calibrate-on`` fits: :func:`nanoct.learn.calibration.reference_rule`)."""
     pairs = DataStore.open(work / "pairs")
     rows = zarr.open_group(str(pairs.path), mode="r")["like_measured"].attrs["rows"]
     val = pairs.indices("val")
@@ -242,8 +243,38 @@ def pairs_fit_without(work: Path, slices: list[int]) -> dict:
     kept = val[keep]
     name = "dremel+ciunet-res"
     print(f"pairs without the evaluated slices: {kept.size} of {val.size}")
-    means, stds = pairs.read_reconstruction(name, kept), pairs.read_uncertainty(name, kept)
-    return fit_intervals(means, stds, pairs.read_phantoms(kept), levels=(0.9,))
+    means, stds, gts = (
+        pairs.read_reconstruction(name, kept),
+        pairs.read_uncertainty(name, kept),
+        pairs.read_phantoms(kept),
+    )
+    return fit_intervals(means, stds, gts, levels=(0.9,), **reference_rule(pairs, gts))
+
+
+def pairs_cross_fit(work: Path) -> None:
+    """The pairs' own check: intervals fitted on the even-numbered pairs, scored on the odd ones (object and
+    background of :func:`object_mask` inside the field of view), for the delivered rule and for variants."""
+    pairs = DataStore.open(work / "pairs")
+    val = pairs.indices("val")
+    name = "dremel+ciunet-res"
+    means, stds, gts = pairs.read_reconstruction(name, val), pairs.read_uncertainty(name, val), pairs.read_phantoms(val)
+    rule = reference_rule(pairs, gts)
+    disc = fov_disc(pairs.geometry) > 0
+    fit_on, score_on = np.arange(val.size) % 2 == 0, np.arange(val.size) % 2 == 1
+    obj = np.stack([object_mask(g, disc) for g in gts[score_on]])
+    variants = {
+        "delivered (relative support, field of view)": rule,
+        "relative support, field of view, not dilated": rule | {"support_radius": 0},
+        "relative support, all pixels": {"support_source": "relative"},
+        "std support, field of view": {"known": rule["known"]},
+        "std support, all pixels": {},
+    }
+    print("\nmeasured pairs, fitted on the even ones and scored on the odd ones (90 %; object / background):")
+    for label, kwargs in variants.items():
+        fit = fit_intervals(means[fit_on], stds[fit_on], gts[fit_on], levels=(0.9,), **kwargs)
+        hw = half_width({"calibration": fit}, stds[score_on], 0.9, mean=means[score_on])
+        inside = np.abs(means[score_on] - gts[score_on]) <= hw
+        print(f"  {label}: {inside[obj].mean():.3f} / {inside[~obj & disc].mean():.3f}")
 
 
 def summarize(table: dict, slices: list[int]) -> None:
@@ -331,6 +362,7 @@ def main() -> None:
         print("\nseconds: " + ", ".join(f"{k} {v:.0f}" for k, v in times.items()))
         print(f"matched set: {json.dumps(DataStore.open(work / 'matched').meta['simulation']['like'])}")
         summarize(table, slices)
+        pairs_cross_fit(work)
         if args.pictures:
             chosen = [s for s in (int(s) for s in args.picture_slices.split(",")) if s in slices]
             save_picture(Path(args.pictures), table, images, slices, chosen)

@@ -15,6 +15,7 @@ from nanoct.evaluation.conformal import (
     fit_support_threshold,
     fit_width_map,
     group_guaranteed_coverage,
+    group_labels,
     guaranteed_coverage,
     half_width_of,
     hb_upper_bound,
@@ -22,6 +23,7 @@ from nanoct.evaluation.conformal import (
     level_key,
     rcps_multiplier,
     scores,
+    support_image,
     support_of,
 )
 from nanoct.evaluation.metrics import support_mask
@@ -235,3 +237,37 @@ def test_masked_image_miscoverage_and_risk_control(rng):
     assert group_guaranteed_coverage(err, std, mask.astype(int), 2, 0.1)[1] == pytest.approx(
         1 - hb_upper_bound(float(got.mean()), 3, 0.1)
     )
+
+
+def test_a_relative_support_finds_a_faint_object_as_a_bright_one(rng):
+    """``support_image("relative")``: the mean over each image's own 99th percentile, so an object 100 times
+    fainter lands in the object's groups, where an absolute threshold leaves it in the background."""
+    yy, xx = np.mgrid[:32, :32] - 16
+    truth = (np.abs(xx) < 9) & (np.abs(yy) < 6)
+    bright = np.where(truth, 0.2, 0.0) + rng.normal(0, 0.002, (32, 32))
+    mean = np.stack([bright, bright / 100])
+    std = np.full_like(mean, 0.01)
+    relative = support_image("relative", std, mean)
+    np.testing.assert_allclose(relative[0], relative[1], rtol=1e-12)  # scale-free
+    groups = {"support": {"source": "relative", "threshold": 0.5, "radius": 0}, "cuts": [1.0, 2.0, 3.0, 4.0]}
+    labels = group_labels(std, groups, mean)
+    assert (labels[:, truth] > 0).all() and (labels[:, ~truth] == 0).all()
+    absolute = group_labels(std, {**groups, "support": {"source": "mean", "threshold": 0.1, "radius": 0}}, mean)
+    assert (absolute[0][truth] > 0).all() and (absolute[1] == 0).all()  # the faint one: all background
+    with pytest.raises(ValueError, match="pass the mean"):
+        group_labels(std, groups)
+    with pytest.raises(ValueError, match="std, mean or relative"):
+        support_image("edges", std, mean)
+
+
+def test_pixels_left_out_do_not_move_the_group_fit(rng):
+    """Labels -1 (e.g. outside the field of view) are in no group, region map or pooled multiplier."""
+    err, std, support = _object_data(40, rng)
+    labels = _labels(std, support, fit_group_cuts(std, support))
+    wrecked, out = err.copy(), np.zeros(err.shape, bool)
+    out[:, :2] = True  # two rows of every image left out, their errors wrecked
+    wrecked[out] = 1e3
+    left = fit_group_intervals(wrecked, std, np.where(out, -1, labels), 0.9)
+    kept = fit_group_intervals(err[:, 2:], std[:, 2:], labels[:, 2:], 0.9)
+    for key in ("multipliers", "maps", "n_pixels", "val_coverage"):
+        assert left[key] == kept[key]

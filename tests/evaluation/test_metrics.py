@@ -15,6 +15,7 @@ from nanoct.evaluation.metrics import (
     ssim,
     summarize,
     support_mask,
+    truth_support,
     uncertainty_summary,
 )
 
@@ -234,3 +235,19 @@ def test_edge_std():
     stack = np.stack([img, img.T])
     np.testing.assert_allclose(edge_std(stack), np.stack([smooth, edge_std(img.T)]))  # image by image
     assert not edge_std(np.ones((8, 8))).any()
+
+
+def test_the_support_of_a_reconstructed_reference_is_thresholded_not_positive():
+    """A phantom keeps ``gt > 0`` dilated; a reference with noise (negative values) is positive over half its
+    background, so there the object is the smoothed reference above 30 % of its 99th percentile, dilated."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:40, :40] - 20
+    disc = np.hypot(yy, xx) < 8
+    phantom = np.where(disc, 0.5, 0.0)
+    reference = phantom + rng.normal(0, 0.01, phantom.shape)
+    both = truth_support(np.stack([phantom, reference]))
+    np.testing.assert_array_equal(both[0], support_mask(phantom))
+    assert (reference[~disc] > 0).mean() > 0.4  # "> 0" would take half the background
+    for found, true in ((both[1], support_mask(disc)), (truth_support(reference, radius=0), disc)):
+        assert (found & true).sum() / (found | true).sum() > 0.9  # the smoothed edge, within a pixel
+        assert not found[np.hypot(yy, xx) > 13].any()

@@ -12,7 +12,7 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
-from nanoct.evaluation.conformal import apply_width_map, fit_width_map, group_labels
+from nanoct.evaluation.conformal import apply_width_map, fit_group_intervals, fit_width_map, group_labels
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
@@ -303,3 +303,31 @@ def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):
     with pytest.raises(NanoctError, match="--no-calibrate switches off"):
         predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=no_val, calibrate=False)
     assert not any(n.startswith("fbp+") for n in DataStore.open(path).reconstruction_names())
+
+
+def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_view(tmp_path, tiny_store):
+    """A split of measured pairs (FBP references: noise, zero outside the view) gets the relative support and
+    the field of view; phantoms get neither, and pixels outside ``known`` do not move the fit."""
+    from nanoct.sim.matched import fov_disc, generate_like, parse_mix, plan_matched
+    from scan_like import scan_store
+
+    scan = scan_store(tmp_path / "scan", shifts=np.zeros(48))
+    pairs = generate_like(tmp_path / "pairs", plan_matched(scan.path, binning=2, mix=parse_mix("0,0,0,1")), 3,
+                          split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)  # fmt: skip
+    gts = pairs.read_phantoms(pairs.indices("val"))
+    rule = cal_mod.reference_rule(pairs, gts)
+    assert rule["support_source"] == "relative"
+    np.testing.assert_array_equal(rule["known"], fov_disc(pairs.geometry) > 0)
+    assert cal_mod.reference_rule(tiny_store, tiny_store.read_phantoms([0, 1])) == {}
+    # the std outside ``known`` (the support is the mean's) does not move the fit; the groups' fit is that
+    # of the known pixels alone
+    rng = np.random.default_rng(1)
+    means = gts + rng.normal(0, 0.01, gts.shape)
+    stds = np.abs(rng.normal(0.01, 0.003, gts.shape))
+    fit = cal_mod.fit_intervals(means, stds, gts, levels=(0.9,), **rule)
+    again = cal_mod.fit_intervals(means, np.where(rule["known"], stds, 50.0), gts, levels=(0.9,), **rule)
+    assert again["levels"] == fit["levels"] and fit["known_pixels"] == 3 * int(rule["known"].sum())
+    groups = fit["levels"]["0.9"]["groups"]
+    labels = np.where(rule["known"], group_labels(stds, groups, means), -1)
+    by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9)
+    assert {k: groups[k] for k in by_hand} == by_hand and groups["support"]["source"] == "relative"

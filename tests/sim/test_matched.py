@@ -167,7 +167,7 @@ def test_measured_pairs_are_the_scans_views_moved_as_the_simulator_moves_a_phant
         assert np.all(sample.motion[:, 2] == 0) and np.abs(along).max() > 0.1
         # the phantom is the reference: FBP of the unmoved views, air level removed, zero outside the view
         reference = matched.fbp(g, sample.sinogram_eta - matched.air_level(sample.sinogram_eta)[:, None]).image
-        np.testing.assert_allclose(sample.phantom, reference * matched._fov_disc(g), atol=1e-5)
+        np.testing.assert_allclose(sample.phantom, reference * matched.fov_disc(g), atol=1e-5)
     # the views move as the simulator moves a phantom under the same translation (sign and size): the
     # centroid of a noise-free simulated view moves by -t . e_u, as the pair's views are read
     k = g.n_angles

@@ -41,6 +41,7 @@ __all__ = [
     "fit_support_threshold",
     "group_guaranteed_coverage",
     "group_labels",
+    "support_image",
     "support_of",
     "WIDTH_MAP_BINS",
     "WIDTH_MAP_MIN_SLOPE",
@@ -147,6 +148,8 @@ def fit_width_map(
     scores(err, std)  # checks shapes and values
     pos = std > 0
     e, s_ = err[pos], std[pos]
+    if s_.size < 2:
+        raise ValueError(f"{s_.size} pixels with a positive std are too few for a width map")
     bins = np.array_split(np.argsort(s_, kind="stable"), min(n_bins, max(s_.size // 50, 1)))
     x = np.array([np.median(s_[b]) for b in bins if b.size])
     y = np.array([np.quantile(e[b], level) for b in bins if b.size])
@@ -243,13 +246,15 @@ def hb_upper_bound(risk: float, n: int, delta: float) -> float:
     return float(brentq(log_tail, low, top, maxiter=200))
 
 
-def guaranteed_coverage(err: np.ndarray, std: np.ndarray, multiplier: float, delta: float = DEFAULT_DELTA) -> float:
+def guaranteed_coverage(
+    err: np.ndarray, std: np.ndarray, multiplier: float, delta: float = DEFAULT_DELTA, mask: np.ndarray | None = None
+) -> float:
     """Per-image pixel coverage that ``multiplier * std`` keeps with probability ``1 - delta``.
 
     One minus :func:`hb_upper_bound` of the mean :func:`image_miscoverage` of the images of
-    ``err`` / ``std`` (stacks (n, H, W)).
+    ``err`` / ``std`` (stacks (n, H, W)); with ``mask``, of their masked pixels.
     """
-    losses = image_miscoverage(err, std, [multiplier])[:, 0]
+    losses = image_miscoverage(err, std, [multiplier], mask)[:, 0]
     return 1.0 - hb_upper_bound(float(losses.mean()), losses.size, delta)
 
 
@@ -339,12 +344,36 @@ def fit_support_threshold(
     return best
 
 
+def support_image(source: str, std: np.ndarray, mean: np.ndarray | None) -> np.ndarray:
+    """What a support rule thresholds (:func:`support_of`): the std, the mean, or (``"relative"``) the mean
+    divided by each image's own 99th percentile of ``|mean|``, so that the rule finds a faint object as
+    it finds a bright one (slices of a measured sample differ in content by orders of magnitude).
+
+    Raises
+    ------
+    ValueError
+        For another source, or a source on the mean without ``mean``.
+    """
+    if source == "std":
+        return np.asarray(std, np.float64)
+    if source not in ("mean", "relative"):
+        raise ValueError(f"support source {source!r} must be std, mean or relative")
+    if mean is None:
+        raise ValueError("this calibration's support is defined on the prediction's mean: pass the mean")
+    mean = np.asarray(mean, np.float64)
+    if source == "mean":
+        return mean
+    scale = np.percentile(np.abs(mean).reshape(-1, *mean.shape[-2:]), 99, axis=(1, 2)).reshape(mean.shape[:-2])
+    return mean / np.maximum(scale, np.finfo(np.float64).tiny)[..., None, None]
+
+
 def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None) -> np.ndarray:
     """Group of each pixel under a group-conditional calibration: 0 = background, k = 1..K the object's k-th std bin.
 
-    ``groups["support"]`` = {``source``: "std" or "mean", ``threshold``, ``radius``, ``fill``} defines
-    the support (:func:`support_of` of the std, or of ``image`` = the prediction's mean);
-    ``groups["cuts"]`` are the K - 1 std cut points on the support (:func:`fit_group_cuts`).
+    ``groups["support"]`` = {``source``: "std", "mean" or "relative", ``threshold``, ``radius``, ``fill``}
+    defines the support (:func:`support_of` of :func:`support_image`: the std, or ``image`` = the
+    prediction's mean, absolute or relative to the image's own level); ``groups["cuts"]`` are the
+    K - 1 std cut points on the support (:func:`fit_group_cuts`).
 
     Raises
     ------
@@ -352,12 +381,8 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
         If the support is defined on the mean and ``image`` is not given.
     """
     rule = groups["support"]
-    if rule["source"] == "mean" and image is None:
-        raise ValueError("this calibration's support is defined on the prediction's mean: pass the mean")
-    src = std if rule["source"] == "std" else image
-    support = support_of(
-        np.asarray(src, np.float64), float(rule["threshold"]), int(rule["radius"]), rule.get("fill", False)
-    )
+    src = support_image(rule["source"], std, image)
+    support = support_of(src, float(rule["threshold"]), int(rule["radius"]), rule.get("fill", False))
     bins = 1 + np.searchsorted(np.asarray(groups["cuts"], np.float64), np.asarray(std, np.float64), side="right")
     return np.where(support, bins, 0).astype(np.int64)
 
@@ -388,15 +413,15 @@ def group_guaranteed_coverage(
     return out
 
 
-def _region_maps(err: np.ndarray, std: np.ndarray, on_object: np.ndarray, level: float) -> list[dict[str, list[float]]]:
+def _region_maps(err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: float) -> list[dict[str, list[float]]]:
     """Width maps (:func:`fit_width_map`) of the background and of the object; a region too small or
-    too uniform for a map of its own gets the map of all pixels."""
+    too uniform for a map of its own gets the map of all pixels (labels -1, left out, in neither)."""
     maps = []
-    for region in (~on_object, on_object):
+    for region in (labels == 0, labels > 0):
         try:
             maps.append(fit_width_map(err[region], std[region], level))
         except ValueError:
-            maps.append(fit_width_map(err, std, level))
+            maps.append(fit_width_map(err[labels >= 0], std[labels >= 0], level))
     return maps
 
 
@@ -410,7 +435,8 @@ def fit_group_intervals(
 ) -> dict[str, Any]:
     """Group-conditional (Mondrian) split-conformal intervals of one level on validation outputs (n, H, W).
 
-    ``labels`` (:func:`group_labels`): 0 = background, 1..K = the object's std bins. A width map
+    ``labels`` (:func:`group_labels`): 0 = background, 1..K = the object's std bins, -1 = left out
+    (e.g. outside the field of view, where a measured reference is not known). A width map
     (:func:`fit_width_map`) is fitted per region (background, object) and a split-conformal
     multiplier of it per group: the ``ceil((n_g + 1) level)``-th smallest score of the group's
     n_g pixels. Within each group the half-width is strictly increasing in the std; across the
@@ -442,13 +468,15 @@ def fit_group_intervals(
     """
     err, std = np.abs(np.asarray(err, np.float64)), np.asarray(std, np.float64)
     labels = np.asarray(labels)
-    maps = _region_maps(err, std, labels > 0, level)
+    maps = _region_maps(err, std, labels, level)
     base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
+    known = labels >= 0
     q, rcps, pooled = [], [], []
     for g in range(n_groups):
         m = labels == g
         pooled.append(math.ceil((int(m.sum()) + 1) * level) > int(m.sum()))
-        q.append(conformal_multiplier(err, base, level) if pooled[-1] else conformal_multiplier(err[m], base[m], level))
+        fit_on = known if pooled[-1] else m
+        q.append(conformal_multiplier(err[fit_on], base[fit_on], level))
         try:
             rcps.append(rcps_multiplier(err, base, level, delta, mask=m))
         except ValueError:

@@ -35,6 +35,8 @@ __all__ = [
     "GAUSSIAN_COVERAGE",
     "SPARSIFICATION_FRACTIONS",
     "SUPPORT_RADIUS",
+    "REFERENCE_FRACTION",
+    "REFERENCE_SMOOTH_PX",
     "REGISTER_UPSAMPLE",
     "WIDTH_BINS",
     "coverage",
@@ -48,6 +50,7 @@ __all__ = [
     "ssim",
     "summarize",
     "support_mask",
+    "truth_support",
     "uncertainty_summary",
 ]
 
@@ -57,6 +60,9 @@ GAUSSIAN_COVERAGE = {"1": 0.6827, "2": 0.9545, "3": 0.9973}
 SPARSIFICATION_FRACTIONS = np.round(np.arange(100) / 100, 2)
 #: Radius in pixels (Euclidean disk) by which ``gt > 0`` is dilated to give the object's support.
 SUPPORT_RADIUS = 2
+#: Gaussian sigma (px) and fraction of the 99th percentile above which a reconstructed reference is object.
+REFERENCE_SMOOTH_PX = 1.0
+REFERENCE_FRACTION = 0.3
 #: Gaussian sigma in pixels of the edge baseline (smoothed Sobel gradient magnitude).
 EDGE_SIGMA = 1.0
 #: Up-sampling factor of the phase correlation in :func:`register` (shifts found to 1/20 pixel).
@@ -285,6 +291,27 @@ def support_mask(gts: np.ndarray, radius: int = SUPPORT_RADIUS) -> np.ndarray:
     disk = r[:, None] ** 2 + r[None, :] ** 2 <= radius**2
     structure = disk if gts.ndim == 2 else disk[None]
     return ndimage.binary_dilation(gts > 0, structure=structure) if radius > 0 else gts > 0
+
+
+def truth_support(gts: np.ndarray, radius: int = SUPPORT_RADIUS) -> np.ndarray:
+    """The object's support in a ground truth that may be a reconstruction, per image.
+
+    A phantom (no negative value) gets :func:`support_mask`. A reference reconstructed from measured
+    data (negative values: its noise) is positive over much of its background, so there the object is
+    the reference smoothed by a Gaussian of ``REFERENCE_SMOOTH_PX`` above ``REFERENCE_FRACTION`` of its
+    own 99th percentile, dilated as :func:`support_mask` dilates (the object of the semi-real
+    evaluation, ``docs/semireal_networks.md``).
+    """
+    gts = np.asarray(gts, np.float64)
+    stack = gts.reshape(-1, *gts.shape[-2:])
+    out = []
+    for gt in stack:
+        if gt.min() >= 0:
+            out.append(support_mask(gt, radius))
+            continue
+        smooth = ndimage.gaussian_filter(gt, REFERENCE_SMOOTH_PX)
+        out.append(support_mask(smooth > REFERENCE_FRACTION * np.percentile(gt, 99), radius))
+    return np.stack(out).reshape(gts.shape)
 
 
 def edge_std(images: np.ndarray, sigma: float = EDGE_SIGMA) -> np.ndarray:

@@ -92,6 +92,7 @@ __all__ = [
     "SCALE_PERCENTILE",
     "SLICE_SMOOTH_PX",
     "MatchedPlan",
+    "fov_disc",
     "generate_like",
     "matched_source",
     "measured_pair",
@@ -195,7 +196,7 @@ def scan_slices(sinograms: np.ndarray, geometry: Geometry, shifts: np.ndarray | 
     ndarray of shape (S, N, N), float32
         Non-negative, zero outside the field-of-view disc.
     """
-    disc = _fov_disc(geometry)
+    disc = fov_disc(geometry)
     out = np.empty((sinograms.shape[0], *geometry.image_shape), dtype=np.float32)
     for i, sino in enumerate(sinograms):
         level = air_level(sino)
@@ -204,8 +205,9 @@ def scan_slices(sinograms: np.ndarray, geometry: Geometry, shifts: np.ndarray | 
     return out
 
 
-def _fov_disc(geometry: Geometry) -> np.ndarray:
-    """Pixels every view sees: within ``(L - 1) / 2 - |axis offset|`` of the axis (at least 1 px)."""
+def fov_disc(geometry: Geometry) -> np.ndarray:
+    """Pixels every view of a parallel-beam scan sees: within ``(L - 1) / 2 - |axis offset|`` of the axis
+    (at least 1 px), as a float32 (N, N) mask; a measured pair's reference is known only there."""
     n = geometry.n
     radius = max((geometry.n_det - 1) / 2 * geometry.det_spacing - abs(geometry.center_offset), 1.0)
     r = np.arange(n) - (n - 1) / 2
@@ -309,7 +311,7 @@ def plan_matched(
     level = open_beam_level(sinos)
     shifts_b = None if shifts is None else shifts / binning
     slices = scan_slices(sinos, geometry, shifts_b)
-    scale = _round(float(np.percentile(slices[:, _fov_disc(geometry) > 0], SCALE_PERCENTILE)))
+    scale = _round(float(np.percentile(slices[:, fov_disc(geometry) > 0], SCALE_PERCENTILE)))
     if not scale > 0:
         raise NanoctError(f"--like {store.path}: its slices are empty (no absorbing object); nothing to match")
     kept = np.percentile(slices.reshape(len(slices), -1), 99, axis=1) >= MIN_CONTENT * scale
@@ -479,7 +481,7 @@ def measured_pair(geometry: Geometry, sinogram: np.ndarray, shifts: np.ndarray, 
     along = (motion[:, 0] * np.cos(phi) + motion[:, 1] * np.sin(phi)) / geometry.det_spacing
     y_eta = read_moved(sinogram, shifts)
     y = read_moved(sinogram, np.asarray(shifts, np.float64) - along)
-    reference = fbp(geometry, y_eta - air_level(y_eta)[:, None]).image * _fov_disc(geometry)
+    reference = fbp(geometry, y_eta - air_level(y_eta)[:, None]).image * fov_disc(geometry)
     return Sample(
         phantom=reference.astype(np.float32),
         sinogram=y.astype(np.float32),
