@@ -90,7 +90,7 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 7
+CALIBRATION_FORMAT = 8
 #: What the prediction-time support of the group-conditional calibration is computed from.
 SUPPORT_SOURCES = ("std", "mean", "relative")
 DEFAULT_SUPPORT_SOURCE = "std"
