@@ -32,6 +32,12 @@ reference on the object (Gaussian-smoothed reference above 30 % of its 99th perc
 disc) and on the rest of the disc, with the same translation applied to mean and half-width; and,
 since the reference is an FBP with noise of its own, also with the interval widened by that noise
 (estimated from the references of the even and of the odd views, :func:`reference_noise`).
+
+The intervals of the same CiUNetRes predictions are scored twice: calibrated on the matched set's
+validation split (``predict``'s default) and on the scan's own measured pairs (``nanoct generate
+--like MOVED --mix 0,0,0,1 --split-fractions 0,1,0``, then ``predict --calibrate-on``), the latter
+also refitted without the pairs of the evaluated slices, and checked on the pairs themselves
+(fitted on the even-numbered, scored on the odd-numbered; :func:`pairs_cross_fit`).
 """
 
 from __future__ import annotations
@@ -226,8 +232,9 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
         shift = table[s][name]["shift"]
         for key, hw in calibrations.items():
             table[s][f"coverage_{key}"] = coverage(mean[i], hw[i], refs[s], disc, shift, noise[s])
-            table[s][f"width_{key}"] = float(np.mean(2 * hw[i][object_mask(refs[s], disc)]))
-    images.update(std=std, reference=refs[slices])
+            table[s][f"width_{key}"] = float(np.median(2 * hw[i][object_mask(refs[s], disc)]))
+    outside = (np.abs(refs[slices] - mean) > calibrations["pairs"]) & disc
+    images.update(std=std, reference=refs[slices], outside=outside)
     table["ood"] = store.reconstruction_note(name, "ood")
     return table, images
 
@@ -295,7 +302,7 @@ def summarize(table: dict, slices: list[int]) -> None:
         print(f"CiUNetRes 90 % intervals calibrated on {key}, mean over slices: "
               + ", ".join(f"{k} {v:.3f}" for k, v in cov.items()))  # fmt: skip
         print(
-            "  per slice (object coverage registered, interval width on the object): "
+            "  per slice (object coverage registered, median interval width on the object): "
             + ", ".join(
                 f"{s}: {table[s][f'coverage_{key}']['object_reg']:.2f}/{table[s][f'width_{key}']:.4f}" for s in slices
             )  # fmt: skip
@@ -314,7 +321,7 @@ def save_picture(folder: Path, table: dict, images: dict, slices: list[int], cho
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cols = ("reference", *ROWS, "std")
+    cols = ("reference", *ROWS, "std", "outside")
     fig, axes = plt.subplots(len(chosen), len(cols), figsize=(2.2 * len(cols), 2.3 * len(chosen)), squeeze=False)
     for i, s in enumerate(chosen):
         j = slices.index(s)
@@ -323,10 +330,13 @@ def save_picture(folder: Path, table: dict, images: dict, slices: list[int], cho
         for k, col in enumerate(cols):
             ax = axes[i, k]
             image = images[col][j]
-            scale = {} if col == "std" else {"vmin": lo, "vmax": hi}
-            ax.imshow(image, cmap="magma" if col == "std" else "gray", **scale)
+            scale = {"std": {}, "outside": {"vmin": 0, "vmax": 1}}.get(col, {"vmin": lo, "vmax": hi})
+            ax.imshow(image, cmap={"std": "magma", "outside": "Reds"}.get(col, "gray"), **scale)
             extra = f"\n{table[s][col]['psnr_reg']:.1f} dB" if col in ROWS else ""
-            ax.set_title(f"{col} {s}{extra}", fontsize=8)
+            if col == "outside":
+                covered = table[s]["coverage_pairs"]["object_plain"]
+                extra = f" (pairs)\n{100 * covered:.0f} % of the object covered, unregistered"
+            ax.set_title(f"{'reference outside 90 %' if col == 'outside' else col} {s}{extra}", fontsize=8)
             ax.axis("off")
     fig.suptitle("I13 24737 with added motion, binned 2: networks trained on the matched set", fontsize=10)
     fig.tight_layout()
@@ -341,6 +351,7 @@ def main() -> None:
     parser.add_argument("--epochs-unet", type=int, default=8)
     parser.add_argument("--epochs-ciunet", type=int, default=6)
     parser.add_argument("--n-pairs", type=int, default=300, help="measured pairs of the scan for the calibration")
+    parser.add_argument("--json", default=None, help="write the per-slice table here")
     parser.add_argument("--slices", default=",".join(str(s) for s in range(15, 61, 5)))
     parser.add_argument("--pictures", default=None)
     parser.add_argument("--picture-slices", default="20,35,50")
@@ -363,6 +374,8 @@ def main() -> None:
         print(f"matched set: {json.dumps(DataStore.open(work / 'matched').meta['simulation']['like'])}")
         summarize(table, slices)
         pairs_cross_fit(work)
+        if args.json:
+            Path(args.json).write_text(json.dumps({str(k): v for k, v in table.items()}, indent=1))
         if args.pictures:
             chosen = [s for s in (int(s) for s in args.picture_slices.split(",")) if s in slices]
             save_picture(Path(args.pictures), table, images, slices, chosen)
