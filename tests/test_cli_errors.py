@@ -138,6 +138,10 @@ BAD_ARGS = {
     "predict missing run": (["predict", "{w}/par", "--run", "{w}/norun"], "norun"),
     "predict samples": (["predict", "{w}/par", "--run", "{w}/run", "-M", 0], "--samples"),
     "predict other geometry": (["predict", "{w}/fan", "--run", "{w}/run", "--device", "cpu"], "geometry"),
+    "predict calibrate-on": (
+        ["predict", "{w}/par", "--run", "{w}/run", "--calibrate-on", "{w}/nothere"],
+        "--calibrate-on",
+    ),
     "reproduce n zero": (["reproduce", "--n", 0, "--out", "{w}/study", "--models", "none", "-q"], "--n 0"),
     "reproduce preset": (["reproduce", "-p", "huge-cone", "--out", "{w}/study", "-q"], "huge-cone"),
     "scaling sizes": (["scaling", "--sizes", "160,x", "--out", "{w}/scaling", "-q"], "--sizes"),
