@@ -171,12 +171,7 @@ def predict(
         for a network without sampling (the UNet).
     """
 
-    if checkpoint not in ("best", "last"):
-        raise NanoctError(f"checkpoint {checkpoint!r} must be 'best' or 'last'")
-    if split != "all" and split not in SPLITS:
-        raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
-    if batch_size < 1:
-        raise NanoctError(f"batch size {batch_size} must be positive")
+    _check_arguments(checkpoint, split, batch_size)
     run = Path(run_dir)
     if not run.is_dir():
         raise NanoctError(f"no training run at {run}; train one first ('nanoct train ... --out {run}')")
@@ -209,16 +204,9 @@ def predict(
         "train_input": train_input,
         "reconstruct": kwargs,
     } | ({"tiling": tiling} if tiling else {})
-    if calibrate_on is not None and not (sampling and calibrate):
-        raise NanoctError(
-            f"--calibrate-on {calibrate_on}: the run at {run} holds a '{ckpt['model']}' network, whose output "
-            "is not calibrated (or calibration is switched off); leave the flag out"
-            if not sampling
-            else f"--calibrate-on {calibrate_on} fits the intervals that --no-calibrate switches off: choose one"
-        )
-    if sampling and calibrate:
+    on = _calibration_store(store, calibrate_on, run, ckpt, sampling and calibrate)
+    if on is not None:
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
-        on = store if calibrate_on is None else _calibration_store(calibrate_on, run, ckpt, train_input)
         params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
@@ -241,13 +229,34 @@ def predict(
     return out
 
 
-def _calibration_store(path: str | os.PathLike[str], run: Path, ckpt: dict[str, Any], train_input: str) -> DataStore:
-    """The data set of ``--calibrate-on``, checked: it exists, has the run's geometry and a validation split."""
+def _check_arguments(checkpoint: str, split: str, batch_size: int) -> None:
+    if checkpoint not in ("best", "last"):
+        raise NanoctError(f"checkpoint {checkpoint!r} must be 'best' or 'last'")
+    if split != "all" and split not in SPLITS:
+        raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
+    if batch_size < 1:
+        raise NanoctError(f"batch size {batch_size} must be positive")
+
+
+def _calibration_store(
+    store: DataStore, path: str | os.PathLike[str] | None, run: Path, ckpt: dict[str, Any], calibrated: bool
+) -> DataStore | None:
+    """The data set the intervals are fitted on (None: not calibrated): ``store``, or that of ``--calibrate-on``,
+    checked: it exists, has the run's geometry and a validation split."""
+    if path is None:
+        return store if calibrated else None
+    if not calibrated:
+        raise NanoctError(
+            f"--calibrate-on {path}: the run at {run} holds a '{ckpt['model']}' network, whose output is not "
+            "calibrated; leave the flag out"
+            if not model_class(str(ckpt["model"])).has_uncertainty
+            else f"--calibrate-on {path} fits the intervals that --no-calibrate switches off: choose one"
+        )
     if not (Path(path) / "zarr.json").is_file():
         raise NanoctError(
             f"--calibrate-on {path}: no data set there; make one, e.g. the scan's own measured pairs with "
             "'nanoct generate --like SCAN --bin B --mix 0,0,0,1 --split-fractions 0,1,0 --n 300 --out PAIRS' "
-            f"and 'nanoct reconstruct PAIRS --method {train_input}'"
+            f"and 'nanoct reconstruct PAIRS --method {ckpt['input']}'"
         )
     cal = DataStore.open(path)
     _check_geometry(cal, run, ckpt)
