@@ -2,7 +2,7 @@
 
 Usage::
 
-    PYTHONPATH=src python benchmarks/coverage_resplit.py runs/tiny-parallel [--splits 200] [--level 0.9]
+    PYTHONPATH=src python benchmarks/coverage_resplit.py runs/tiny-parallel [--splits 200] [--level 0.9] [--names A,B]
 
 For every calibrated prediction of the study's data set (Dremel/RESESOP + CiNNRes/CiUNetRes), the
 network's mean and raw std of the validation and test images are made as ``predict`` makes them
@@ -67,9 +67,11 @@ def main() -> None:
     parser.add_argument("--splits", type=int, default=200)
     parser.add_argument("--level", type=float, default=0.9)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--names", default=None, help="comma-separated predictions (default: every calibrated one)")
     args = parser.parse_args()
     store = DataStore.open(args.study / "data")
     names = [n for n in store.reconstruction_names() if "calibration" in store.reconstruction_params(n)]
+    names = names if args.names is None else [n for n in names if n in args.names.split(",")]
     rng = np.random.default_rng(args.seed)
     n_val = store.indices("val").size
     for name in sorted(names):
