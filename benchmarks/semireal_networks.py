@@ -68,7 +68,7 @@ from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
 BIN = 2
 UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
 CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
-          "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
+          "--param", "cond_channels=[16,16,32,32,64]", "--param", "target_noise_scale=range"]  # fmt: skip
 ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
 #: The same CiUNetRes predictions, their intervals calibrated on the scan's own measured pairs.
 SCAN_CALIBRATED = "dremel+ciunet-res@pairs"

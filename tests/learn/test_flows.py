@@ -415,6 +415,43 @@ def test_location_weight_trains_the_location_towards_the_target(location_arch, i
     assert weighted < 0.7 * plain and weighted < 0.4 * var, (weighted, plain, var)
 
 
+@pytest.mark.parametrize("base", BASE_ARCHS, ids=[a.name for a in BASE_ARCHS])
+def test_range_target_noise_is_the_fraction_of_each_images_range(base):
+    m = base.make(target_noise=0.01, target_noise_scale="range")
+    x = torch.zeros(3, 1, 8, 8)
+    x[0, 0, 2:5, 2:5] = 1.0
+    x[1] = 0.02 * torch.linspace(-1.0, 1.0, 64).reshape(1, 8, 8)  # range 0.04, negatives included
+    std = m.target_noise_std(x)
+    assert std.shape == (3, 1, 1, 1)
+    torch.testing.assert_close(std.flatten(), torch.tensor([0.01, 0.0004, 0.01 * 1e-6]))
+    assert base.make(target_noise=0.01).target_noise_std(x) == 0.01  # the default, "absolute"
+    assert m.hparams["target_noise_scale"] == "range"
+    with pytest.raises(ValueError, match="target_noise_scale must be one of absolute, range, got 'relative'"):
+        base.make(target_noise_scale="relative")
+
+
+@pytest.mark.parametrize("base", BASE_ARCHS, ids=[a.name for a in BASE_ARCHS])
+@pytest.mark.parametrize("scale", ["absolute", "range"])
+def test_training_loss_adds_noise_of_the_target_noise_std(base, scale, images):
+    """The training loss equals the noise-free loss of the target plus noise of target_noise_std."""
+    x_tilde, x = images(2, 8, 8, seed=15)
+    x = x * torch.tensor([1.0, 0.05]).reshape(2, 1, 1, 1)  # a bright and a faint image
+    torch.manual_seed(0)
+    m = base.make(target_noise=0.02, target_noise_scale=scale).train()
+    m.loss(x_tilde, x)  # data-dependent initialisation
+    torch.manual_seed(1)
+    noisy_loss, _ = m.loss(x_tilde, x)
+    torch.manual_seed(1)
+    spread = x.amax(dim=(1, 2, 3), keepdim=True) - x.amin(dim=(1, 2, 3), keepdim=True)
+    sigma = 0.02 * spread if scale == "range" else 0.02
+    noisy = x + sigma * torch.randn_like(x)
+    m.target_noise = 0.0
+    torch.testing.assert_close(m.loss(x_tilde, noisy)[0], noisy_loss)
+    other = 0.02 if scale == "range" else sigma * (x.amax() - x.amin())
+    torch.manual_seed(1)
+    assert not torch.allclose(m.loss(x_tilde, x + other * torch.randn_like(x))[0], noisy_loss)
+
+
 def test_location_weight_needs_the_location_form(arch):
     with pytest.raises(ValueError, match="location_weight must be >= 0"):
         arch.make(location_weight=-1.0)

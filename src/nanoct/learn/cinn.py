@@ -116,6 +116,10 @@ class CiNN(ConditionalFlow):
         ActNorm at the input and after every coupling (see module docstring).
     target_noise: 0.005
         Std of the Gaussian noise added to the target in ``loss`` during training.
+    target_noise_scale: "absolute"
+        ``"absolute"`` (``target_noise`` is the std) or ``"range"`` (the std is ``target_noise``
+        times each target image's max - min; for sets whose images differ widely in contrast,
+        such as ``generate --like`` sets of a scan).
     orthogonal_map: "cayley"
         Parametrisation of the orthogonal resampling kernels.
     seed: 0
@@ -148,6 +152,7 @@ class CiNN(ConditionalFlow):
         hidden_ratio: float = 2.0,
         actnorm: bool = True,
         target_noise: float = 0.005,
+        target_noise_scale: str = "absolute",
         orthogonal_map: str = "cayley",
         seed: int = 0,
         coupling: str = "additive",
@@ -186,6 +191,7 @@ class CiNN(ConditionalFlow):
             hidden_ratio=float(hidden_ratio),
             actnorm=bool(actnorm),
             target_noise=float(target_noise),
+            target_noise_scale=str(target_noise_scale),
             orthogonal_map=str(orthogonal_map),
             seed=int(seed),
             coupling=str(coupling),

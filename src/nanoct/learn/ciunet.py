@@ -74,6 +74,10 @@ class CiUNet(ConditionalFlow):
         only learned scaling of the flow.
     target_noise: 0.005
         Std of the Gaussian noise added to the target in ``loss`` during training.
+    target_noise_scale: "absolute"
+        ``"absolute"`` (``target_noise`` is the std) or ``"range"`` (the std is ``target_noise``
+        times each target image's max - min; for sets whose images differ widely in contrast,
+        such as ``generate --like`` sets of a scan).
     orthogonal_map: "cayley"
         Parametrisation of the orthogonal resampling kernels.
     coupling: "additive"
@@ -103,6 +107,7 @@ class CiUNet(ConditionalFlow):
         kernel_size: int = 3,
         actnorm: bool = True,
         target_noise: float = 0.005,
+        target_noise_scale: str = "absolute",
         orthogonal_map: str = "cayley",
         coupling: str = "additive",
         clamp: float = 2.0,
@@ -130,6 +135,7 @@ class CiUNet(ConditionalFlow):
             kernel_size=int(kernel_size),
             actnorm=bool(actnorm),
             target_noise=float(target_noise),
+            target_noise_scale=str(target_noise_scale),
             orthogonal_map=str(orthogonal_map),
             coupling=str(coupling),
             clamp=float(clamp),

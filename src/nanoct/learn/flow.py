@@ -25,7 +25,12 @@ from nanoct.learn.invertible import (
     scale_form,
 )
 
-__all__ = ["CheckpointMismatchError", "ConditionalFlow", "parametrize_cached"]
+__all__ = ["TARGET_NOISE_SCALES", "CheckpointMismatchError", "ConditionalFlow", "parametrize_cached"]
+
+#: What ``target_noise`` is a fraction of: ``"absolute"`` (a std in the images' units, the
+#: paper's data) or ``"range"`` (each target image's max - min, so faint and bright images get
+#: noise of the same relative size, as a data set of scan patches of very different contrast needs).
+TARGET_NOISE_SCALES = ("absolute", "range")
 
 
 def _jsonable(value: Any) -> Any:
@@ -89,6 +94,10 @@ class ConditionalFlow(PostProcessor):
         if target_noise < 0:
             raise ValueError(f"target_noise must be >= 0, got {target_noise}")
         self.target_noise = target_noise
+        scale = str(self.hparams.get("target_noise_scale", "absolute"))
+        if scale not in TARGET_NOISE_SCALES:
+            raise ValueError(f"target_noise_scale must be one of {', '.join(TARGET_NOISE_SCALES)}, got {scale!r}")
+        self.target_noise_scale = scale
         #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
         self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
         self.location_weight = _location_weight(self.hparams, self.conditional_form)
@@ -181,23 +190,37 @@ class ConditionalFlow(PostProcessor):
     def _target(self, x_tilde: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         return x_tilde - x if self.residual else x
 
+    def target_noise_std(self, x: torch.Tensor) -> float | torch.Tensor:
+        """Std of the noise added to the target images ``x`` (B, 1, H, W) in training.
+
+        ``target_noise`` itself (``target_noise_scale="absolute"``), or ``target_noise`` times each
+        image's max - min (``"range"``; a (B, 1, 1, 1) tensor, at least ``target_noise * 1e-6``
+        so that a constant image keeps a non-degenerate density).
+        """
+        if self.target_noise_scale == "absolute":
+            return self.target_noise
+        spread = x.detach().amax(dim=(1, 2, 3), keepdim=True) - x.detach().amin(dim=(1, 2, 3), keepdim=True)
+        return self.target_noise * spread.clamp_min(1e-6)
+
     def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss), plus
         ``location_weight`` times the MSE of :meth:`location` against the noise-free target.
 
-        In training mode N(0, target_noise^2) noise is added to the target first (to all pixels,
-        padded ones included); in eval mode the loss is deterministic.
+        In training mode Gaussian noise of std :meth:`target_noise_std` is added to the target
+        first (to all pixels, padded ones included); in eval mode the loss is deterministic.
         """
         self._check_pair(x, x_tilde, "x")
         v_clean = self._target(x_tilde, x) if self.location_weight else None
-        if self.training and self.target_noise > 0:
-            x = x + self.target_noise * torch.randn_like(x)
+        noisy = self.training and self.target_noise > 0
+        sigma = self.target_noise_std(x) if noisy else 0.0
+        if noisy:
+            x = x + sigma * torch.randn_like(x)
         v = self._target(x_tilde, x)
         conds = self.condition(x_tilde)
         vp = pad_to_multiple(v, self.multiple, value=0.0)
-        if self.training and self.target_noise > 0 and vp.shape != v.shape:
+        if noisy and vp.shape != v.shape:
             # the padded pixels get the same noise as the image, so their density is not degenerate
-            noise = self.target_noise * torch.randn_like(vp)
+            noise = sigma * torch.randn_like(vp)
             noise[..., : v.shape[-2], : v.shape[-1]] = 0.0
             vp = vp + noise
         z, log_jac = self._flow_forward(vp, conds)
