@@ -401,7 +401,10 @@ def train(
     Keeps the checkpoint with the lowest validation loss (best.pt) and the last one
     (last.pt), logs losses to log.csv; running the same command again resumes after the
     last finished epoch. Under torchrun it trains with DDP, e.g.
-    torchrun --nproc-per-node 2 -m nanoct train DIR --input fbp.
+    torchrun --nproc-per-node 2 -m nanoct train DIR --input fbp. On a set matched to a
+    measured scan (generate --like) the invertible networks' training noise on the target
+    is relative to each image's range (target_noise_scale=range; --param
+    target_noise_scale=absolute keeps the paper's).
     """
     from .learn.train import TrainConfig
     from .learn.train import train as train_model

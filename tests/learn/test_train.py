@@ -20,9 +20,11 @@ from nanoct.core.geometry import get_preset
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from nanoct.learn.data import ReconDataset
 from nanoct.learn.models import build_model
-from nanoct.learn.train import TrainConfig, cosine_lr, train
+from nanoct.learn.train import TrainConfig, cosine_lr, model_arguments, train
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.sim.generate import generate_dataset
+from nanoct.sim.matched import generate_like, plan_matched
+from scan_like import scan_store
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
 FAST = dict(batch_size=2, model_kwargs=SMALL)
@@ -108,6 +110,25 @@ def test_training_lowers_loss_and_writes_run(store, tmp_path):
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["model"] == "unet" and cfg["hparams"]["channels"] == SMALL["channels"] and cfg["batch_size"] == 2
     assert isinstance(model_from_checkpoint(best), torch.nn.Module)
+
+
+def test_a_flow_on_a_set_matched_to_a_scan_takes_its_target_noise_relative(store, tmp_path):
+    scan = scan_store(tmp_path / "scan")
+    like = generate_like(tmp_path / "matched", plan_matched(scan.path, binning=2), 4, seed=1,
+                         split_fractions=(0.5, 0.5, 0.0), workers=0, progress=False)  # fmt: skip
+    tiny = {"n_scales": 3, "blocks_per_scale": 1, "cond_channels": [4, 4, 8]}
+    assert model_arguments(like.path, "ciunet-res", tiny) == {**tiny, "target_noise_scale": "range"}
+    assert model_arguments(like.path, "cinn") == {"target_noise_scale": "range"}
+    asked = {**tiny, "target_noise_scale": "absolute"}
+    assert model_arguments(like.path, "ciunet-res", asked) == asked  # --param wins
+    assert model_arguments(like.path, "unet", SMALL) == SMALL  # the UNet has no target noise
+    assert model_arguments(store, "ciunet-res") == {}  # a simulated set keeps the paper's absolute noise
+    assert model_arguments(tmp_path / "missing", "ciunet-res") == {}  # reported where the data are read
+    reconstruct_dataset(like.path, "fbp", workers=0, progress=False)
+    config = TrainConfig("ciunet-res", "fbp", epochs=1, batch_size=2, model_kwargs=tiny)
+    run = train(like.path, tmp_path / "run", config)
+    assert json.loads((run / "config.json").read_text())["hparams"]["target_noise_scale"] == "range"
+    assert model_from_checkpoint(load_checkpoint(run / "last.pt")).target_noise_scale == "range"
 
 
 @pytest.mark.slow
