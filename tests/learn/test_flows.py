@@ -426,6 +426,9 @@ def test_range_target_noise_is_the_fraction_of_each_images_range(base):
     torch.testing.assert_close(std.flatten(), torch.tensor([0.01, 0.0004, 0.01 * 1e-6]))
     assert base.make(target_noise=0.01).target_noise_std(x) == 0.01  # the default, "absolute"
     assert m.hparams["target_noise_scale"] == "range"
+    # the paper's absolute noise is not recorded, so the hparams of runs made before the option stay equal
+    assert base.make(target_noise_scale="absolute").hparams == base.make().hparams
+    assert "target_noise_scale" not in base.make().hparams
     with pytest.raises(ValueError, match="target_noise_scale must be one of absolute, range, got 'relative'"):
         base.make(target_noise_scale="relative")
 

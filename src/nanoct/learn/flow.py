@@ -98,6 +98,8 @@ class ConditionalFlow(PostProcessor):
         if scale not in TARGET_NOISE_SCALES:
             raise ValueError(f"target_noise_scale must be one of {', '.join(TARGET_NOISE_SCALES)}, got {scale!r}")
         self.target_noise_scale = scale
+        if scale == "absolute":  # recorded only when not the paper's, so runs recorded before it existed resume
+            self.hparams.pop("target_noise_scale", None)
         #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
         self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
         self.location_weight = _location_weight(self.hparams, self.conditional_form)
