@@ -19,7 +19,7 @@ from torch.autograd.functional import jacobian
 
 from nanoct.learn.cinn import CiNN, CiNNRes
 from nanoct.learn.ciunet import CiUNet, CiUNetRes
-from nanoct.learn.flow import CheckpointMismatchError
+from nanoct.learn.flow import CheckpointMismatchError, target_noise_std
 from nanoct.learn.invertible import scale_form
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -421,10 +421,11 @@ def test_range_target_noise_is_the_fraction_of_each_images_range(base):
     x = torch.zeros(3, 1, 8, 8)
     x[0, 0, 2:5, 2:5] = 1.0
     x[1] = 0.02 * torch.linspace(-1.0, 1.0, 64).reshape(1, 8, 8)  # range 0.04, negatives included
-    std = m.target_noise_std(x)
+    std = target_noise_std(x, m.target_noise, m.target_noise_scale)
     assert std.shape == (3, 1, 1, 1)
     torch.testing.assert_close(std.flatten(), torch.tensor([0.01, 0.0004, 0.01 * 1e-6]))
-    assert base.make(target_noise=0.01).target_noise_std(x) == 0.01  # the default, "absolute"
+    plain = base.make(target_noise=0.01)  # the default, "absolute"
+    assert target_noise_std(x, plain.target_noise, plain.target_noise_scale) == 0.01
     assert m.hparams["target_noise_scale"] == "range"
     # the paper's absolute noise is not recorded, so the hparams of runs made before the option stay equal
     assert base.make(target_noise_scale="absolute").hparams == base.make().hparams

@@ -25,7 +25,13 @@ from nanoct.learn.invertible import (
     scale_form,
 )
 
-__all__ = ["TARGET_NOISE_SCALES", "CheckpointMismatchError", "ConditionalFlow", "parametrize_cached"]
+__all__ = [
+    "TARGET_NOISE_SCALES",
+    "CheckpointMismatchError",
+    "ConditionalFlow",
+    "parametrize_cached",
+    "target_noise_std",
+]
 
 #: What ``target_noise`` is a fraction of: ``"absolute"`` (a std in the images' units, the
 #: paper's data) or ``"range"`` (each target image's max - min, so faint and bright images get
@@ -52,6 +58,48 @@ def _location_weight(hparams: dict[str, Any], form: str | None) -> float:
             f"trains), got conditional_scale={hparams.get('conditional_scale', False)!r}"
         )
     return weight
+
+
+def _target_noise(hparams: dict[str, Any]) -> tuple[float, str]:
+    """The checked ``target_noise`` and ``target_noise_scale`` of a flow's ``hparams`` (0, absolute if absent).
+
+    The paper's ``"absolute"`` is taken out of ``hparams``: it is recorded only when another is
+    chosen, so that the runs recorded before the option existed resume.
+    """
+    noise = float(hparams.get("target_noise", 0.0))
+    if noise < 0:
+        raise ValueError(f"target_noise must be >= 0, got {noise}")
+    scale = str(hparams.get("target_noise_scale", "absolute"))
+    if scale not in TARGET_NOISE_SCALES:
+        raise ValueError(f"target_noise_scale must be one of {', '.join(TARGET_NOISE_SCALES)}, got {scale!r}")
+    if scale == "absolute":
+        hparams.pop("target_noise_scale", None)
+    return noise, scale
+
+
+def target_noise_std(x: torch.Tensor, target_noise: float, scale: str) -> float | torch.Tensor:
+    """Std of the noise a flow adds to the target images ``x`` (B, 1, H, W) in training.
+
+    Parameters
+    ----------
+    x : torch.Tensor
+        Target images.
+    target_noise : float
+        The flow's ``target_noise``.
+    scale : {"absolute", "range"}
+        The flow's ``target_noise_scale`` (:data:`TARGET_NOISE_SCALES`).
+
+    Returns
+    -------
+    float or torch.Tensor
+        ``target_noise`` itself (``"absolute"``), or ``target_noise`` times each image's
+        max - min (``"range"``; a (B, 1, 1, 1) tensor, at least ``target_noise * 1e-6`` so that a
+        constant image keeps a non-degenerate density).
+    """
+    if scale == "absolute":
+        return target_noise
+    spread = x.detach().amax(dim=(1, 2, 3), keepdim=True) - x.detach().amin(dim=(1, 2, 3), keepdim=True)
+    return target_noise * spread.clamp_min(1e-6)
 
 
 class CheckpointMismatchError(ValueError, RuntimeError):
@@ -90,16 +138,7 @@ class ConditionalFlow(PostProcessor):
 
     def __init__(self, **hparams: Any) -> None:
         super().__init__(**{k: _jsonable(v) for k, v in hparams.items()})
-        target_noise = float(self.hparams.get("target_noise", 0.0))
-        if target_noise < 0:
-            raise ValueError(f"target_noise must be >= 0, got {target_noise}")
-        self.target_noise = target_noise
-        scale = str(self.hparams.get("target_noise_scale", "absolute"))
-        if scale not in TARGET_NOISE_SCALES:
-            raise ValueError(f"target_noise_scale must be one of {', '.join(TARGET_NOISE_SCALES)}, got {scale!r}")
-        self.target_noise_scale = scale
-        if scale == "absolute":  # recorded only when not the paper's, so runs recorded before it existed resume
-            self.hparams.pop("target_noise_scale", None)
+        self.target_noise, self.target_noise_scale = _target_noise(self.hparams)
         #: Form of the pixel-wise conditional scale (None: none), from ``conditional_scale``.
         self.conditional_form = scale_form(self.hparams.get("conditional_scale", False))
         self.location_weight = _location_weight(self.hparams, self.conditional_form)
@@ -192,29 +231,17 @@ class ConditionalFlow(PostProcessor):
     def _target(self, x_tilde: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         return x_tilde - x if self.residual else x
 
-    def target_noise_std(self, x: torch.Tensor) -> float | torch.Tensor:
-        """Std of the noise added to the target images ``x`` (B, 1, H, W) in training.
-
-        ``target_noise`` itself (``target_noise_scale="absolute"``), or ``target_noise`` times each
-        image's max - min (``"range"``; a (B, 1, 1, 1) tensor, at least ``target_noise * 1e-6``
-        so that a constant image keeps a non-degenerate density).
-        """
-        if self.target_noise_scale == "absolute":
-            return self.target_noise
-        spread = x.detach().amax(dim=(1, 2, 3), keepdim=True) - x.detach().amin(dim=(1, 2, 3), keepdim=True)
-        return self.target_noise * spread.clamp_min(1e-6)
-
     def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         """Mean NLL of ``x`` given ``x_tilde`` in bits/dim (the training and validation loss), plus
         ``location_weight`` times the MSE of :meth:`location` against the noise-free target.
 
-        In training mode Gaussian noise of std :meth:`target_noise_std` is added to the target
+        In training mode Gaussian noise of std :func:`target_noise_std` is added to the target
         first (to all pixels, padded ones included); in eval mode the loss is deterministic.
         """
         self._check_pair(x, x_tilde, "x")
         v_clean = self._target(x_tilde, x) if self.location_weight else None
         noisy = self.training and self.target_noise > 0
-        sigma = self.target_noise_std(x) if noisy else 0.0
+        sigma = target_noise_std(x, self.target_noise, self.target_noise_scale) if noisy else 0.0
         if noisy:
             x = x + sigma * torch.randn_like(x)
         v = self._target(x_tilde, x)
