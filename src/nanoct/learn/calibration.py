@@ -195,15 +195,11 @@ def ood_p_values(values: np.ndarray, reference: list[float] | np.ndarray) -> np.
     return (1.0 + above) / (ref.size + 1.0)
 
 
-def _support_rule(
-    means: np.ndarray, stds: np.ndarray, gts: np.ndarray, source: str, fill: bool, radius: int = SUPPORT_RADIUS
-) -> dict[str, Any]:
-    """The prediction-time support (:func:`nanoct.evaluation.conformal.support_of` of the std or of the
-    mean, holes filled with ``fill``, dilated by the evaluation's support radius) whose threshold
-    best matches the validation images' true support (:func:`nanoct.evaluation.metrics.support_mask`, largest IoU)."""
-    if source not in SUPPORT_SOURCES:
-        raise NanoctError(f"support source {source!r} must be one of {', '.join(SUPPORT_SOURCES)}")
-    image = support_image(source, stds, means)
+def _support_rule(image: np.ndarray, gts: np.ndarray, source: str, fill: bool, radius: int) -> dict[str, Any]:
+    """The prediction-time support (:func:`nanoct.evaluation.conformal.support_of` of ``image``, the
+    :func:`nanoct.evaluation.conformal.support_image` of ``source``, holes filled with ``fill``, dilated
+    by ``radius``) whose threshold best matches the validation images' true support
+    (:func:`nanoct.evaluation.metrics.truth_support`, largest IoU)."""
     threshold = fit_support_threshold(image, truth_support(gts, radius), radius, fill=fill)
     return {"source": source, "threshold": threshold, "radius": radius, "fill": fill}
 
@@ -215,33 +211,32 @@ def _level_fit(
     level: float,
     delta: float,
     groups: dict[str, Any],
-    known: np.ndarray | None = None,
+    labels: np.ndarray,
+    keep: np.ndarray,
 ) -> dict[str, Any]:
-    """One level: the pooled one-multiplier intervals (for comparison) and the group-conditional ones (delivered);
-    with ``known``, on those pixels only."""
-    keep = np.ones(err.shape, bool) if known is None else known
+    """One level: the pooled one-multiplier intervals (for comparison) and the group-conditional ones (delivered),
+    fitted on the pixels ``keep``; ``labels`` are the pixels' groups (:func:`group_labels`, -1 outside ``keep``)."""
     width_map = fit_width_map(err[keep], stds[keep], level)
     scaled = half_width_of(stds, {"map": width_map, "multiplier": 1.0})
     q = conformal_multiplier(err[keep], scaled[keep], level)
     try:
-        rcps: float | None = rcps_multiplier(err, scaled, level, delta, mask=known)
+        rcps: float | None = rcps_multiplier(err, scaled, level, delta, mask=keep)
     except ValueError:
         rcps = None
     pooled = {
         "map": width_map,
         "multiplier": q,
-        "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta, mask=known),
+        "guaranteed_coverage": guaranteed_coverage(err, scaled, q, delta, mask=keep),
         "rcps_multiplier": rcps,
         "val_coverage": float(np.mean((err <= q * scaled)[keep])),
     }
-    labels = np.where(keep, group_labels(stds, groups, means), -1)
     grouped = groups | fit_group_intervals(err, stds, labels, level, delta)
     half = half_width_of(stds, {"groups": grouped}, image=means)
     group_rcps = grouped["rcps_multipliers"]
     return {
         "groups": grouped,
         "multiplier": q,
-        "guaranteed_coverage": guaranteed_coverage(err, half, 1.0, delta, mask=known),
+        "guaranteed_coverage": guaranteed_coverage(err, half, 1.0, delta, mask=keep),
         "rcps_multiplier": None if None in group_rcps else max(group_rcps),
         "val_coverage": float(np.mean((err <= half)[keep])),
         "pooled": pooled,
@@ -300,24 +295,24 @@ def fit_intervals(
     NanoctError
         If no positive finite multiplier exists (e.g. a std that is zero where the error is not).
     """
+    if support_source not in SUPPORT_SOURCES:
+        raise NanoctError(f"support source {support_source!r} must be one of {', '.join(SUPPORT_SOURCES)}")
     err = np.abs(np.asarray(means, np.float64) - np.asarray(gts, np.float64))
     stds = np.asarray(stds, np.float64)
     edges = edge_std(means, edge_sigma)
+    keep = np.broadcast_to(np.asarray(True if known is None else known, bool), err.shape)
     fitted: dict[str, Any] = {}
     edge_fit: dict[str, float] = {}
     try:
-        rule = _support_rule(
-            np.asarray(means, np.float64), stds, np.asarray(gts), support_source, fill_holes, support_radius
-        )
         image = support_image(support_source, stds, means)
-        keep = None if known is None else np.broadcast_to(np.asarray(known, bool), err.shape)
+        rule = _support_rule(image, np.asarray(gts), support_source, fill_holes, support_radius)
         support = support_of(image, rule["threshold"], rule["radius"], fill_holes)
-        cuts = fit_group_cuts(stds, support if keep is None else support & keep, OBJECT_WIDTH_BINS)
+        cuts = fit_group_cuts(stds, support & keep, OBJECT_WIDTH_BINS)
         groups = {"support": rule, "cuts": cuts}
+        labels = np.where(keep, group_labels(stds, groups, means), -1)
         for level in levels:
-            fitted[level_key(level)] = _level_fit(err, stds, means, level, delta, groups, keep)
-            on = np.ones(err.shape, bool) if keep is None else keep
-            edge_fit[level_key(level)] = conformal_multiplier(err[on], edges[on], level)
+            fitted[level_key(level)] = _level_fit(err, stds, means, level, delta, groups, labels, keep)
+            edge_fit[level_key(level)] = conformal_multiplier(err[keep], edges[keep], level)
     except ValueError as exc:
         raise NanoctError(f"cannot calibrate on the validation outputs: {exc}") from exc
     return {
@@ -501,7 +496,7 @@ def reference_rule(store: DataStore, gts: np.ndarray) -> dict[str, Any]:
     on the other, object / background at 90 %: the std's support 64 / 88 %, the relative one
     83 / 83 %, relative on the field of view 84 / 90 % (without the 2 px dilation 76 / 92 %).
     """
-    if not (np.asarray(gts).reshape(len(gts), -1).min(axis=1) < 0).any() or store.geometry.kind != "parallel":
+    if not np.asarray(gts).min() < 0 or store.geometry.kind != "parallel":
         return {}
     from ..sim.matched import fov_disc
 

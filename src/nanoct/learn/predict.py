@@ -204,7 +204,7 @@ def predict(
         "train_input": train_input,
         "reconstruct": kwargs,
     } | ({"tiling": tiling} if tiling else {})
-    on = _calibration_store(store, calibrate_on, run, ckpt, sampling and calibrate)
+    on = _calibration_store(store, calibrate_on, run, ckpt, sampling, calibrate)
     if on is not None:
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
         params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
@@ -239,17 +239,22 @@ def _check_arguments(checkpoint: str, split: str, batch_size: int) -> None:
 
 
 def _calibration_store(
-    store: DataStore, path: str | os.PathLike[str] | None, run: Path, ckpt: dict[str, Any], calibrated: bool
+    store: DataStore,
+    path: str | os.PathLike[str] | None,
+    run: Path,
+    ckpt: dict[str, Any],
+    sampling: bool,
+    calibrate: bool,
 ) -> DataStore | None:
     """The data set the intervals are fitted on (None: not calibrated): ``store``, or that of ``--calibrate-on``,
     checked: it exists, has the run's geometry and a validation split."""
     if path is None:
-        return store if calibrated else None
-    if not calibrated:
+        return store if sampling and calibrate else None
+    if not (sampling and calibrate):
         raise NanoctError(
             f"--calibrate-on {path}: the run at {run} holds a '{ckpt['model']}' network, whose output is not "
             "calibrated; leave the flag out"
-            if not model_class(str(ckpt["model"])).has_uncertainty
+            if not sampling
             else f"--calibrate-on {path} fits the intervals that --no-calibrate switches off: choose one"
         )
     if not (Path(path) / "zarr.json").is_file():
