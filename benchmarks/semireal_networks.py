@@ -248,14 +248,15 @@ def pairs_fit_without(work: Path, slices: list[int]) -> dict:
     val = pairs.indices("val")
     keep = np.array([rows[matched_source(pairs, int(i))[1]] // BIN not in slices for i in val])
     kept = val[keep]
-    name = "dremel+ciunet-res"
     print(f"pairs without the evaluated slices: {kept.size} of {val.size}")
-    means, stds, gts = (
-        pairs.read_reconstruction(name, kept),
-        pairs.read_uncertainty(name, kept),
-        pairs.read_phantoms(kept),
-    )
+    means, stds, gts = _pairs_outputs(pairs, kept)
     return fit_intervals(means, stds, gts, levels=(0.9,), **reference_rule(pairs, gts))
+
+
+def _pairs_outputs(pairs: DataStore, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CiUNetRes's mean and std on the measured pairs ``indices`` (``predict pairs --split val``), their references."""
+    name = "dremel+ciunet-res"
+    return pairs.read_reconstruction(name, indices), pairs.read_uncertainty(name, indices), pairs.read_phantoms(indices)
 
 
 def pairs_cross_fit(work: Path) -> None:
@@ -263,8 +264,7 @@ def pairs_cross_fit(work: Path) -> None:
     background of :func:`object_mask` inside the field of view), for the delivered rule and for variants."""
     pairs = DataStore.open(work / "pairs")
     val = pairs.indices("val")
-    name = "dremel+ciunet-res"
-    means, stds, gts = pairs.read_reconstruction(name, val), pairs.read_uncertainty(name, val), pairs.read_phantoms(val)
+    means, stds, gts = _pairs_outputs(pairs, val)
     rule = reference_rule(pairs, gts)
     disc = fov_disc(pairs.geometry) > 0
     fit_on, score_on = np.arange(val.size) % 2 == 0, np.arange(val.size) % 2 == 1
