@@ -285,6 +285,13 @@ def test_calibrate_on_another_data_set_keeps_both_fits(setup, tmp_path):
     default = predict(path, run, progress=False, reconstruct_kwargs=M)
     assert DataStore.open(path).reconstruction_params(default)["calibration"] == own
     assert load_calibration(run)[key] == entries[key]
+    # the other data set made again at the same path (another seed): another data set, fitted again
+    shutil.rmtree(other)
+    generate_dataset(other, get_preset("tiny-parallel"), 3, seed=12, workers=0, progress=False,
+                     split_fractions=(0.0, 1.0, 0.0))  # fmt: skip
+    reconstruct_dataset(other, "fbp", workers=0, progress=False)
+    again = calibrate(other, run, reconstruct_kwargs=M)
+    assert again["store_meta_sha256"] != entries[key]["store_meta_sha256"] and again["levels"] != entries[key]["levels"]
 
 
 @pytest.mark.slow

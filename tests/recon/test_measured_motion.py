@@ -53,6 +53,28 @@ def test_read_moved_is_a_linear_shift_holding_the_edges() -> None:
         read_moved(sino, np.zeros(4))
 
 
+def test_the_fourier_read_keeps_the_noise_where_the_linear_one_halves_it() -> None:
+    """A band-limited shift is all-pass: white noise keeps its variance at a half-pixel shift (the linear read
+    keeps (1 - f)^2 + f^2 = 1/2 of it); whole-pixel shifts equal the linear read away from the ends; a smooth
+    view moves by d_k to the right, as the linear read moves it (independent check: the shifted Gaussian)."""
+    rng = np.random.default_rng(1)
+    noise = rng.normal(size=(400, 64))
+    half = np.full(400, 0.5)
+    inner = slice(8, 56)
+    assert read_moved(noise, half)[:, inner].var() == pytest.approx(0.5, abs=0.03)
+    assert read_moved(noise, half, "fourier")[:, inner].var() == pytest.approx(1.0, abs=0.03)
+    whole = rng.integers(-3, 4, size=400).astype(np.float64)
+    np.testing.assert_allclose(read_moved(noise, whole, "fourier")[:, inner], read_moved(noise, whole)[:, inner],
+                               atol=1e-9)  # fmt: skip
+    u = np.arange(64.0)
+    d = np.array([0.3, -1.7, 2.45])
+    views = np.exp(-((u - 30.0) ** 2) / 40.0)[None].repeat(3, axis=0) + 0.37  # on an open beam of 0.37
+    expected = np.exp(-((u[None] - d[:, None] - 30.0) ** 2) / 40.0) + 0.37
+    np.testing.assert_allclose(read_moved(views, d, "fourier"), expected, atol=1e-6)
+    with pytest.raises(ValueError, match="interpolation='cubic' is unknown"):
+        read_moved(views, d, "cubic")
+
+
 def test_resesop_with_the_motion_is_resesop_on_the_unmoved_data(moved_scan) -> None:
     g, x, clean, moved, d = moved_scan
     eta = np.full(g.n_angles, 0.02)

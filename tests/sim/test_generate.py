@@ -103,3 +103,23 @@ def test_bad_arguments(tmp_path):
     assert not (tmp_path / "x").exists()
     with pytest.raises(NanoctError, match="unknown"):
         reconstruct_dataset(tmp_path / "x", "sart", workers=0)
+
+
+def test_a_set_made_again_at_the_same_path_in_one_process_is_the_new_one(tmp_path):
+    """The per-process store handle (``open_cached``) is not the deleted store's: the second set holds its own
+    seed's samples (bytes equal to that seed's set made elsewhere), not the first one's."""
+    import shutil
+
+    preset = get_preset("tiny-parallel")
+    path = tmp_path / "again"
+    generate_dataset(path, preset, 2, seed=11, workers=0, progress=False)
+    first = DataStore.open(path).read_phantoms([0, 1])
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    shutil.rmtree(path)
+    generate_dataset(path, preset, 2, seed=12, workers=0, progress=False)
+    generate_dataset(tmp_path / "elsewhere", preset, 2, seed=12, workers=0, progress=False)
+    again = DataStore.open(path).read_phantoms([0, 1])
+    np.testing.assert_array_equal(again, DataStore.open(tmp_path / "elsewhere").read_phantoms([0, 1]))
+    assert not np.array_equal(again, first)
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    assert DataStore.open(path).read_reconstruction("fbp", [0]).shape == first[:1].shape

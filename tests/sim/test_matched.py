@@ -39,6 +39,7 @@ def test_the_plan_has_the_scans_views_binned_detector_axis_and_noise(scan):
     assert plan.simulation["noise_std"] == like["noise"]["sigma"]
     assert like["motion"] == {"from": None} and plan.simulation["motion"]["max_shift"] == 2.0  # the paper's
     assert like["axis_from"] == "the imported scan" and like["bin"] == 2 and like["store"] == str(scan.path.resolve())
+    assert "measured_shift" not in like  # a three-family set is recorded as before
     assert plan.slices.shape == (SLICES // 2, N_DET // 2, N_DET // 2) and (plan.slices >= 0).all()
     assert like["value_scale"] == pytest.approx(float(np.percentile(plan.slices[plan.slices > 0], 99.9)), rel=0.3)
 
@@ -148,6 +149,7 @@ def test_measured_pairs_are_the_scans_views_moved_as_the_simulator_moves_a_phant
     store, _ = moved_scan
     plan = plan_matched(store.path, binning=2, mix=parse_mix("0,0,0,1"))
     assert plan.simulation["like"]["mix"] == {"shapes": 0.0, "ellipses": 0.0, "scan": 0.0, "measured": 1.0}
+    assert plan.simulation["like"]["measured_shift"] == "fourier"  # recorded: a set of linear-read pairs differs
     out = generate_like(tmp_path / "pairs", plan, 4, seed=2, split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)
     assert out.indices("val").size == 4
     stored = zarr.open_group(str(out.path), mode="r")["like_measured"]
@@ -160,10 +162,10 @@ def test_measured_pairs_are_the_scans_views_moved_as_the_simulator_moves_a_phant
         sample = out.read_sample(i)
         raw = plan.measured[j].astype(np.float64)
         # the unmoved views: the scan's with its estimated motion undone; no noise added to the moved ones
-        np.testing.assert_allclose(sample.sinogram_eta, matched.read_moved(raw, plan.shifts), atol=1e-6)
+        np.testing.assert_allclose(sample.sinogram_eta, matched.read_moved(raw, plan.shifts, "fourier"), atol=1e-6)
         phi = g.angles
         along = sample.motion[:, 0] * np.cos(phi) + sample.motion[:, 1] * np.sin(phi)
-        np.testing.assert_allclose(sample.sinogram, matched.read_moved(raw, plan.shifts - along), atol=1e-6)
+        np.testing.assert_allclose(sample.sinogram, matched.read_moved(raw, plan.shifts - along, "fourier"), atol=1e-6)
         assert np.all(sample.motion[:, 2] == 0) and np.abs(along).max() > 0.1
         # the phantom is the reference: FBP of the unmoved views, air level removed, zero outside the view
         reference = matched.fbp(g, sample.sinogram_eta - matched.air_level(sample.sinogram_eta)[:, None]).image

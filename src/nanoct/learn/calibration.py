@@ -23,11 +23,11 @@ The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"`
 the data set the run was trained on, and one per checkpoint and data set for a fit on another data
 set's validation split (``nanoct predict --calibrate-on``: e.g. a scan's own measured pairs,
 :func:`nanoct.sim.matched.measured_pair`; :func:`entry_name`).
-An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set,
-input, sampling arguments (M), levels and delta; otherwise it is fitted again. Validation
-outputs are made as :func:`nanoct.learn.predict.predict` makes them: one image at a time,
-latent samples seeded with the sample index, so the fit sees exactly the std that
-``predict --split val`` stores. Conventions and the metrics: ``docs/uncertainty.md``.
+An entry is reused only if it was fitted for the same checkpoint file (SHA-256), data set (its
+path and the SHA-256 of its description), input, sampling arguments (M), levels and delta;
+otherwise it is fitted again. Validation outputs are made as :func:`nanoct.learn.predict.predict`
+makes them: one image at a time, latent samples seeded with the sample index, so the fit sees
+exactly the std that ``predict --split val`` stores. Conventions and the metrics: ``docs/uncertainty.md``.
 """
 
 from __future__ import annotations
@@ -104,6 +104,12 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _meta_sha256(store: DataStore) -> str:
+    """SHA-256 of a data set's description (geometry, seed, simulation record, splits): a set made again at the
+    same path with other settings is another data set, whose calibration is fitted again."""
+    return hashlib.sha256(json.dumps(store.meta, sort_keys=True).encode()).hexdigest()
 
 
 def _n_samples(model_name: str, kwargs: dict[str, Any]) -> int | None:
@@ -437,6 +443,7 @@ def calibrate(
         "checkpoint": checkpoint,
         "checkpoint_sha256": _sha256(ckpt_path) if ckpt_path.is_file() else None,
         "store": str(store.path.resolve()),
+        "store_meta_sha256": _meta_sha256(store),
         "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
         "split": "val",
         "level_keys": [level_key(v) for v in levels],
@@ -451,7 +458,7 @@ def calibrate(
     if isinstance(own, dict) and store.indices("val").size == 0:
         # a data set without validation samples (an imported scan): the fit on the run's own
         # validation data holds for the same checkpoint file and M
-        if all(own.get(k) == v for k, v in key.items() if k != "store"):
+        if all(own.get(k) == v for k, v in key.items() if k not in ("store", "store_meta_sha256")):
             return own
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:

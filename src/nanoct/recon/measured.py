@@ -142,19 +142,26 @@ def noise_level(sino: np.ndarray) -> float:
     return float(min(1.4826 * np.median(np.abs(p - np.median(p))) for p in parts) / math.sqrt(6.0))
 
 
-def read_moved(sino: Any, shifts: Any) -> np.ndarray:
+def read_moved(sino: Any, shifts: Any, interpolation: str = "linear") -> np.ndarray:
     """Each view ``k`` read at ``u - d_k``: the views of a moved object as the unmoved one gives them.
 
-    Linear interpolation along the detector; beyond its ends each view keeps its edge value
-    (an open beam not at zero, or an object cut by the edges, is not turned into a step to 0).
-    The same convention as :func:`~nanoct.recon.stack.corrected_fbp` and Dremel's ``motion``
-    (in detector pixels).
+    Beyond the detector's ends each view keeps its edge value (an open beam not at zero, or an
+    object cut by the edges, is not turned into a step to 0). The same convention as
+    :func:`~nanoct.recon.stack.corrected_fbp` and Dremel's ``motion`` (in detector pixels).
 
     Parameters
     ----------
     sino : array_like of shape (K, L)
     shifts : array_like of shape (K,)
         Per-view detector shifts ``d_k`` in detector pixels.
+    interpolation : {"linear", "fourier"}
+        ``"linear"`` (what the row-action methods model) low-passes a sub-pixel read: white
+        noise keeps ``(1 - f)^2 + f^2`` of its variance at a fractional shift ``f`` (half at
+        ``f = 1/2``). ``"fourier"`` is the band-limited shift (each view extended by its edge
+        values by ``L // 2 + ceil(max |d_k|)`` pixels to an odd length, then a phase ramp of its
+        DFT): an all-pass filter, so measured noise keeps its power spectrum (for data that must
+        look as measured, e.g. :func:`nanoct.sim.matched.measured_pair`); equal to ``"linear"``
+        for whole-pixel shifts away from the ends.
 
     Returns
     -------
@@ -162,8 +169,18 @@ def read_moved(sino: Any, shifts: Any) -> np.ndarray:
     """
     y = np.asarray(sino, dtype=np.float64)
     d = check_array(shifts, "shifts", shape=(y.shape[0],), dtype=np.float64)
+    check_choice(interpolation, "interpolation", ("linear", "fourier"))
+    if not y.size:
+        return y.copy()
+    if interpolation == "fourier":
+        n_det = y.shape[1]
+        pad = n_det // 2 + math.ceil(float(np.abs(d).max()))
+        extended = np.pad(y, ((0, 0), (pad, pad + (n_det + 1) % 2)), mode="edge")  # odd length: no Nyquist bin
+        freq = np.fft.rfftfreq(extended.shape[1])
+        spectrum = np.fft.rfft(extended, axis=1) * np.exp(-2j * np.pi * freq[None, :] * d[:, None])
+        return np.fft.irfft(spectrum, extended.shape[1], axis=1)[:, pad : pad + n_det]
     u = np.arange(y.shape[1], dtype=np.float64)
-    return np.stack([np.interp(u - dk, u, view) for view, dk in zip(y, d)]) if y.size else y.copy()
+    return np.stack([np.interp(u - dk, u, view) for view, dk in zip(y, d)])
 
 
 def extend_sinogram(sino: np.ndarray, pad: int) -> np.ndarray:
