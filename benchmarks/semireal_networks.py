@@ -172,8 +172,9 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
     """Generate the matched set, train both networks, predict the binned moved scan; the result names."""
     moved, real, matched = work / "moved", work / "moved_bin2", work / "matched"
     times["stack"] = _cli("stack", moved, "-w", 2, "-q")
+    hold = ["--hold-out", held_out_rows(args.slices)] if args.hold_out else []
     times["generate"] = _cli("generate", "--like", moved, "--bin", BIN, "--n", args.n, "--out", matched,
-                             "--split-fractions", "0.85,0.14,0.01", "-q")  # fmt: skip
+                             "--split-fractions", "0.85,0.14,0.01", "--mix", args.mix, *hold, "-q")  # fmt: skip
     times["dremel (matched set)"] = _cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
     runs = {"unet": work / "run_unet", "ciunet-res": work / "run_ciunet"}
     times["train unet"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs", args.epochs_unet,
@@ -208,6 +209,11 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
     for w in caught:
         print(f"warning: {w.message}")
     return {"unet": "dremel+unet", "ciunet-res": "dremel+ciunet-res"}
+
+
+def held_out_rows(slices: str) -> str:
+    """``--hold-out`` rows of the evaluated binned slices and their neighbours (binned slices s - 1 to s + 1)."""
+    return ",".join(f"{max(0, BIN * (s - 1))}:{BIN * (s + 2)}" for s in (int(v) for v in slices.split(",")))
 
 
 def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, slices: list[int]) -> tuple[dict, dict]:
@@ -351,6 +357,12 @@ def main() -> None:
     parser.add_argument("--epochs-unet", type=int, default=8)
     parser.add_argument("--epochs-ciunet", type=int, default=6)
     parser.add_argument("--n-pairs", type=int, default=300, help="measured pairs of the scan for the calibration")
+    parser.add_argument(
+        "--mix", default="0.4,0.2,0.4", help="the matched set's --mix (a fourth number: measured pairs)"
+    )
+    parser.add_argument(
+        "--hold-out", action="store_true", help="keep the evaluated slices and their neighbours out of the matched set"
+    )
     parser.add_argument("--json", default=None, help="write the per-slice table here")
     parser.add_argument("--slices", default=",".join(str(s) for s in range(15, 61, 5)))
     parser.add_argument("--pictures", default=None)

@@ -21,6 +21,9 @@ def test_plan_prints_what_would_be_made_and_writes_nothing(scan, tmp_path, capsy
     assert f"{N_DET // 2} detector pixels, image {N_DET // 2}x{N_DET // 2}" in text
     assert "noise " in text and "the paper's defaults" in text and "would make 4 samples" in text and "(new)" in text
     assert not out.exists()
+    assert run(["generate", "--like", str(scan.path), "--bin", "2", "--n", "4", "--out", str(out), "--plan",
+                "--hold-out", "0:2"]) == 0  # fmt: skip
+    assert "1 held out" in capsys.readouterr().out and not out.exists()
 
 
 def test_generate_like_then_resume_is_a_no_op(scan, tmp_path, capsys):
@@ -47,6 +50,8 @@ def test_generate_like_then_resume_is_a_no_op(scan, tmp_path, capsys):
         (["--preset", "tiny-parallel"], "--preset cannot be combined with --like"),
         (["--noise-std", "0.1"], "--noise-std cannot be combined with --like"),
         (["--motion-from", "nope"], "--motion-from 'nope'"),
+        (["--hold-out", "5:2"], "--hold-out '5:2': '5:2' is not a row"),
+        (["--hold-out", "0:999"], "--hold-out row 998 is outside the scan"),
     ],
 )
 def test_bad_flags_with_like_are_one_error_line(scan, tmp_path, capsys, extra, message):
@@ -63,6 +68,10 @@ def test_like_must_be_a_measured_scan(tiny_store, tmp_path, capsys):
         assert message in capsys.readouterr().err
     assert run(["generate", "--preset", "tiny-parallel", "--bin", "2", "--n", "4", "--out", str(tmp_path / "o")]) == 2
     assert "--bin needs --like" in capsys.readouterr().err
+    assert (
+        run(["generate", "--preset", "tiny-parallel", "--hold-out", "2", "--n", "4", "--out", str(tmp_path / "o")]) == 2
+    )
+    assert "--hold-out needs --like" in capsys.readouterr().err
     assert run(["generate", "--n", "4", "--out", str(tmp_path / "o")]) == 2
     assert "give --preset NAME" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

@@ -182,6 +182,12 @@ def generate(
     motion_from: str | None = typer.Option(
         None, "--motion-from", help="With --like: the 'nanoct stack' result whose motion to match (default: any)."
     ),
+    hold_out: str | None = typer.Option(
+        None,
+        "--hold-out",
+        help="With --like: scan rows (e.g. 28:34,38:44) whose slices serve as no phantom and no measured pair "
+        "(keep the slices you evaluate on out of training).",
+    ),
     plan: bool = typer.Option(False, "--plan", help="Print what would be made and write nothing."),
     seed: int = typer.Option(0, "--seed", help="Data-set seed; sample i depends only on (seed, i)."),
     no_motion: bool = typer.Option(False, "--no-motion", help="Unperturbed data (the paper's sanity case)."),
@@ -216,7 +222,12 @@ def generate(
 
     if preset is None:
         raise NanoctError("give --preset NAME (a simulated geometry) or --like STORE (a measured scan's data set)")
-    for flag, value in (("--bin", bin_ != 1), ("--motion-from", motion_from), ("--plan", plan)):
+    for flag, value in (
+        ("--bin", bin_ != 1),
+        ("--motion-from", motion_from),
+        ("--hold-out", hold_out),
+        ("--plan", plan),
+    ):
         if value:
             raise NanoctError(f"{flag} needs --like STORE (a measured scan to match); drop it for --preset")
     geometry = get_preset(preset)
@@ -238,7 +249,7 @@ def generate(
 def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None:
     """``generate --like``: measure the scan, print the plan, and (unless --plan) simulate the matched set."""
     from .io.store import DataStore
-    from .sim.matched import generate_like, parse_mix, plan_matched
+    from .sim.matched import generate_like, parse_mix, parse_rows, plan_matched
 
     f = flags
     for flag, value in (("--preset", f["preset"]), ("--max-shift", f["max_shift"]), ("--noise-std", f["noise_std"])):
@@ -248,7 +259,7 @@ def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None
         raise NanoctError(f"--n {n} must be a positive number of samples")
     matched = plan_matched(
         like, binning=f["bin_"], mix=parse_mix(f["mix"]), motion_from=f["motion_from"],
-        perturbed=not f["no_motion"], oversample=f["oversample"],
+        perturbed=not f["no_motion"], oversample=f["oversample"], hold_out=parse_rows(f["hold_out"]),
     )  # fmt: skip
     fractions = _parse_fractions(f["split_fractions"])
     if f["plan"]:

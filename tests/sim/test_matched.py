@@ -130,6 +130,28 @@ def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
     np.testing.assert_allclose(plan.slices, matched.scan_slices(full, plan.geometry), rtol=1e-6)
 
 
+def test_held_out_rows_serve_as_no_phantom_and_no_measured_pair(scan):
+    """--hold-out: a binned slice with any held-out row is dropped from the scan slices and the measured pairs
+    (what is left equals the full plan without it); the scan-wide measurements are unchanged."""
+    assert matched.parse_rows("4:6, 1,2,,") == (1, 2, 4, 5) and matched.parse_rows(None) == ()
+    for bad in ("3:3", "-1", "a", "1:2:3"):
+        with pytest.raises(NanoctError, match="--hold-out"):
+            matched.parse_rows(bad)
+    full = plan_matched(scan.path, binning=2, mix=parse_mix("1,0,1,1"))
+    held = plan_matched(scan.path, binning=2, mix=parse_mix("1,0,1,1"), hold_out=(3,))  # row 3: binned slice 1
+    assert full.rows.tolist() == [0, 2, 4] and held.rows.tolist() == [0, 4]
+    np.testing.assert_array_equal(held.slices, full.slices[[0, 2]])
+    np.testing.assert_array_equal(held.measured, full.measured[[0, 2]])
+    assert "2 slices kept, 0 nearly empty left out, 1 held out, of 3 measured" in "\n".join(held.describe())
+    like, like_full = dict(held.simulation["like"]), dict(full.simulation["like"])
+    assert like.pop("held_out") == {"rows": [3], "slices": 1} and "held_out" not in like_full
+    assert like.pop("slices") == like_full.pop("slices") - 1 and like == like_full
+    with pytest.raises(NanoctError, match="--hold-out row 99 is outside the scan"):
+        plan_matched(scan.path, binning=2, hold_out=(99,))
+    with pytest.raises(NanoctError, match="holds out every slice"):
+        plan_matched(scan.path, binning=2, hold_out=tuple(range(SLICES)))
+
+
 @pytest.mark.slow
 def test_dask_workers_give_the_same_bytes_as_one_process(scan, tmp_path):
     plan = plan_matched(scan.path, binning=2)

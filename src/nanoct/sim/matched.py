@@ -101,6 +101,7 @@ __all__ = [
     "matched_source",
     "measured_pair",
     "parse_mix",
+    "parse_rows",
     "plan_matched",
     "scan_slices",
     "simulate_matched_sample",
@@ -148,6 +149,26 @@ def parse_mix(text: str) -> tuple[float, ...]:
         parts = parts[:3]
     total = sum(parts)
     return tuple(_round(p / total) for p in parts)
+
+
+def parse_rows(text: str | None) -> tuple[int, ...]:
+    """``--hold-out ROWS``: scan rows as a comma-separated list of rows and half-open ranges ``START:STOP``
+    (``"30:36,50"`` is rows 30 to 35 and 50), sorted and without repeats; ``None`` or ``""`` is none."""
+    rows: set[int] = set()
+    for part in (text or "").split(","):
+        if not part.strip():
+            continue
+        try:
+            ends = [int(v) for v in part.split(":")]
+        except ValueError:
+            ends = []
+        if len(ends) not in (1, 2) or min(ends) < 0 or (len(ends) == 2 and ends[1] <= ends[0]):
+            raise NanoctError(
+                f"--hold-out {text!r}: {part!r} is not a row >= 0 or a range START:STOP with STOP > START; "
+                "e.g. 30:36,50"
+            )
+        rows.update(range(ends[0], ends[-1] if len(ends) == 2 else ends[0] + 1))
+    return tuple(sorted(rows))
 
 
 def _open_scan(like: str | os.PathLike[str]) -> DataStore:
@@ -270,8 +291,9 @@ class MatchedPlan:
             "slices)",
             f"phantoms   shapes {mix['shapes']:.2f}, ellipses {mix['ellipses']:.2f}, scan slices {mix['scan']:.2f}"
             + (f", measured pairs {mix['measured']:.2f}" if "measured" in mix else "")
-            + f" ({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, of "
-            f"{like['slices_measured']} measured)",
+            + f" ({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, "
+            + (f"{like['held_out']['slices']} held out, " if "held_out" in like else "")
+            + f"of {like['slices_measured']} measured)",
         ]
 
 
@@ -283,6 +305,7 @@ def plan_matched(
     motion_from: str | None = None,
     perturbed: bool = True,
     oversample: int = 2,
+    hold_out: tuple[int, ...] = (),
 ) -> MatchedPlan:
     """Measure a scan and describe the matched set (nothing is written).
 
@@ -299,12 +322,17 @@ def plan_matched(
         The stack result whose motion to use (default: the first that has one).
     perturbed, oversample
         As :class:`~nanoct.sim.simulate.SimulationConfig`.
+    hold_out : tuple of int
+        Scan rows (:func:`parse_rows`) whose binned slices serve as no phantom and no measured pair
+        (kept out of training, e.g. the slices a result is evaluated on); the scan-wide measurements
+        (noise, open beam, motion, axis, value scale) still use every slice.
 
     Raises
     ------
     NanoctError
         For a missing or simulated ``like`` store, a binning that does not divide its sizes, an
-        unknown ``motion_from``, or a detector too narrow to measure the noise.
+        unknown ``motion_from``, a detector too narrow to measure the noise, or ``hold_out`` rows
+        outside the scan or holding out every slice.
     """
     store = _open_scan(like)
     name, shifts, info = _stack_motion(store, motion_from)
@@ -323,6 +351,12 @@ def plan_matched(
     kept = np.percentile(slices.reshape(len(slices), -1), 99, axis=1) >= MIN_CONTENT * scale
     if not kept.any():
         raise NanoctError(f"--like {store.path}: every slice is nearly empty; nothing to match")
+    if hold_out and max(hold_out) >= store.n:
+        raise NanoctError(f"--hold-out row {max(hold_out)} is outside the scan (rows 0 to {store.n - 1})")
+    held = np.isin(groups, hold_out).any(axis=1) & kept
+    if held.sum() == kept.sum():
+        raise NanoctError(f"--hold-out holds out every slice of {store.path} that has content; nothing to match")
+    kept &= ~held
     slices = slices[kept]
     stats = {"from": None} if shifts_b is None else {"from": name, **motion_stats(shifts_b)}
     record = {
@@ -330,7 +364,7 @@ def plan_matched(
         "bin": int(binning),
         "slices": int(slices.shape[0]),
         "slices_measured": int(groups.shape[0]),
-        "slices_left_out": int((~kept).sum()),
+        "slices_left_out": int((~kept).sum() - held.sum()),
         "axis_from": f"the stack result '{name}'" if "center_offset" in info else "the imported scan",
         "noise": {k: _round(v) if isinstance(v, float) else v for k, v in noise.items()},
         "open_beam": {
@@ -342,6 +376,8 @@ def plan_matched(
         "slice_smooth_px": SLICE_SMOOTH_PX,
         "mix": dict(zip(FAMILIES, (_round(m) for m in mix))),
     }
+    if held.any():
+        record["held_out"] = {"rows": [int(r) for r in hold_out], "slices": int(held.sum())}
     config = SimulationConfig(
         motion=_motion_params(record["motion"]),
         perturbed=perturbed,
