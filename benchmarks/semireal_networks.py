@@ -177,11 +177,12 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
                              "--split-fractions", "0.85,0.14,0.01", "--mix", args.mix, *hold, "-q")  # fmt: skip
     times["dremel (matched set)"] = _cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
     runs = {"unet": work / "run_unet", "ciunet-res": work / "run_ciunet"}
+    seed = ["--seed", args.train_seed]
     times["train unet"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs", args.epochs_unet,
-                               "--precision", "bf16", "--out", runs["unet"], "-q", *UNET)  # fmt: skip
+                               "--precision", "bf16", "--out", runs["unet"], "-q", *seed, *UNET)  # fmt: skip
     times["train ciunet-res"] = _cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
                                      args.epochs_ciunet, "--precision", "bf16", "--out", runs["ciunet-res"], "-q",
-                                     *CIUNET)  # fmt: skip
+                                     *seed, *CIUNET)  # fmt: skip
     g = DataStore.open(matched).geometry
     sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
     if not (real / "zarr.json").is_file():
@@ -357,6 +358,7 @@ def main() -> None:
     parser.add_argument("--epochs-unet", type=int, default=8)
     parser.add_argument("--epochs-ciunet", type=int, default=6)
     parser.add_argument("--n-pairs", type=int, default=300, help="measured pairs of the scan for the calibration")
+    parser.add_argument("--train-seed", type=int, default=0, help="nanoct train --seed of both networks")
     parser.add_argument(
         "--mix", default="0.4,0.2,0.4", help="the matched set's --mix (a fourth number: measured pairs)"
     )
