@@ -3,7 +3,12 @@
 Usage::
 
     PYTHONPATH=src python benchmarks/semireal_networks.py [--n 600] [--epochs-unet 8] [--epochs-ciunet 6]
-        [--slices 15,20,...,60] [--pictures docs/img] [--work DIR]
+        [--mix 0.3,0.1,0.3,0.3] [--hold-out] [--train-seed 1] [--slices 15,20,...,60] [--pictures docs/img]
+        [--work DIR]
+
+``--mix`` with a fourth number puts the scan's own measured pairs into the training set;
+``--hold-out`` then keeps the evaluated slices and their neighbours out of it (``generate --like
+--hold-out``), so that no evaluated slice's reference is trained on.
 
 Data: Diamond I13-2 scan 24737 with the known motion of ``benchmarks/semireal_methods.py``
 (its :func:`load_scan`, :func:`known_motion`, :func:`move`: horizontal drift, harmonics and jitter,
