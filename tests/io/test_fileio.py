@@ -108,3 +108,21 @@ def test_disk_space_needed_passes_other_errors(tmp_path):
         with disk_space_needed(tmp_path / "new" / "deeper", None):
             raise OSError(errno.EDQUOT, "Disk quota exceeded")
     assert free_space(tmp_path / "missing" / "x") == free_space(tmp_path) > 0
+
+
+def test_cached_by_file_reads_again_once_the_file_is_written_or_made_again(tmp_path):
+    calls = []
+
+    @fileio.cached_by_file("marker", maxsize=2)
+    def read(path: str) -> str:
+        calls.append(path)
+        return (tmp_path / "d" / "marker").read_text()
+
+    folder = tmp_path / "d"
+    folder.mkdir()
+    (folder / "marker").write_text("one")
+    assert read(str(folder)) == read(str(folder)) == "one" and len(calls) == 1  # cached
+    os.remove(folder / "marker")
+    (folder / "marker").write_text("two")
+    os.utime(folder / "marker", ns=(1, 1))  # another mtime even on a coarse clock
+    assert read(str(folder)) == "two" and len(calls) == 2

@@ -14,12 +14,14 @@ space and the space the write needed (:func:`disk_space_needed` does the same fo
 from __future__ import annotations
 
 import errno
+import functools
 import os
 import shutil
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
 
 from ..core.errors import DiskFullError
 
@@ -28,12 +30,15 @@ __all__ = [
     "atomic_target",
     "atomic_write_bytes",
     "atomic_write_text",
+    "cached_by_file",
     "disk_space_needed",
     "free_space",
     "remove_stale_temporaries",
 ]
 
 _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+_T = TypeVar("_T")
 
 _TMP_TAG = ".tmp-"
 
@@ -168,3 +173,41 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:
     for p in stale:
         p.unlink(missing_ok=True)
     return stale
+
+
+def _file_stamp(path: Path) -> tuple[int, int]:
+    """``(inode, mtime in ns)`` of a file, ``(0, 0)`` if it is missing."""
+    try:
+        info = os.stat(path)
+    except OSError:
+        return (0, 0)
+    return (info.st_ino, info.st_mtime_ns)
+
+
+def cached_by_file(relative: str, maxsize: int) -> Callable[[Callable[[str], _T]], Callable[[str], _T]]:
+    """A per-process cache of ``func(path)`` that is read again once ``path / relative`` is written or made again.
+
+    Keyed by the path and the file's ``(inode, mtime)``, not by the path alone: a store deleted and
+    made again at the same path within one process (a notebook, a test, a benchmark running the CLI
+    in-process) is another store, whose cached handle or arrays must not be the old one's.
+
+    Parameters
+    ----------
+    relative : str
+        The file under ``path`` whose change invalidates the entry (e.g. ``"zarr.json"``).
+    maxsize : int
+        Entries kept (least recently used dropped).
+    """
+
+    def wrap(func: Callable[[str], _T]) -> Callable[[str], _T]:
+        @functools.lru_cache(maxsize=maxsize)
+        def cached(path: str, stamp: tuple[int, int]) -> _T:
+            return func(path)
+
+        @functools.wraps(func)
+        def call(path: str) -> _T:
+            return cached(path, _file_stamp(Path(path) / relative))
+
+        return call
+
+    return wrap

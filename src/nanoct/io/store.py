@@ -38,7 +38,6 @@ import shutil
 import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +48,11 @@ from .. import __version__
 from ..core.errors import StoreError
 from ..core.geometry import Geometry
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
+from .fileio import cached_by_file
 from .lock import pid_alive
 from .store_recon import ReconstructionArrays
 
-__all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "file_stamp", "open_cached", "split_assignment"]
+__all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 2  # 1: fill value 0 (a lost chunk read as zeros); 2: NaN fill for float arrays
@@ -519,25 +519,10 @@ def _check_arrays(store: DataStore) -> None:
         raise StoreError(f"the split of {store.path} is damaged (labels outside 0, 1, 2); {_REGENERATE}")
 
 
-def file_stamp(path: str | os.PathLike[str]) -> tuple[int, int]:
-    """``(inode, mtime in ns)`` of a file, ``(0, 0)`` if it is missing: a key that changes when the file is
-    written or made again, for caches keyed by a path (a store deleted and made again at the same path
-    within one process is another store)."""
-    try:
-        info = os.stat(path)
-    except OSError:
-        return (0, 0)
-    return (info.st_ino, info.st_mtime_ns)
-
-
+@cached_by_file("zarr.json", maxsize=8)
 def open_cached(path: str) -> DataStore:
     """One writable handle per store and process, for tasks that each write one sample; a store made again
     at the same path (its ``zarr.json`` rewritten) gets a new handle."""
-    return _open_cached(path, file_stamp(Path(path) / "zarr.json"))
-
-
-@lru_cache(maxsize=8)
-def _open_cached(path: str, stamp: tuple[int, int]) -> DataStore:
     return DataStore.open(path, mode="r+")
 
 

@@ -69,7 +69,6 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +78,8 @@ from scipy import ndimage
 
 from ..core.errors import NanoctError, StoreError
 from ..core.geometry import Geometry
-from ..io.store import DataStore, Sample, file_stamp
+from ..io.fileio import cached_by_file
+from ..io.store import DataStore, Sample
 from ..recon.fbp import fbp
 from ..recon.measured import air_level, read_moved
 from ..recon.stack import corrected_fbp
@@ -352,6 +352,7 @@ def plan_matched(
     kept = np.percentile(slices.reshape(len(slices), -1), 99, axis=1) >= MIN_CONTENT * scale
     if not kept.any():
         raise NanoctError(f"--like {store.path}: every slice is nearly empty; nothing to match")
+    nearly_empty = int((~kept).sum())
     if hold_out and max(hold_out) >= store.n:
         raise NanoctError(f"--hold-out row {max(hold_out)} is outside the scan (rows 0 to {store.n - 1})")
     held = np.isin(groups, hold_out).any(axis=1) & kept
@@ -365,7 +366,7 @@ def plan_matched(
         "bin": int(binning),
         "slices": int(slices.shape[0]),
         "slices_measured": int(groups.shape[0]),
-        "slices_left_out": int((~kept).sum() - held.sum()),
+        "slices_left_out": nearly_empty,
         "axis_from": f"the stack result '{name}'" if "center_offset" in info else "the imported scan",
         "noise": {k: _round(v) if isinstance(v, float) else v for k, v in noise.items()},
         "open_beam": {
@@ -454,26 +455,18 @@ def generate_like(
     return DataStore.open(store.path, mode="r+")
 
 
+@cached_by_file(f"{_SLICES}/zarr.json", maxsize=4)
 def _stored_slices(path: str) -> np.ndarray:
-    return _read_slices(path, file_stamp(Path(path) / _SLICES / "zarr.json"))
-
-
-def _stored_measured(path: str) -> tuple[np.ndarray, np.ndarray]:
-    return _read_measured(path, file_stamp(Path(path) / _MEASURED / "zarr.json"))
-
-
-@lru_cache(maxsize=4)
-def _read_slices(path: str, stamp: tuple[int, int]) -> np.ndarray:
-    """The stored slices, cached per process (``stamp``: a set made again at the same path is read again)."""
+    """The stored slices, read once per process (again where the set was made again at the same path)."""
     group = zarr.open_group(path, mode="r")
     if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
         raise StoreError(f"{path} lacks the scan's slices of its matched set; run the same 'generate --like' again")
     return np.asarray(group[_SLICES][:], dtype=np.float32)
 
 
-@lru_cache(maxsize=4)
-def _read_measured(path: str, stamp: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """The stored sinograms of the measured pairs and their undone motion, cached like :func:`_read_slices`."""
+@cached_by_file(f"{_MEASURED}/zarr.json", maxsize=4)
+def _stored_measured(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """The stored sinograms of the measured pairs and their undone motion, cached like :func:`_stored_slices`."""
     group = zarr.open_group(path, mode="r")
     if _MEASURED not in group or not group[_MEASURED].attrs.get("complete"):
         raise StoreError(
