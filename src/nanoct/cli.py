@@ -177,7 +177,8 @@ def generate(
         "0.4,0.2,0.4",
         "--mix",
         help="With --like: proportions of paper shapes, ellipses, the scan's own slices[, measured pairs: the "
-        "scan's own views with a motion added, its FBP as reference, for --calibrate-on].",
+        "scan's own views with a motion added, its FBP as reference; to train on (with --hold-out) or, alone, "
+        "for predict --calibrate-on].",
     ),
     motion_from: str | None = typer.Option(
         None, "--motion-from", help="With --like: the 'nanoct stack' result whose motion to match (default: any)."
