@@ -203,6 +203,67 @@ def test_group_conditional_coverage_is_within_the_finite_sample_bound(rng):
     assert np.all(mean <= level + 1 / (n_g + 1) + 0.01), (mean, n_g)
 
 
+def _missed_rim_data(n, rng, size=24):
+    """A disk object (radius 8) of which the prediction-time support sees only the core (radius 5): the rim's
+    pixels fall in the background group, with errors of the object's size (0.05 + std) but a background std."""
+    yy, xx = np.mgrid[:size, :size] - size / 2
+    r = np.hypot(xx, yy)
+    truth, seen = np.broadcast_to(r <= 8, (n, size, size)), np.broadcast_to(r <= 5, (n, size, size))
+    std = np.where(seen, rng.uniform(0.01, 0.1, truth.shape), rng.uniform(0.005, 0.03, truth.shape))
+    err = rng.normal(size=std.shape) * np.where(truth, 0.05 + std, std)
+    return err, std, seen, truth
+
+
+def test_object_conditional_intervals_cover_the_object_the_support_misses(rng):
+    """Where the support misses part of the object, the group multipliers leave those object pixels uncovered;
+    object-conditional multipliers (the larger of the object's and the rest's) cover both classes of every
+    group at the level, and the background of the group holding missed object pixels more than that."""
+    err, std, seen, truth = _missed_rim_data(150, rng)
+    cuts = fit_group_cuts(std, seen)
+    labels = _labels(std, seen, cuts)
+    plain = fit_group_intervals(err, std, labels, 0.9)
+    fit = fit_group_intervals(err, std, labels, 0.9, truth=truth)
+    assert "class_multipliers" not in plain and len(fit["class_multipliers"]) == 6
+    q_obj, q_rest = fit["class_multipliers"][0]
+    assert fit["multipliers"][0] == max(q_obj, q_rest) and q_obj > q_rest
+    for g in range(1, 6):  # the core is all object: its groups keep their multipliers
+        assert fit["class_multipliers"][g][1] is None and fit["multipliers"][g] == plain["multipliers"][g]
+    assert min(fit["object_val_coverage"]) >= 0.9
+    assert fit["multipliers"][0] > 1.5 * plain["multipliers"][0]  # the rim's errors set the background group's
+    fresh_err, fresh_std, fresh_seen, fresh_truth = _missed_rim_data(300, rng)
+    fresh_labels = _labels(fresh_std, fresh_seen, cuts)
+    base = np.where(
+        fresh_labels > 0, apply_width_map(fresh_std, fit["maps"][1]), apply_width_map(fresh_std, fit["maps"][0])
+    )
+    for entry, floor in ((plain, None), (fit, 0.9)):
+        inside = np.abs(fresh_err) <= np.asarray(entry["multipliers"])[fresh_labels] * base
+        on_object = [inside[(fresh_labels == g) & fresh_truth].mean() for g in range(6)]
+        rest = [inside[(fresh_labels == g) & ~fresh_truth].mean() for g in range(6) if g == 0]
+        if floor is None:
+            assert on_object[0] < 0.6  # the missed rim, with the background's multiplier
+        else:
+            assert min(on_object) > floor - 0.015 and rest[0] > 0.97
+    with pytest.raises(ValueError, match="object has shape"):
+        fit_group_intervals(err, std, labels, 0.9, truth=truth[:2])
+
+
+def test_object_conditional_multiplier_falls_back_for_a_class_too_small(rng):
+    """A class with too few pixels of a group for the level gets no multiplier of its own there (None); the other
+    class's sets the group's, and a group with neither class large enough keeps the group's own."""
+    err, std, seen, truth = _missed_rim_data(20, rng)
+    labels = _labels(std, seen, fit_group_cuts(std, seen))
+    truth = truth.copy()
+    truth[labels == 0] = False
+    truth[0, 0, 0] = labels[0, 0, 0] == 0  # one object pixel in the background group
+    fit = fit_group_intervals(err, std, labels, 0.9, truth=truth)
+    assert fit["class_multipliers"][0][0] is None and fit["multipliers"][0] == fit["class_multipliers"][0][1]
+    assert all(q_rest is None for _, q_rest in fit["class_multipliers"][1:])  # the core is all object
+    small = np.where(labels == 5, -1, labels)
+    small[0, 12, 12] = 5  # one pixel: pooled, as without truth
+    fit = fit_group_intervals(err, std, small, 0.9, truth=truth)
+    assert fit["pooled"][5] and fit["class_multipliers"][5] == [None, None]
+
+
 def test_support_threshold_recovers_the_object(rng):
     yy, xx = np.mgrid[:32, :32] - 16
     truth = np.broadcast_to((np.abs(xx) < 9) & (np.abs(yy) < 6), (5, 32, 32))

@@ -251,3 +251,12 @@ def test_the_support_of_a_reconstructed_reference_is_thresholded_not_positive():
     for found, true in ((both[1], support_mask(disc)), (truth_support(reference, radius=0), disc)):
         assert (found & true).sum() / (found | true).sum() > 0.9  # the smoothed edge, within a pixel
         assert not found[np.hypot(yy, xx) > 13].any()
+    # a reference known only in a field of view: the percentile is that of the known pixels, so values
+    # outside it (here a bright ring) do not move the threshold
+    view = np.hypot(yy, xx) < 15
+    ringed = np.where(view, reference, 5.0)
+    assert not truth_support(ringed, 0)[disc].any()
+    found = truth_support(ringed, 0, known=view)
+    inner = np.hypot(yy, xx) < 12  # away from the ring, which the smoothing spreads over the view's edge
+    np.testing.assert_array_equal(found[inner], truth_support(np.where(view, reference, -1.0), 0, known=view)[inner])
+    assert ((found & inner) & disc).sum() / ((found & inner) | disc).sum() > 0.9

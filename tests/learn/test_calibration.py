@@ -13,6 +13,7 @@ import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
 from nanoct.evaluation.conformal import apply_width_map, fit_group_intervals, fit_width_map, group_labels
+from nanoct.evaluation.metrics import truth_support
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
@@ -111,7 +112,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 8 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 9 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -323,7 +324,7 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
                           split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)  # fmt: skip
     gts = pairs.read_phantoms(pairs.indices("val"))
     rule = cal_mod.reference_rule(pairs, gts)
-    assert rule["support_source"] == "relative"
+    assert rule["support_source"] == "relative" and rule["object_conditional"] is True
     np.testing.assert_array_equal(rule["known"], fov_disc(pairs.geometry) > 0)
     assert cal_mod.reference_rule(tiny_store, tiny_store.read_phantoms([0, 1])) == {}
     # the std outside ``known`` (the support is the mean's) does not move the fit; the groups' fit is that
@@ -336,5 +337,8 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
     assert again["levels"] == fit["levels"] and fit["known_pixels"] == 3 * int(rule["known"].sum())
     groups = fit["levels"]["0.9"]["groups"]
     labels = np.where(rule["known"], group_labels(stds, groups, means), -1)
-    by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9)
+    truth = truth_support(gts, 0, known=rule["known"]) & rule["known"]
+    by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9, truth=truth)
     assert {k: groups[k] for k in by_hand} == by_hand and groups["support"]["source"] == "relative"
+    assert fit["object_conditional"] and "class_multipliers" in groups
+    assert not cal_mod.fit_intervals(means, stds, gts, levels=(0.9,))["object_conditional"]

@@ -425,6 +425,27 @@ def _region_maps(err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: fl
     return maps
 
 
+def _class_multipliers(
+    err: np.ndarray, base: np.ndarray, m: np.ndarray, truth: np.ndarray, level: float, delta: float
+) -> tuple[list[float | None], list[float | None]]:
+    """Split-conformal and risk-controlling multipliers of group ``m``'s pixels on the reference's object and
+    of its other pixels ([object, other] each; None for a class too small for the level or the guarantee)."""
+    q: list[float | None] = []
+    rcps: list[float | None] = []
+    for part in (m & truth, m & ~truth):
+        n = int(part.sum())
+        if math.ceil((n + 1) * level) > n:
+            q.append(None)
+            rcps.append(None)
+            continue
+        q.append(conformal_multiplier(err[part], base[part], level))
+        try:
+            rcps.append(rcps_multiplier(err, base, level, delta, mask=part))
+        except ValueError:
+            rcps.append(None)
+    return q, rcps
+
+
 def fit_group_intervals(
     err: np.ndarray,
     std: np.ndarray,
@@ -432,6 +453,7 @@ def fit_group_intervals(
     level: float,
     delta: float = DEFAULT_DELTA,
     n_groups: int = OBJECT_WIDTH_BINS + 1,
+    truth: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Group-conditional (Mondrian) split-conformal intervals of one level on validation outputs (n, H, W).
 
@@ -451,6 +473,17 @@ def fit_group_intervals(
     risk-controlling multiplier (:func:`rcps_multiplier` with the group's mask; None where the
     images are too few).
 
+    ``truth`` (bool, the shape of ``err``): the object as the validation references show it
+    (:func:`nanoct.evaluation.metrics.truth_support`). With it the calibration is object-conditional
+    (label-conditional Mondrian): each group's multiplier is the larger of the split-conformal
+    multipliers of its pixels on the reference's object and of its other pixels, so a new pixel of
+    group g is covered with probability at least ``level`` both where the reference is object and
+    where it is not, whatever part of the object the prediction-time support misses (at the price of
+    wider intervals on the background of a group that holds missed object pixels). A class with too
+    few pixels of a group for the level has no multiplier of its own there (``class_multipliers``:
+    None in its place), and its pixels of that group are covered only through the other class's
+    multiplier (the group's own where neither class has enough).
+
     A group with too few validation pixels for the level (``(n_g + 1) level > n_g``, e.g. none)
     gets the multiplier of all pixels (``pooled`` True for it): its guarantee is then only the
     marginal one over all pixels.
@@ -459,23 +492,38 @@ def fit_group_intervals(
     -------
     dict
         ``maps`` (background, object), ``multipliers``, ``rcps_multipliers``,
-        ``guaranteed_coverage``, ``val_coverage``, ``n_pixels`` and ``pooled``, lists over the groups.
+        ``guaranteed_coverage``, ``val_coverage``, ``n_pixels`` and ``pooled``, lists over the groups;
+        with ``truth`` also ``class_multipliers`` ([object, other] per group) and
+        ``object_val_coverage`` (per group, on the reference's object; None where it has no pixel).
 
     Raises
     ------
     ValueError
-        If there is no positive finite multiplier.
+        If there is no positive finite multiplier, or ``truth`` has another shape than ``err``.
     """
     err, std = np.abs(np.asarray(err, np.float64)), np.asarray(std, np.float64)
     labels = np.asarray(labels)
+    if truth is not None:
+        if np.shape(truth) != err.shape:
+            raise ValueError(f"the reference's object has shape {np.shape(truth)}, the errors {err.shape}")
+        truth = np.asarray(truth, bool)
     maps = _region_maps(err, std, labels, level)
     base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     known = labels >= 0
-    q, rcps, pooled = [], [], []
+    q, rcps, pooled, by_class = [], [], [], []
     for g in range(n_groups):
         m = labels == g
         pooled.append(math.ceil((int(m.sum()) + 1) * level) > int(m.sum()))
         fit_on = known if pooled[-1] else m
+        per_class, class_rcps = [None, None], [None, None]
+        if truth is not None and not pooled[-1]:
+            per_class, class_rcps = _class_multipliers(err, base, m, truth, level, delta)
+        by_class.append(per_class)
+        if any(v is not None for v in per_class):
+            q.append(max(v for v in per_class if v is not None))
+            fitted = [r for r, v in zip(class_rcps, per_class) if v is not None]
+            rcps.append(None if None in fitted else max(fitted))
+            continue
         q.append(conformal_multiplier(err[fit_on], base[fit_on], level))
         try:
             rcps.append(rcps_multiplier(err, base, level, delta, mask=m))
@@ -483,7 +531,7 @@ def fit_group_intervals(
             rcps.append(None)
     half = np.asarray(q)[labels] * base
     sizes = [int((labels == g).sum()) for g in range(n_groups)]
-    return {
+    out = {
         "maps": maps,
         "multipliers": q,
         "rcps_multipliers": rcps,
@@ -492,3 +540,8 @@ def fit_group_intervals(
         "n_pixels": sizes,
         "pooled": pooled,
     }
+    if truth is not None:
+        on = [(labels == g) & truth for g in range(n_groups)]
+        out["class_multipliers"] = by_class
+        out["object_val_coverage"] = [float(np.mean((err <= half)[o])) if o.any() else None for o in on]
+    return out

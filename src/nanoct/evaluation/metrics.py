@@ -293,24 +293,28 @@ def support_mask(gts: np.ndarray, radius: int = SUPPORT_RADIUS) -> np.ndarray:
     return ndimage.binary_dilation(gts > 0, structure=structure) if radius > 0 else gts > 0
 
 
-def truth_support(gts: np.ndarray, radius: int = SUPPORT_RADIUS) -> np.ndarray:
+def truth_support(gts: np.ndarray, radius: int = SUPPORT_RADIUS, known: np.ndarray | None = None) -> np.ndarray:
     """The object's support in a ground truth that may be a reconstruction, per image.
 
     A phantom (no negative value) gets :func:`support_mask`. A reference reconstructed from measured
     data (negative values: its noise) is positive over much of its background, so there the object is
     the reference smoothed by a Gaussian of ``REFERENCE_SMOOTH_PX`` above ``REFERENCE_FRACTION`` of its
     own 99th percentile, dilated as :func:`support_mask` dilates (the object of the semi-real
-    evaluation, ``docs/semireal_networks.md``).
+    evaluation, ``docs/semireal_networks.md``). ``known`` (bool, (H, W) or the stack's shape): the
+    pixels where the reference is known (e.g. the field of view); the percentile is taken over
+    those, and the support is not limited to them.
     """
     gts = np.asarray(gts, np.float64)
     stack = gts.reshape(-1, *gts.shape[-2:])
+    where = None if known is None else np.broadcast_to(np.asarray(known, bool), gts.shape).reshape(stack.shape)
     out = []
-    for gt in stack:
+    for i, gt in enumerate(stack):
         if gt.min() >= 0:
             out.append(support_mask(gt, radius))
             continue
         smooth = ndimage.gaussian_filter(gt, REFERENCE_SMOOTH_PX)
-        out.append(support_mask(smooth > REFERENCE_FRACTION * np.percentile(gt, 99), radius))
+        level = np.percentile(gt if where is None else gt[where[i]], 99)
+        out.append(support_mask(smooth > REFERENCE_FRACTION * level, radius))
     return np.stack(out).reshape(gts.shape)
 
 
