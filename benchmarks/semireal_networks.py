@@ -41,8 +41,9 @@ since the reference is an FBP with noise of its own, also with the interval wide
 The intervals of the same CiUNetRes predictions are scored twice: calibrated on the matched set's
 validation split (``predict``'s default) and on the scan's own measured pairs (``nanoct generate
 --like MOVED --mix 0,0,0,1 --split-fractions 0,1,0``, then ``predict --calibrate-on``), the latter
-also refitted without the pairs of the evaluated slices, and checked on the pairs themselves
-(fitted on the even-numbered, scored on the odd-numbered; :func:`pairs_cross_fit`).
+also refitted without the pairs of the evaluated slices and, for comparison, without the
+object-conditional multipliers, and checked on the pairs themselves (fitted on the even-numbered,
+scored on the odd-numbered; :func:`pairs_cross_fit`).
 """
 
 from __future__ import annotations
@@ -62,7 +63,8 @@ from skimage.metrics import structural_similarity
 
 from nanoct.cli import run
 from nanoct.core.geometry import Geometry
-from nanoct.evaluation.metrics import register
+from nanoct.evaluation.conformal import group_labels
+from nanoct.evaluation.metrics import register, truth_support
 from nanoct.io.store import DataStore, create_scan
 from nanoct.learn.calibration import fit_intervals, half_width, reference_rule
 from nanoct.recon.fbp import fbp
@@ -128,9 +130,10 @@ def fov(g: Geometry) -> np.ndarray:
 
 
 def object_mask(ref: np.ndarray, disc: np.ndarray) -> np.ndarray:
-    """The object: the Gaussian-smoothed (1 px) reference above 30 % of its 99th percentile in the disc."""
-    smooth = ndimage.gaussian_filter(ref, 1.0)
-    return disc & (smooth > 0.3 * np.percentile(ref[disc], 99))
+    """The object: the Gaussian-smoothed (1 px) reference above 30 % of its 99th percentile in the disc
+    (:func:`nanoct.evaluation.metrics.truth_support`, not dilated: the object the calibration on measured
+    pairs conditions on)."""
+    return disc & truth_support(ref, 0, known=disc)
 
 
 def score(image: np.ndarray, ref: np.ndarray, disc: np.ndarray) -> dict[str, float]:
@@ -237,6 +240,9 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
         "matched": hws,
         "pairs": half_width(store.reconstruction_params(SCAN_CALIBRATED), std, 0.9, mean=mean),
         "pairs_other_slices": half_width({"calibration": pairs_fit_without(work, slices)}, std, 0.9, mean=mean),
+        "pairs_not_object_conditional": half_width(
+            {"calibration": pairs_fit_without(work, [], object_conditional=False)}, std, 0.9, mean=mean
+        ),
     }
     table = {}
     for i, s in enumerate(slices):
@@ -244,17 +250,40 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
         shift = table[s][name]["shift"]
         for key, hw in calibrations.items():
             table[s][f"coverage_{key}"] = coverage(mean[i], hw[i], refs[s], disc, shift, noise[s])
-            table[s][f"width_{key}"] = float(np.median(2 * hw[i][object_mask(refs[s], disc)]))
+            obj = object_mask(refs[s], disc)
+            table[s][f"width_{key}"] = float(np.median(2 * hw[i][obj]))
+            table[s][f"width_background_{key}"] = float(np.median(2 * hw[i][disc & ~obj]))
+    table["object_by_group_pairs"] = object_by_group(
+        store.reconstruction_params(SCAN_CALIBRATED), mean, std, calibrations["pairs"], refs[slices], disc,
+        [table[s][name]["shift"] for s in slices],
+    )  # fmt: skip
     outside = (np.abs(refs[slices] - mean) > calibrations["pairs"]) & disc
     images.update(std=std, reference=refs[slices], outside=outside)
     table["ood"] = store.reconstruction_note(name, "ood")
     return table, images
 
 
-def pairs_fit_without(work: Path, slices: list[int]) -> dict:
+def object_by_group(
+    params: dict, mean: np.ndarray, std: np.ndarray, hw: np.ndarray, refs: np.ndarray, disc: np.ndarray, shifts: list
+) -> list[list[int]]:
+    """Object pixels covered and counted per prediction-time group (0: labelled background, 1-5: the object's
+    std fifths) over the evaluated slices, registered: the coverage on the object in every width fifth."""
+    labels = group_labels(std, params["calibration"]["levels"]["0.9"]["groups"], mean)
+    counts = np.zeros((6, 2), np.int64)
+    for i, shift in enumerate(shifts):
+        m, h = ndimage.shift(mean[i], shift, order=1), ndimage.shift(hw[i], shift, order=1)
+        lab = ndimage.shift(labels[i], shift, order=0, mode="nearest")
+        obj, inside = object_mask(refs[i], disc), np.abs(refs[i] - m) <= h
+        for g in range(6):
+            counts[g] += [int(inside[obj & (lab == g)].sum()), int((obj & (lab == g)).sum())]
+    return counts.tolist()
+
+
+def pairs_fit_without(work: Path, slices: list[int], object_conditional: bool = True) -> dict:
     """The calibration on the measured pairs whose scan slice is none of the evaluated ``slices`` (the pairs'
     validation predictions of ``predict pairs --split val``, refitted here without those slices, as
-    ``predict --calibrate-on`` fits: :func:`nanoct.learn.calibration.reference_rule`)."""
+    ``predict --calibrate-on`` fits: :func:`nanoct.learn.calibration.reference_rule`; with
+    ``object_conditional`` False, with the group multipliers alone, for comparison)."""
     pairs = DataStore.open(work / "pairs")
     rows = zarr.open_group(str(pairs.path), mode="r")["like_measured"].attrs["rows"]
     val = pairs.indices("val")
@@ -262,7 +291,8 @@ def pairs_fit_without(work: Path, slices: list[int]) -> dict:
     kept = val[keep]
     print(f"pairs without the evaluated slices: {kept.size} of {val.size}")
     means, stds, gts = _pairs_outputs(pairs, kept)
-    return fit_intervals(means, stds, gts, levels=(0.9,), **reference_rule(pairs, gts))
+    rule = reference_rule(pairs, gts) | {"object_conditional": object_conditional}
+    return fit_intervals(means, stds, gts, levels=(0.9,), **rule)
 
 
 def _pairs_outputs(pairs: DataStore, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,8 +312,9 @@ def pairs_cross_fit(work: Path) -> None:
     fit_on, score_on = np.arange(val.size) % 2 == 0, np.arange(val.size) % 2 == 1
     obj = np.stack([object_mask(g, disc) for g in gts[score_on]])
     variants = {
-        "delivered (relative support, field of view)": rule,
-        "relative support, field of view, not dilated": rule | {"support_radius": 0},
+        "delivered (relative support, field of view, object-conditional)": rule,
+        "relative support, field of view": rule | {"object_conditional": False},
+        "relative support, field of view, not dilated": rule | {"support_radius": 0, "object_conditional": False},
         "relative support, all pixels": {"support_source": "relative"},
         "std support, field of view": {"known": rule["known"]},
         "std support, all pixels": {},
@@ -307,18 +338,24 @@ def summarize(table: dict, slices: list[int]) -> None:
     for row in ROWS[2:]:
         d = [table[s][row]["psnr_reg"] - table[s]["dremel"]["psnr_reg"] for s in slices]
         print(f"{row} - dremel (registered PSNR): mean {np.mean(d):+.2f} dB, worst {min(d):+.2f}, best {max(d):+.2f}")
-    for key in ("matched", "pairs", "pairs_other_slices"):
+    for key in ("matched", "pairs", "pairs_other_slices", "pairs_not_object_conditional"):
         cov = {
             k: np.mean([table[s][f"coverage_{key}"][k] for s in slices]) for k in table[slices[0]]["coverage_matched"]
         }
+        widths = [np.mean([table[s][f"width{part}_{key}"] for s in slices]) for part in ("", "_background")]
         print(f"CiUNetRes 90 % intervals calibrated on {key}, mean over slices: "
-              + ", ".join(f"{k} {v:.3f}" for k, v in cov.items()))  # fmt: skip
+              + ", ".join(f"{k} {v:.3f}" for k, v in cov.items())
+              + f"; median width object {widths[0]:.4f}, background {widths[1]:.4f}")  # fmt: skip
         print(
             "  per slice (object coverage registered, median interval width on the object): "
             + ", ".join(
                 f"{s}: {table[s][f'coverage_{key}']['object_reg']:.2f}/{table[s][f'width_{key}']:.4f}" for s in slices
             )  # fmt: skip
         )
+    by_group = table.get("object_by_group_pairs")
+    if by_group:
+        print("  object coverage by group, calibrated on pairs (labelled background, std fifths 1-5; covered/pixels): "
+              + ", ".join(f"{c / n:.3f} ({n})" if n else "- (0)" for c, n in by_group))  # fmt: skip
     ood = table.get("ood") or {}
     print(
         f"OOD ({ood.get('statistic')}, alpha {ood.get('alpha')}): flagged {ood.get('flagged')}; "
