@@ -19,6 +19,11 @@ validation images' std level and the apparent-motion scores of the train and val
 sinograms (:func:`nanoct.learn.scan_ood.scan_reference`) are kept for the out-of-distribution
 check of :func:`nanoct.learn.predict.predict`.
 
+Where the validation references are reconstructions of measured data (a scan's measured pairs,
+:func:`reference_rule`) the group multipliers are object-conditional: each is the larger of those
+of the group's pixels on the reference's object and of its other pixels, so the coverage holds on
+the object even where the network misses part of it.
+
 The fit lives in ``<run>/calibration.json``, one entry per checkpoint (``"best"``, ``"last"``) for
 the data set the run was trained on, and one per checkpoint and data set for a fit on another data
 set's validation split (``nanoct predict --calibrate-on``: e.g. a scan's own measured pairs,
