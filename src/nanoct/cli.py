@@ -498,8 +498,9 @@ def predict(
     validation split of the data it was trained on (group-conditional split conformal, with the
     coverage guaranteed with probability 90 %) and stored with the result (export them with
     'nanoct export --interval'); --calibrate-on fits them on another data set's validation split,
-    e.g. a measured scan's own slices with a known motion added and its FBP as reference
-    (docs/uncertainty.md). Images whose std level is above the validation split's, or
+    e.g. a measured scan's own slices with a known motion added and its FBP as reference, where
+    each group's multiplier also covers the reference's object pixels it holds
+    (object-conditional; docs/uncertainty.md). Images whose std level is above the validation split's, or
     whose sinogram shows more apparent motion than the training scans, are reported as out of
     distribution (docs/uncertainty.md).
     """

@@ -112,7 +112,7 @@ def test_training_lowers_loss_and_writes_run(store, tmp_path):
     assert isinstance(model_from_checkpoint(best), torch.nn.Module)
 
 
-def test_a_flow_on_a_set_matched_to_a_scan_takes_its_target_noise_relative(store, tmp_path):
+def test_a_network_on_a_set_matched_to_a_scan_takes_its_target_noise_and_error_relative(store, tmp_path):
     scan = scan_store(tmp_path / "scan")
     like = generate_like(tmp_path / "matched", plan_matched(scan.path, binning=2), 4, seed=1,
                          split_fractions=(0.5, 0.5, 0.0), workers=0, progress=False)  # fmt: skip
@@ -121,7 +121,9 @@ def test_a_flow_on_a_set_matched_to_a_scan_takes_its_target_noise_relative(store
     assert model_arguments(like.path, "cinn") == {"target_noise_scale": "range"}
     asked = {**tiny, "target_noise_scale": "absolute"}
     assert model_arguments(like.path, "ciunet-res", asked) == asked  # --param wins
-    assert model_arguments(like.path, "unet", SMALL) == SMALL  # the UNet has no target noise
+    assert model_arguments(like.path, "unet", SMALL) == {**SMALL, "loss_scale": "range"}  # its MSE, relative
+    assert model_arguments(like.path, "unet", {"loss_scale": "absolute"}) == {"loss_scale": "absolute"}
+    assert model_arguments(store, "unet", SMALL) == SMALL
     assert model_arguments(store, "ciunet-res") == {}  # a simulated set keeps the paper's absolute noise
     assert model_arguments(tmp_path / "missing", "ciunet-res") == {}  # reported where the data are read
     reconstruct_dataset(like.path, "fbp", workers=0, progress=False)

@@ -116,3 +116,27 @@ def test_output_bias_starts_near_the_zero_background():
     default = UNetPost(channels=[4, 4, 4, 4, 4]).eval()
     with torch.no_grad():
         assert float(default(torch.rand(2, 1, 31, 31)).mean()) > 0.2  # PyTorch's default start: ~0.5
+
+
+def test_range_loss_weighs_each_image_by_its_own_range():
+    """``loss_scale="range"``: the batch mean of each image's MSE over its target's (max - min)^2, so a faint
+    image with the same relative error weighs as a bright one; recorded in hparams, the default is not."""
+    torch.manual_seed(0)
+    model = build_model("unet", channels=list(SMALL), loss_scale="range")
+    assert model.hparams["loss_scale"] == "range" and "loss_scale" not in build_model("unet").hparams
+    assert build_model("unet", **model.hparams).hparams == model.hparams
+    x_tilde = torch.rand(2, 1, 31, 31)
+    x = torch.rand(2, 1, 31, 31) * torch.tensor([1.0, 0.003]).view(2, 1, 1, 1)
+    loss, logs = model.loss(x_tilde, x)
+    out = model(x_tilde)
+    spread = x.amax(dim=(1, 2, 3)) - x.amin(dim=(1, 2, 3))
+    by_hand = torch.mean(torch.mean((out - x) ** 2, dim=(1, 2, 3)) / spread**2)
+    assert torch.allclose(loss, by_hand) and loss.requires_grad
+    assert logs["relative_mse"] == pytest.approx(float(by_hand)) and logs["mse"] == pytest.approx(
+        float(torch.mean((out - x) ** 2))
+    )
+    # the faint image dominates the relative loss (its error is large against its range), not the absolute one
+    per_image = torch.mean((out - x) ** 2, dim=(1, 2, 3)) / spread**2
+    assert per_image[1] > 100 * per_image[0]
+    with pytest.raises(NanoctError, match="loss_scale must be one of absolute, range, got 'relative'"):
+        build_model("unet", loss_scale="relative")

@@ -22,7 +22,7 @@ from torch import nn
 
 from .base import PostProcessor
 
-__all__ = ["UNet", "UNetPost", "padded_size"]
+__all__ = ["LOSS_SCALES", "UNet", "UNetPost", "padded_size"]
 
 PAPER_CHANNELS = (32, 32, 64, 64, 128)
 
@@ -174,11 +174,19 @@ class UNet(nn.Module):
         return self.forward_features(x)[0]
 
 
+#: What the UNet's squared error is measured against: ``"absolute"`` (the images' units, the paper's
+#: MSE) or ``"range"`` (each target image's max - min: the mean over the batch of each image's MSE
+#: divided by its range squared, so a faint image weighs in training as a bright one does, as PSNR
+#: weighs them; for a data set of scan slices whose contrast differs by orders of magnitude).
+LOSS_SCALES = ("absolute", "range")
+
+
 class UNetPost(PostProcessor):
     """UNet post-processing (``name = "unet"``): trained with the mean squared error.
 
-    Keyword arguments are those of :class:`UNet` (minus in/out channels); the resolved values
-    are stored in ``hparams``.
+    Keyword arguments are those of :class:`UNet` (minus in/out channels), and ``loss_scale``
+    (:data:`LOSS_SCALES`; recorded only when not the paper's ``"absolute"``, so that earlier runs
+    resume); the resolved values are stored in ``hparams``.
     """
 
     name = "unet"
@@ -191,7 +199,10 @@ class UNetPost(PostProcessor):
         use_norm: bool = True,
         pad_mode: str = "reflect",
         out_bias: float = 0.0,
+        loss_scale: str = "absolute",
     ) -> None:
+        if loss_scale not in LOSS_SCALES:
+            raise ValueError(f"loss_scale must be one of {', '.join(LOSS_SCALES)}, got {loss_scale!r}")
         skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
         super().__init__(
             channels=[int(c) for c in channels],
@@ -200,16 +211,25 @@ class UNetPost(PostProcessor):
             use_norm=bool(use_norm),
             pad_mode=str(pad_mode),
             out_bias=float(out_bias),
+            **({} if loss_scale == "absolute" else {"loss_scale": str(loss_scale)}),
         )
-        self.net = UNet(1, 1, **self.hparams)
+        self.loss_scale = str(loss_scale)
+        self.net = UNet(1, 1, **{k: v for k, v in self.hparams.items() if k != "loss_scale"})
 
     def forward(self, x_tilde: torch.Tensor) -> torch.Tensor:
         return self.net(x_tilde)
 
     def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
-        """Mean squared error over pixels and batch."""
-        mse = F.mse_loss(self.net(x_tilde), x)
-        return mse, {"mse": float(mse.detach())}
+        """Mean squared error over pixels and batch; with ``loss_scale="range"`` each image's MSE divided by
+        its target's (max - min)^2 (at least 1e-12), averaged over the batch (logged as ``relative_mse``)."""
+        out = self.net(x_tilde)
+        mse = F.mse_loss(out, x)
+        if self.loss_scale == "absolute":
+            return mse, {"mse": float(mse.detach())}
+        out = out.float()
+        spread = (x.amax(dim=(1, 2, 3)) - x.amin(dim=(1, 2, 3))).clamp_min(1e-6)
+        relative = (((out - x) ** 2).mean(dim=(1, 2, 3)) / spread**2).mean()
+        return relative, {"mse": float(mse.detach()), "relative_mse": float(relative.detach())}
 
     @torch.no_grad()
     def reconstruct(self, x_tilde: torch.Tensor, **kwargs: Any) -> tuple[torch.Tensor, None]:
