@@ -425,6 +425,18 @@ def _region_maps(err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: fl
     return maps
 
 
+def _multipliers(
+    err: np.ndarray, base: np.ndarray, fit_on: np.ndarray, mask: np.ndarray, level: float, delta: float
+) -> tuple[float, float | None]:
+    """The split-conformal multiplier of the pixels ``fit_on`` and the risk-controlling one of the pixels
+    ``mask`` (None where the images are too few for it)."""
+    q = conformal_multiplier(err[fit_on], base[fit_on], level)
+    try:
+        return q, rcps_multiplier(err, base, level, delta, mask=mask)
+    except ValueError:
+        return q, None
+
+
 def _class_multipliers(
     err: np.ndarray, base: np.ndarray, m: np.ndarray, truth: np.ndarray, level: float, delta: float
 ) -> tuple[list[float | None], list[float | None]]:
@@ -438,11 +450,9 @@ def _class_multipliers(
             q.append(None)
             rcps.append(None)
             continue
-        q.append(conformal_multiplier(err[part], base[part], level))
-        try:
-            rcps.append(rcps_multiplier(err, base, level, delta, mask=part))
-        except ValueError:
-            rcps.append(None)
+        q_part, rcps_part = _multipliers(err, base, part, part, level, delta)
+        q.append(q_part)
+        rcps.append(rcps_part)
     return q, rcps
 
 
@@ -524,11 +534,9 @@ def fit_group_intervals(
             fitted = [r for r, v in zip(class_rcps, per_class) if v is not None]
             rcps.append(None if None in fitted else max(fitted))
             continue
-        q.append(conformal_multiplier(err[fit_on], base[fit_on], level))
-        try:
-            rcps.append(rcps_multiplier(err, base, level, delta, mask=m))
-        except ValueError:
-            rcps.append(None)
+        q_group, rcps_group = _multipliers(err, base, fit_on, m, level, delta)
+        q.append(q_group)
+        rcps.append(rcps_group)
     half = np.asarray(q)[labels] * base
     sizes = [int((labels == g).sum()) for g in range(n_groups)]
     out = {
