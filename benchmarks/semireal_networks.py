@@ -248,9 +248,9 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
     for i, s in enumerate(slices):
         table[s] = {row: score(images[row][i], refs[s], disc) for row in ROWS}
         shift = table[s][name]["shift"]
+        obj = object_mask(refs[s], disc)
         for key, hw in calibrations.items():
             table[s][f"coverage_{key}"] = coverage(mean[i], hw[i], refs[s], disc, shift, noise[s])
-            obj = object_mask(refs[s], disc)
             table[s][f"width_{key}"] = float(np.median(2 * hw[i][obj]))
             table[s][f"width_background_{key}"] = float(np.median(2 * hw[i][disc & ~obj]))
     table["object_by_group_pairs"] = object_by_group(

@@ -12,7 +12,19 @@ from typing import Any
 import torch
 from torch import nn
 
-__all__ = ["PostProcessor"]
+__all__ = ["VALUE_SCALES", "PostProcessor", "image_range"]
+
+#: What a training quantity in the images' units is measured against: ``"absolute"`` (the units
+#: themselves, the paper's) or ``"range"`` (each target image's max - min, :func:`image_range`, so
+#: faint and bright images count alike: scan slices whose contrast differs by orders of magnitude).
+VALUE_SCALES = ("absolute", "range")
+
+
+def image_range(x: torch.Tensor) -> torch.Tensor:
+    """Each image's max - min of a batch ``x`` (B, 1, H, W), detached, as a (B, 1, 1, 1) tensor of at least
+    1e-6 (so that a constant image does not divide by zero)."""
+    spread = x.detach().amax(dim=(1, 2, 3), keepdim=True) - x.detach().amin(dim=(1, 2, 3), keepdim=True)
+    return spread.clamp_min(1e-6)
 
 
 class PostProcessor(nn.Module):

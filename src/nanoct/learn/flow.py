@@ -14,7 +14,7 @@ import FrEIA.framework as Ff
 import numpy as np
 import torch
 
-from nanoct.learn.base import PostProcessor
+from nanoct.learn.base import VALUE_SCALES, PostProcessor, image_range
 from nanoct.learn.invertible import (
     ConditionalScale,
     RunningMoments,
@@ -36,7 +36,7 @@ __all__ = [
 #: What ``target_noise`` is a fraction of: ``"absolute"`` (a std in the images' units, the
 #: paper's data) or ``"range"`` (each target image's max - min, so faint and bright images get
 #: noise of the same relative size, as a data set of scan patches of very different contrast needs).
-TARGET_NOISE_SCALES = ("absolute", "range")
+TARGET_NOISE_SCALES = VALUE_SCALES
 
 
 def _jsonable(value: Any) -> Any:
@@ -98,8 +98,7 @@ def target_noise_std(x: torch.Tensor, target_noise: float, scale: str) -> float 
     """
     if scale == "absolute":
         return target_noise
-    spread = x.detach().amax(dim=(1, 2, 3), keepdim=True) - x.detach().amin(dim=(1, 2, 3), keepdim=True)
-    return target_noise * spread.clamp_min(1e-6)
+    return target_noise * image_range(x)
 
 
 class CheckpointMismatchError(ValueError, RuntimeError):

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .base import PostProcessor
+from .base import VALUE_SCALES, PostProcessor, image_range
 
 __all__ = ["LOSS_SCALES", "UNet", "UNetPost", "padded_size"]
 
@@ -178,7 +178,7 @@ class UNet(nn.Module):
 #: MSE) or ``"range"`` (each target image's max - min: the mean over the batch of each image's MSE
 #: divided by its range squared, so a faint image weighs in training as a bright one does, as PSNR
 #: weighs them; for a data set of scan slices whose contrast differs by orders of magnitude).
-LOSS_SCALES = ("absolute", "range")
+LOSS_SCALES = VALUE_SCALES
 
 
 class UNetPost(PostProcessor):
@@ -227,8 +227,7 @@ class UNetPost(PostProcessor):
         if self.loss_scale == "absolute":
             return mse, {"mse": float(mse.detach())}
         out = out.float()
-        spread = (x.amax(dim=(1, 2, 3)) - x.amin(dim=(1, 2, 3))).clamp_min(1e-6)
-        relative = (((out - x) ** 2).mean(dim=(1, 2, 3)) / spread**2).mean()
+        relative = (((out - x) ** 2).mean(dim=(1, 2, 3)) / image_range(x).flatten() ** 2).mean()
         return relative, {"mse": float(mse.detach()), "relative_mse": float(relative.detach())}
 
     @torch.no_grad()
