@@ -415,8 +415,8 @@ def train(
     last finished epoch. Under torchrun it trains with DDP, e.g.
     torchrun --nproc-per-node 2 -m nanoct train DIR --input fbp. On a set matched to a
     measured scan (generate --like) the invertible networks' training noise on the target
-    is relative to each image's range (target_noise_scale=range; --param
-    target_noise_scale=absolute keeps the paper's).
+    and the UNet's squared error are relative to each image's range
+    (target_noise_scale=range, loss_scale=range; --param ...=absolute keeps the paper's).
     """
     from .learn.train import TrainConfig
     from .learn.train import train as train_model
