@@ -241,7 +241,10 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
         "pairs": half_width(store.reconstruction_params(SCAN_CALIBRATED), std, 0.9, mean=mean),
         "pairs_other_slices": half_width({"calibration": pairs_fit_without(work, slices)}, std, 0.9, mean=mean),
         "pairs_not_object_conditional": half_width(
-            {"calibration": pairs_fit_without(work, [], object_conditional=False)}, std, 0.9, mean=mean
+            {"calibration": pairs_fit_without(work, [], object_conditional=False, footprint=False)}, std, 0.9, mean=mean
+        ),
+        "pairs_no_footprint": half_width(
+            {"calibration": pairs_fit_without(work, [], footprint=False)}, std, 0.9, mean=mean
         ),
     }
     table = {}
@@ -266,24 +269,28 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
 def object_by_group(
     params: dict, mean: np.ndarray, std: np.ndarray, hw: np.ndarray, refs: np.ndarray, disc: np.ndarray, shifts: list
 ) -> list[list[int]]:
-    """Object pixels covered and counted per prediction-time group (0: labelled background, 1-5: the object's
-    std fifths) over the evaluated slices, registered: the coverage on the object in every width fifth."""
-    labels = group_labels(std, params["calibration"]["levels"]["0.9"]["groups"], mean)
-    counts = np.zeros((6, 2), np.int64)
+    """Object pixels covered and counted per prediction-time group (0: labelled background, outside the sample's
+    footprint where the calibration has one, 1-5: the object's std fifths, 6: labelled background inside the
+    footprint) over the evaluated slices, registered: the coverage on the object in every width fifth."""
+    groups = params["calibration"]["levels"]["0.9"]["groups"]
+    labels = group_labels(std, groups, mean)
+    n_groups = len(groups["multipliers"])
+    counts = np.zeros((n_groups, 2), np.int64)
     for i, shift in enumerate(shifts):
         m, h = ndimage.shift(mean[i], shift, order=1), ndimage.shift(hw[i], shift, order=1)
         lab = ndimage.shift(labels[i], shift, order=0, mode="nearest")
         obj, inside = object_mask(refs[i], disc), np.abs(refs[i] - m) <= h
-        for g in range(6):
+        for g in range(n_groups):
             counts[g] += [int(inside[obj & (lab == g)].sum()), int((obj & (lab == g)).sum())]
     return counts.tolist()
 
 
-def pairs_fit_without(work: Path, slices: list[int], object_conditional: bool = True) -> dict:
+def pairs_fit_without(work: Path, slices: list[int], object_conditional: bool = True, footprint: bool = True) -> dict:
     """The calibration on the measured pairs whose scan slice is none of the evaluated ``slices`` (the pairs'
     validation predictions of ``predict pairs --split val``, refitted here without those slices, as
-    ``predict --calibrate-on`` fits: :func:`nanoct.learn.calibration.reference_rule`; with
-    ``object_conditional`` False, with the group multipliers alone, for comparison)."""
+    ``predict --calibrate-on`` fits: :func:`nanoct.learn.calibration.reference_rule`; for comparison, with
+    ``footprint`` False without the background's split at the sample's footprint, with ``object_conditional``
+    False with the group multipliers alone)."""
     pairs = DataStore.open(work / "pairs")
     rows = zarr.open_group(str(pairs.path), mode="r")["like_measured"].attrs["rows"]
     val = pairs.indices("val")
@@ -291,7 +298,7 @@ def pairs_fit_without(work: Path, slices: list[int], object_conditional: bool = 
     kept = val[keep]
     print(f"pairs without the evaluated slices: {kept.size} of {val.size}")
     means, stds, gts = _pairs_outputs(pairs, kept)
-    rule = reference_rule(pairs, gts) | {"object_conditional": object_conditional}
+    rule = reference_rule(pairs, gts) | {"object_conditional": object_conditional, "footprint": footprint}
     return fit_intervals(means, stds, gts, levels=(0.9,), **rule)
 
 
@@ -312,9 +319,11 @@ def pairs_cross_fit(work: Path) -> None:
     fit_on, score_on = np.arange(val.size) % 2 == 0, np.arange(val.size) % 2 == 1
     obj = np.stack([object_mask(g, disc) for g in gts[score_on]])
     variants = {
-        "delivered (relative support, field of view, object-conditional)": rule,
-        "relative support, field of view": rule | {"object_conditional": False},
-        "relative support, field of view, not dilated": rule | {"support_radius": 0, "object_conditional": False},
+        "delivered (relative support, field of view, object-conditional, footprint)": rule,
+        "relative support, field of view, object-conditional": rule | {"footprint": False},
+        "relative support, field of view": rule | {"object_conditional": False, "footprint": False},
+        "relative support, field of view, not dilated": rule
+        | {"support_radius": 0, "object_conditional": False, "footprint": False},
         "relative support, all pixels": {"support_source": "relative"},
         "std support, field of view": {"known": rule["known"]},
         "std support, all pixels": {},
@@ -338,7 +347,7 @@ def summarize(table: dict, slices: list[int]) -> None:
     for row in ROWS[2:]:
         d = [table[s][row]["psnr_reg"] - table[s]["dremel"]["psnr_reg"] for s in slices]
         print(f"{row} - dremel (registered PSNR): mean {np.mean(d):+.2f} dB, worst {min(d):+.2f}, best {max(d):+.2f}")
-    for key in ("matched", "pairs", "pairs_other_slices", "pairs_not_object_conditional"):
+    for key in ("matched", "pairs", "pairs_other_slices", "pairs_no_footprint", "pairs_not_object_conditional"):
         cov = {
             k: np.mean([table[s][f"coverage_{key}"][k] for s in slices]) for k in table[slices[0]]["coverage_matched"]
         }
@@ -354,7 +363,8 @@ def summarize(table: dict, slices: list[int]) -> None:
         )
     by_group = table.get("object_by_group_pairs")
     if by_group:
-        print("  object coverage by group, calibrated on pairs (labelled background, std fifths 1-5; covered/pixels): "
+        print("  object coverage by group, calibrated on pairs (labelled background outside the footprint, std fifths "
+              "1-5, labelled background inside the footprint; covered/pixels): "
               + ", ".join(f"{c / n:.3f} ({n})" if n else "- (0)" for c, n in by_group))  # fmt: skip
     ood = table.get("ood") or {}
     print(

@@ -10,6 +10,9 @@ import pytest
 from nanoct.evaluation.conformal import (
     apply_width_map,
     conformal_multiplier,
+    decode_mask,
+    encode_mask,
+    fit_footprint,
     fit_group_cuts,
     fit_group_intervals,
     fit_support_threshold,
@@ -245,6 +248,53 @@ def test_object_conditional_intervals_cover_the_object_the_support_misses(rng):
             assert min(on_object) > floor - 0.015 and rest[0] > 0.97
     with pytest.raises(ValueError, match="object has shape"):
         fit_group_intervals(err, std, labels, 0.9, truth=truth[:2])
+
+
+def _footprint_data(n, rng, size=24):
+    """Slices of one sample on one grid: a disk object (radius 8); the prediction (``mean``) sees all of it and a
+    pixel beyond (radius 9) in the even slices, only its core (radius 5) in the odd ones, whose rim then has
+    errors of the object's size (0.05 + std) but a background std."""
+    yy, xx = np.mgrid[:size, :size] - size / 2
+    r = np.hypot(xx, yy)
+    truth = np.broadcast_to(r <= 8, (n, size, size))
+    mean = np.stack([r <= (9 if i % 2 == 0 else 5) for i in range(n)]).astype(float)
+    std = np.where(mean > 0, rng.uniform(0.01, 0.1, truth.shape), rng.uniform(0.005, 0.03, truth.shape))
+    err = rng.normal(size=std.shape) * np.where(truth, 0.05 + std, std)
+    return err, std, mean, truth
+
+
+def test_a_footprint_keeps_the_background_outside_the_sample_narrow(rng):
+    """With the sample's footprint (the union of the slices' supports) the missed rim lies in the background
+    group inside it, so the background outside it is covered at the level with its own, narrow multiplier;
+    without it, object-conditional multipliers widen all the background for the rim's sake."""
+    mask = rng.random((5, 7)) > 0.5
+    np.testing.assert_array_equal(decode_mask(encode_mask(mask)), mask)
+    err, std, mean, truth = _footprint_data(120, rng)
+    rule = {"source": "mean", "threshold": 0.5, "radius": 0}
+    support = support_of(mean, 0.5, 0)
+    footprint = fit_footprint(support)
+    np.testing.assert_array_equal(footprint, support[0])  # the even slices' support holds the odd ones'
+    groups = {"support": rule, "cuts": fit_group_cuts(std, support)}
+    with_footprint = groups | {"footprint": encode_mask(footprint)}
+    labels, split = group_labels(std, groups, mean), group_labels(std, with_footprint, mean)
+    np.testing.assert_array_equal(split, np.where((labels == 0) & footprint, 6, labels))
+    assert (split[1::2][truth[1::2] & ~support[1::2]] == 6).all()  # the missed rim
+    fit = with_footprint | fit_group_intervals(err, std, split, 0.9, truth=truth, footprint=True)
+    plain = groups | fit_group_intervals(err, std, labels, 0.9, truth=truth)
+    assert len(fit["multipliers"]) == 7 and fit["class_multipliers"][0][0] is None  # no object outside it
+    # the rim's errors set the group inside the footprint as they set the whole background without it
+    assert fit["multipliers"][6] == pytest.approx(plain["multipliers"][0]) and fit["maps"] == plain["maps"]
+    assert fit["multipliers"][0] < plain["multipliers"][0] / 1.5
+    fresh_err, fresh_std, fresh_mean, fresh_truth = _footprint_data(300, rng)
+    fresh = group_labels(fresh_std, with_footprint, fresh_mean)
+    outside = fresh == 0
+    for entry, band in ((fit, (0.885, 0.915)), (plain, (0.97, 1.001))):
+        inside = np.abs(fresh_err) <= half_width_of(fresh_std, {"groups": entry}, image=fresh_mean)
+        assert band[0] < inside[outside].mean() < band[1]
+        assert min(inside[(fresh == g) & fresh_truth].mean() for g in range(1, 7)) > 0.885
+    # an image of another shape: all its background in the group inside the footprint (the wider one)
+    crop = group_labels(fresh_std[:2, :20, :20], with_footprint, fresh_mean[:2, :20, :20])
+    assert not (crop == 0).any() and (crop == 6).any()
 
 
 def test_object_conditional_multiplier_falls_back_for_a_class_too_small(rng):

@@ -12,7 +12,14 @@ import torch
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
-from nanoct.evaluation.conformal import apply_width_map, fit_group_intervals, fit_width_map, group_labels
+from nanoct.evaluation.conformal import (
+    apply_width_map,
+    decode_mask,
+    fit_group_intervals,
+    fit_width_map,
+    group_labels,
+    support_of,
+)
 from nanoct.evaluation.metrics import truth_support
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
@@ -112,7 +119,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 9 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 10 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -324,7 +331,7 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
                           split_fractions=(0.0, 1.0, 0.0), workers=0, progress=False)  # fmt: skip
     gts = pairs.read_phantoms(pairs.indices("val"))
     rule = cal_mod.reference_rule(pairs, gts)
-    assert rule["support_source"] == "relative" and rule["object_conditional"] is True
+    assert rule["support_source"] == "relative" and rule["object_conditional"] is True and rule["footprint"] is True
     np.testing.assert_array_equal(rule["known"], fov_disc(pairs.geometry) > 0)
     assert cal_mod.reference_rule(tiny_store, tiny_store.read_phantoms([0, 1])) == {}
     # the std outside ``known`` (the support is the mean's) does not move the fit; the groups' fit is that
@@ -338,7 +345,15 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
     groups = fit["levels"]["0.9"]["groups"]
     labels = np.where(rule["known"], group_labels(stds, groups, means), -1)
     truth = truth_support(gts, 0, known=rule["known"]) & rule["known"]
-    by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9, truth=truth)
+    # the footprint: the pixels of the field of view in the relative support of at least one image
+    relative = means / np.percentile(np.abs(means), 99, axis=(1, 2))[:, None, None]
+    supports = support_of(relative, groups["support"]["threshold"], groups["support"]["radius"], True)
+    footprint = (supports & rule["known"]).any(axis=0)
+    np.testing.assert_array_equal(decode_mask(groups["footprint"]), footprint)
+    np.testing.assert_array_equal(labels == 6, footprint & ~supports & rule["known"])
+    assert (labels == 6).any() and (labels == 0).any()
+    by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9, truth=truth, footprint=True)
+    assert len(by_hand["multipliers"]) == 7
     assert {k: groups[k] for k in by_hand} == by_hand and groups["support"]["source"] == "relative"
     assert fit["object_conditional"] and "class_multipliers" in groups
     assert not cal_mod.fit_intervals(means, stds, gts, levels=(0.9,))["object_conditional"]

@@ -22,6 +22,7 @@ that holds with probability ``1 - delta`` (one minus the bound on its loss).
 
 from __future__ import annotations
 
+import base64
 import math
 from typing import Any
 
@@ -36,8 +37,12 @@ __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_LEVELS",
     "OBJECT_WIDTH_BINS",
+    "decode_mask",
+    "encode_mask",
+    "fit_footprint",
     "fit_group_cuts",
     "fit_group_intervals",
+    "object_region",
     "fit_support_threshold",
     "group_guaranteed_coverage",
     "group_labels",
@@ -186,7 +191,7 @@ def half_width_of(
     pixel's group (:func:`group_labels`, from the std, or from ``image`` = the prediction's mean
     where the support is defined on the mean), and the group's multiplier (``multiplier`` =
     ``"multiplier"``: split conformal; ``"rcps_multiplier"``: risk control) times its region's
-    width map. Otherwise ``entry[multiplier] * g(std)``, g = ``entry["map"]``
+    (object or background) width map. Otherwise ``entry[multiplier] * g(std)``, g = ``entry["map"]``
     (:func:`apply_width_map`) where the entry has one, else the identity.
     """
     groups = entry.get("groups")
@@ -194,7 +199,8 @@ def half_width_of(
         labels = group_labels(std, groups, image)
         q = np.asarray(groups[f"{multiplier}s"], dtype=np.float64)[labels]
         maps = groups["maps"]
-        return q * np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
+        on_object = object_region(labels, len(groups["cuts"]) + 1)
+        return q * np.where(on_object, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     base = apply_width_map(std, entry["map"]) if entry.get("map") else np.asarray(std, dtype=np.float64)
     return float(entry[multiplier]) * base
 
@@ -367,13 +373,48 @@ def support_image(source: str, std: np.ndarray, mean: np.ndarray | None) -> np.n
     return mean / np.maximum(scale, np.finfo(np.float64).tiny)[..., None, None]
 
 
+def encode_mask(mask: np.ndarray) -> dict[str, Any]:
+    """A boolean image as JSON-friendly data: its shape and its bits (:func:`numpy.packbits`, base64)."""
+    mask = np.asarray(mask, bool)
+    return {"shape": list(mask.shape), "bits": base64.b64encode(np.packbits(mask).tobytes()).decode("ascii")}
+
+
+def decode_mask(data: dict[str, Any]) -> np.ndarray:
+    """The boolean image of :func:`encode_mask`."""
+    shape = tuple(int(v) for v in data["shape"])
+    bits = np.frombuffer(base64.b64decode(data["bits"]), np.uint8)
+    return np.unpackbits(bits, count=int(np.prod(shape))).astype(bool).reshape(shape)
+
+
+def fit_footprint(support: np.ndarray) -> np.ndarray:
+    """The sample's footprint: the pixels in the prediction-time support of at least one of the images (n, H, W).
+
+    For images of one scan (its slices, or its measured pairs, on one grid) it marks where the sample
+    is in some slice: a pixel of it outside its own slice's support may be object that the network
+    missed there (a faint slice flattened, an edge fringe smoothed); a pixel outside it is background
+    in every slice seen.
+    """
+    return np.asarray(support, bool).reshape(-1, *np.shape(support)[-2:]).any(axis=0)
+
+
+def object_region(labels: np.ndarray, n_bins: int) -> np.ndarray:
+    """Where :func:`group_labels` puts a pixel on the object's support (groups 1..``n_bins``)."""
+    labels = np.asarray(labels)
+    return (labels > 0) & (labels <= n_bins)
+
+
 def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None) -> np.ndarray:
-    """Group of each pixel under a group-conditional calibration: 0 = background, k = 1..K the object's k-th std bin.
+    """Group of each pixel under a group-conditional calibration: 0 = background, k = 1..K the object's k-th
+    std bin, and with a footprint K + 1 = background inside the sample's footprint.
 
     ``groups["support"]`` = {``source``: "std", "mean" or "relative", ``threshold``, ``radius``, ``fill``}
     defines the support (:func:`support_of` of :func:`support_image`: the std, or ``image`` = the
     prediction's mean, absolute or relative to the image's own level); ``groups["cuts"]`` are the
-    K - 1 std cut points on the support (:func:`fit_group_cuts`).
+    K - 1 std cut points on the support (:func:`fit_group_cuts`). ``groups["footprint"]``
+    (optional, :func:`encode_mask` of :func:`fit_footprint`) splits the background: its pixels inside
+    the footprint form group K + 1. An image of another shape than the footprint has all its
+    background in group K + 1 (the wider of the two background groups: the intervals stay valid,
+    only wider).
 
     Raises
     ------
@@ -384,7 +425,12 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
     src = support_image(rule["source"], std, image)
     support = support_of(src, float(rule["threshold"]), int(rule["radius"]), rule.get("fill", False))
     bins = 1 + np.searchsorted(np.asarray(groups["cuts"], np.float64), np.asarray(std, np.float64), side="right")
-    return np.where(support, bins, 0).astype(np.int64)
+    background = np.zeros(np.shape(std), np.int64)
+    if groups.get("footprint"):
+        footprint = decode_mask(groups["footprint"])
+        inside = footprint if footprint.shape == np.shape(std)[-2:] else True
+        background = np.where(inside, len(groups["cuts"]) + 2, 0)
+    return np.where(support, bins, background).astype(np.int64)
 
 
 def fit_group_cuts(std: np.ndarray, support: np.ndarray, n_bins: int = OBJECT_WIDTH_BINS) -> list[float]:
@@ -413,11 +459,15 @@ def group_guaranteed_coverage(
     return out
 
 
-def _region_maps(err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: float) -> list[dict[str, list[float]]]:
-    """Width maps (:func:`fit_width_map`) of the background and of the object; a region too small or
-    too uniform for a map of its own gets the map of all pixels (labels -1, left out, in neither)."""
+def _region_maps(
+    err: np.ndarray, std: np.ndarray, labels: np.ndarray, level: float, n_bins: int
+) -> list[dict[str, list[float]]]:
+    """Width maps (:func:`fit_width_map`) of the background (groups 0 and ``n_bins + 1``) and of the object
+    (groups 1..``n_bins``); a region too small or too uniform for a map of its own gets the map of all
+    pixels (labels -1, left out, in neither)."""
     maps = []
-    for region in (labels == 0, labels > 0):
+    on_object = object_region(labels, n_bins)
+    for region in ((labels >= 0) & ~on_object, on_object):
         try:
             maps.append(fit_width_map(err[region], std[region], level))
         except ValueError:
@@ -462,13 +512,15 @@ def fit_group_intervals(
     labels: np.ndarray,
     level: float,
     delta: float = DEFAULT_DELTA,
-    n_groups: int = OBJECT_WIDTH_BINS + 1,
+    n_bins: int = OBJECT_WIDTH_BINS,
     truth: np.ndarray | None = None,
+    footprint: bool = False,
 ) -> dict[str, Any]:
     """Group-conditional (Mondrian) split-conformal intervals of one level on validation outputs (n, H, W).
 
-    ``labels`` (:func:`group_labels`): 0 = background, 1..K = the object's std bins, -1 = left out
-    (e.g. outside the field of view, where a measured reference is not known). A width map
+    ``labels`` (:func:`group_labels`): 0 = background, 1..K = the object's std bins (K = ``n_bins``),
+    with ``footprint`` K + 1 = background inside the sample's footprint, -1 = left out (e.g. outside
+    the field of view, where a measured reference is not known). A width map
     (:func:`fit_width_map`) is fitted per region (background, object) and a split-conformal
     multiplier of it per group: the ``ceil((n_g + 1) level)``-th smallest score of the group's
     n_g pixels. Within each group the half-width is strictly increasing in the std; across the
@@ -517,8 +569,9 @@ def fit_group_intervals(
         if np.shape(truth) != err.shape:
             raise ValueError(f"the reference's object has shape {np.shape(truth)}, the errors {err.shape}")
         truth = np.asarray(truth, bool)
-    maps = _region_maps(err, std, labels, level)
-    base = np.where(labels > 0, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
+    n_groups = n_bins + 1 + int(footprint)
+    maps = _region_maps(err, std, labels, level, n_bins)
+    base = np.where(object_region(labels, n_bins), apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     known = labels >= 0
     q, rcps, pooled, by_class = [], [], [], []
     for g in range(n_groups):

@@ -53,6 +53,8 @@ from ..evaluation.conformal import (
     DEFAULT_LEVELS,
     OBJECT_WIDTH_BINS,
     conformal_multiplier,
+    encode_mask,
+    fit_footprint,
     fit_group_cuts,
     fit_group_intervals,
     fit_support_threshold,
@@ -95,7 +97,7 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 9
+CALIBRATION_FORMAT = 10
 #: What the prediction-time support of the group-conditional calibration is computed from.
 SUPPORT_SOURCES = ("std", "mean", "relative")
 DEFAULT_SUPPORT_SOURCE = "std"
@@ -243,7 +245,8 @@ def _level_fit(
         "rcps_multiplier": rcps,
         "val_coverage": float(np.mean((err <= q * scaled)[keep])),
     }
-    grouped = groups | fit_group_intervals(err, stds, labels, level, delta, truth=truth)
+    footprint = bool(groups.get("footprint"))
+    grouped = groups | fit_group_intervals(err, stds, labels, level, delta, truth=truth, footprint=footprint)
     half = half_width_of(stds, {"groups": grouped}, image=means)
     group_rcps = grouped["rcps_multipliers"]
     return {
@@ -268,6 +271,7 @@ def fit_intervals(
     known: np.ndarray | None = None,
     support_radius: int = SUPPORT_RADIUS,
     object_conditional: bool = False,
+    footprint: bool = False,
 ) -> dict[str, Any]:
     """Fit the intervals of the std and of the edge baseline on validation outputs (n, H, W).
 
@@ -294,16 +298,24 @@ def fit_intervals(
     of those of its pixels on the references' object (:func:`nanoct.evaluation.metrics.truth_support`
     of the known pixels, not dilated) and of its other pixels, so that the coverage holds on the
     object as the references show it even where the prediction-time support misses part of it
-    (:func:`nanoct.evaluation.conformal.fit_group_intervals` with ``truth``).
+    (:func:`nanoct.evaluation.conformal.fit_group_intervals` with ``truth``). ``footprint``: the
+    background is split in two groups, inside and outside the sample's footprint (the pixels in the
+    prediction-time support of at least one validation image,
+    :func:`nanoct.evaluation.conformal.fit_footprint`, stored with the groups), for validation images
+    on the grid of the images the calibration will serve (the measured pairs of one scan): object
+    pixels that the support misses lie inside the footprint, so the background outside it keeps
+    narrow intervals; an image of another shape has all its background in the group inside it.
 
     Returns
     -------
     dict
         ``delta``, ``object_conditional``, ``support`` (the support rule), ``cuts`` (the object's std cut points),
-        ``levels`` = {level key: {``groups`` (``support``, ``cuts``, ``maps``, ``multipliers``,
+        ``levels`` = {level key: {``groups`` (``support``, ``cuts``, with ``footprint`` the encoded mask
+        (:func:`nanoct.evaluation.conformal.encode_mask`), ``maps``, ``multipliers``,
         ``rcps_multipliers``, ``guaranteed_coverage``, ``val_coverage``, ``n_pixels``: lists over
-        background, object fifths 1..5), ``multiplier`` (the pooled one), ``guaranteed_coverage``
-        and ``val_coverage`` (the delivered intervals over all pixels), ``rcps_multiplier`` (the
+        background, object fifths 1..5 and, with ``footprint``, the background inside it),
+        ``multiplier`` (the pooled one), ``guaranteed_coverage`` and ``val_coverage`` (the delivered
+        intervals over all pixels), ``rcps_multiplier`` (the
         largest group's, None where a group has none), ``pooled``}}, ``edge_sigma``,
         ``edge_multipliers`` = {level key: multiplier}, ``ood`` = {``statistic``: "mean_std",
         ``alpha``, ``val``: the validation images' values, sorted}.
@@ -326,7 +338,9 @@ def fit_intervals(
         rule = _support_rule(image, np.asarray(gts), support_source, fill_holes, support_radius)
         support = support_of(image, rule["threshold"], rule["radius"], fill_holes)
         cuts = fit_group_cuts(stds, support & keep, OBJECT_WIDTH_BINS)
-        groups = {"support": rule, "cuts": cuts}
+        groups: dict[str, Any] = {"support": rule, "cuts": cuts}
+        if footprint:
+            groups["footprint"] = encode_mask(fit_footprint(support & keep))
         labels = np.where(keep, group_labels(stds, groups, means), -1)
         truth = truth_support(gts, 0, known=keep) & keep if object_conditional else None
         for level in levels:
@@ -515,17 +529,20 @@ def reference_rule(store: DataStore, gts: np.ndarray) -> dict[str, Any]:
     the field of view are fitted (``known``), and the multipliers are object-conditional
     (``object_conditional``): a network can miss a faint object altogether or smooth the rim of a
     bright one, so the support found from its prediction misses object pixels, which a group's one
-    multiplier, set mostly by the background, would leave uncovered. Measured on the I13 scan's
-    measured pairs (``docs/semireal_networks.md``), fitted on one half and scored on the other,
-    object / background at 90 %: the std's support 64 / 88 %, the relative one 83 / 83 %, relative on
-    the field of view 83 / 90 % (without the 2 px dilation 76 / 92 %), and with object-conditional
-    multipliers 89 / 99 %. For phantoms nothing changes (an empty dict).
+    multiplier, set mostly by the background, would leave uncovered. Those pixels lie where the
+    sample is in other slices, so the background is split at the pairs' footprint (``footprint``)
+    and only the part inside it pays for them. Measured on the I13 scan's measured pairs
+    (``docs/semireal_networks.md``), fitted on one half and scored on the other, object / background
+    at 90 %: the std's support 64 / 88 %, the relative one 83 / 83 %, relative on the field of view
+    83 / 90 % (without the 2 px dilation 76 / 92 %), with object-conditional multipliers 90 / 99 %,
+    and with the footprint as well 90 / 92 %. For phantoms nothing changes (an empty dict).
     """
     if not np.asarray(gts).min() < 0 or store.geometry.kind != "parallel":
         return {}
     from ..sim.matched import fov_disc
 
-    return {"support_source": "relative", "known": fov_disc(store.geometry) > 0, "object_conditional": True}
+    known = fov_disc(store.geometry) > 0
+    return {"support_source": "relative", "known": known, "object_conditional": True, "footprint": True}
 
 
 def entry_name(run_dir: str | os.PathLike[str], checkpoint: str, store_path: str | os.PathLike[str]) -> str:
