@@ -18,11 +18,12 @@ command:
 1. the moved scan as a data set (all 135 rows, 160 columns, axis given at +6.2 px), then
    ``nanoct stack`` on it (the stack's motion and axis);
 2. ``nanoct generate --like MOVED --bin 2 --n N`` (80 x 80 images), ``nanoct reconstruct
-   --method dremel --split all`` on it, and ``nanoct train`` of a UNet and of CiUNetRes on
+   --method dremel --split all`` on it, and ``nanoct train`` of a UNet, of a residual UNet (a correction
+   of its input, ``--param residual=true``) and of CiUNetRes on
    (Dremel, phantom) with the tiny study's architectures and learning rates (``docs/learn.md``) and a small budget
    (``--epochs-*``, bf16);
 3. the moved scan binned 2 x 2 into a data set of the matched set's geometry, ``nanoct
-   reconstruct --method dremel`` (one joint motion for the stack) and ``nanoct predict`` of both
+   reconstruct --method dremel`` (one joint motion for the stack) and ``nanoct predict`` of the three
    runs (CiUNetRes: 16 antithetic samples, intervals calibrated on the matched set's validation
    split, the out-of-distribution check of ``nanoct.learn.predict.ood_check``).
 
@@ -74,9 +75,11 @@ from semireal_methods import AXIS, air_removed, known_motion, load_scan, move
 
 BIN = 2
 UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
+#: The UNet as a correction of its input (``residual=true``: linear output, starting at the input).
+UNET_RES = ["--param", "skip_channels=32", "--param", "residual=true"]
 CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "conditional_scale=location",
           "--param", "cond_channels=[16,16,32,32,64]", "--param", "target_noise_scale=range"]  # fmt: skip
-ROWS = ("fbp", "dremel", "dremel+unet", "dremel+ciunet-res")
+ROWS = ("fbp", "dremel", "dremel+unet", "dremel+unet-res", "dremel+ciunet-res")
 #: The same CiUNetRes predictions, their intervals calibrated on the scan's own measured pairs.
 SCAN_CALIBRATED = "dremel+ciunet-res@pairs"
 
@@ -184,10 +187,12 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
     times["generate"] = _cli("generate", "--like", moved, "--bin", BIN, "--n", args.n, "--out", matched,
                              "--split-fractions", "0.85,0.14,0.01", "--mix", args.mix, *hold, "-q")  # fmt: skip
     times["dremel (matched set)"] = _cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
-    runs = {"unet": work / "run_unet", "ciunet-res": work / "run_ciunet"}
+    runs = {"unet": work / "run_unet", "unet-res": work / "run_unet_res", "ciunet-res": work / "run_ciunet"}
     seed = ["--seed", args.train_seed]
-    times["train unet"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs", args.epochs_unet,
-                               "--precision", "bf16", "--out", runs["unet"], "-q", *seed, *UNET)  # fmt: skip
+    for key, extra in (("unet", UNET), ("unet-res", UNET_RES)):
+        times[f"train {key}"] = _cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs",
+                                     args.epochs_unet, "--precision", "bf16", "--out", runs[key], "-q", *seed,
+                                     *extra)  # fmt: skip
     times["train ciunet-res"] = _cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
                                      args.epochs_ciunet, "--precision", "bf16", "--out", runs["ciunet-res"], "-q",
                                      *seed, *CIUNET)  # fmt: skip
@@ -197,6 +202,7 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
         create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
     times["dremel (scan)"] = _cli("reconstruct", real, "--method", "dremel", "-q")
     times["predict unet"] = _cli("predict", real, "--run", runs["unet"], "-q")
+    times["predict unet-res"] = _cli("predict", real, "--run", runs["unet-res"], "--name", "dremel+unet-res", "-q")
     # the scan's own measured pairs (its views, the stack's motion undone, a drawn motion added; its FBP as
     # reference): a second calibration of the same predictions, on the scan itself
     pairs = work / "pairs"
@@ -217,7 +223,7 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
                                            "--antithetic", "-q")  # fmt: skip
     for w in caught:
         print(f"warning: {w.message}")
-    return {"unet": "dremel+unet", "ciunet-res": "dremel+ciunet-res"}
+    return {"unet": "dremel+unet", "unet-res": "dremel+unet-res", "ciunet-res": "dremel+ciunet-res"}
 
 
 def held_out_rows(slices: str) -> str:
@@ -374,7 +380,7 @@ def summarize(table: dict, slices: list[int]) -> None:
 
 
 def save_picture(folder: Path, table: dict, images: dict, slices: list[int], chosen: list[int]) -> None:
-    """Reference, FBP, Dremel, +UNet, +CiUNetRes and its std for the chosen slices."""
+    """Reference, FBP, Dremel, +UNet, +residual UNet, +CiUNetRes and its std for the chosen slices."""
     import matplotlib
 
     matplotlib.use("Agg")

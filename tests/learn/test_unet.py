@@ -140,3 +140,31 @@ def test_range_loss_weighs_each_image_by_its_own_range():
     assert per_image[1] > 100 * per_image[0]
     with pytest.raises(NanoctError, match="loss_scale must be one of absolute, range, got 'relative'"):
         build_model("unet", loss_scale="relative")
+
+
+def test_residual_unet_starts_at_its_input_and_learns_a_correction():
+    """``residual=True``: the output is ``x_tilde - UNet(x_tilde)`` with a linear last convolution that starts
+    at zero, so the untrained network returns its input exactly; a few steps on a constant offset learn it.
+    Recorded in hparams (not when False); a sigmoid or an output bias with it is refused."""
+    torch.manual_seed(0)
+    model = build_model("unet", channels=list(SMALL), residual=True)
+    assert model.hparams["residual"] is True and model.hparams["use_sigmoid"] is False
+    assert "residual" not in build_model("unet").hparams and build_model("unet").hparams["use_sigmoid"] is True
+    assert build_model("unet", **model.hparams).hparams == model.hparams
+    x_tilde = torch.rand(4, 1, 31, 31)
+    assert torch.equal(model.eval().reconstruct(x_tilde)[0], x_tilde)
+    model.train()
+    target = x_tilde - 0.3  # the input with an offset: the correction to learn is a constant 0.3
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    first = float(model.loss(x_tilde, target)[0])
+    assert first == pytest.approx(0.09, rel=1e-5)  # the input's own error: 0.3 squared
+    for _ in range(60):
+        opt.zero_grad()
+        loss, _ = model.loss(x_tilde, target)
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.01 * first
+    assert torch.allclose(model.loss(x_tilde, target)[0], torch.mean((model(x_tilde) - target) ** 2))
+    for bad in ({"use_sigmoid": True}, {"out_bias": -7.0}):
+        with pytest.raises(NanoctError, match="residual UNet"):
+            build_model("unet", residual=True, **bad)

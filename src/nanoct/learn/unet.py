@@ -184,9 +184,12 @@ LOSS_SCALES = VALUE_SCALES
 class UNetPost(PostProcessor):
     """UNet post-processing (``name = "unet"``): trained with the mean squared error.
 
-    Keyword arguments are those of :class:`UNet` (minus in/out channels), and ``loss_scale``
+    Keyword arguments are those of :class:`UNet` (minus in/out channels), ``loss_scale``
     (:data:`LOSS_SCALES`; recorded only when not the paper's ``"absolute"``, so that earlier runs
-    resume); the resolved values are stored in ``hparams``.
+    resume) and ``residual``: the output is ``x_tilde - UNet(x_tilde)``, a correction of the input
+    (as in FBPConvNet; not in the paper), with a linear output (``use_sigmoid`` defaults to False
+    then) whose last convolution starts at zero, so training starts from the input itself
+    (recorded only when True). The resolved values are stored in ``hparams``.
     """
 
     name = "unet"
@@ -195,34 +198,46 @@ class UNetPost(PostProcessor):
         self,
         channels: Sequence[int] = PAPER_CHANNELS,
         skip_channels: int | Sequence[int] = 4,
-        use_sigmoid: bool = True,
+        use_sigmoid: bool | None = None,
         use_norm: bool = True,
         pad_mode: str = "reflect",
         out_bias: float = 0.0,
         loss_scale: str = "absolute",
+        residual: bool = False,
     ) -> None:
         if loss_scale not in LOSS_SCALES:
             raise ValueError(f"loss_scale must be one of {', '.join(LOSS_SCALES)}, got {loss_scale!r}")
+        residual = bool(residual)
+        use_sigmoid = not residual if use_sigmoid is None else bool(use_sigmoid)
+        if residual and (use_sigmoid or out_bias):
+            raise ValueError(
+                "a residual UNet corrects its input with a linear output that starts at zero: "
+                "leave out use_sigmoid=true and out_bias"
+            )
         skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
         super().__init__(
             channels=[int(c) for c in channels],
             skip_channels=skips,
-            use_sigmoid=bool(use_sigmoid),
+            use_sigmoid=use_sigmoid,
             use_norm=bool(use_norm),
             pad_mode=str(pad_mode),
             out_bias=float(out_bias),
             **({} if loss_scale == "absolute" else {"loss_scale": str(loss_scale)}),
+            **({"residual": True} if residual else {}),
         )
-        self.loss_scale = str(loss_scale)
-        self.net = UNet(1, 1, **{k: v for k, v in self.hparams.items() if k != "loss_scale"})
+        self.loss_scale, self.residual = str(loss_scale), residual
+        self.net = UNet(1, 1, **{k: v for k, v in self.hparams.items() if k not in ("loss_scale", "residual")})
+        if residual:
+            nn.init.zeros_(self.net.outc.weight)
+            nn.init.zeros_(self.net.outc.bias)
 
     def forward(self, x_tilde: torch.Tensor) -> torch.Tensor:
-        return self.net(x_tilde)
+        return x_tilde - self.net(x_tilde) if self.residual else self.net(x_tilde)
 
     def loss(self, x_tilde: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         """Mean squared error over pixels and batch; with ``loss_scale="range"`` each image's MSE divided by
         its target's (max - min)^2 (at least 1e-12), averaged over the batch (logged as ``relative_mse``)."""
-        out = self.net(x_tilde)
+        out = self.forward(x_tilde)
         mse = F.mse_loss(out, x)
         if self.loss_scale == "absolute":
             return mse, {"mse": float(mse.detach())}
@@ -233,4 +248,4 @@ class UNetPost(PostProcessor):
     @torch.no_grad()
     def reconstruct(self, x_tilde: torch.Tensor, **kwargs: Any) -> tuple[torch.Tensor, None]:
         """UNet output (the caller sets eval mode); no uncertainty."""
-        return self.net(x_tilde), None
+        return self.forward(x_tilde), None
