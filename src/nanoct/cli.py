@@ -417,6 +417,7 @@ def train(
     measured scan (generate --like) the invertible networks' training noise on the target
     and the UNet's squared error are relative to each image's range
     (target_noise_scale=range, loss_scale=range; --param ...=absolute keeps the paper's).
+    --param residual=true makes the UNet a correction of its input (not the paper's).
     """
     from .learn.train import TrainConfig
     from .learn.train import train as train_model
