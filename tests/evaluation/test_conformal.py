@@ -292,9 +292,24 @@ def test_a_footprint_keeps_the_background_outside_the_sample_narrow(rng):
         inside = np.abs(fresh_err) <= half_width_of(fresh_std, {"groups": entry}, image=fresh_mean)
         assert band[0] < inside[outside].mean() < band[1]
         assert min(inside[(fresh == g) & fresh_truth].mean() for g in range(1, 7)) > 0.885
-    # an image of another shape: all its background in the group inside the footprint (the wider one)
-    crop = group_labels(fresh_std[:2, :20, :20], with_footprint, fresh_mean[:2, :20, :20])
+    # the background groups (0 and 6) take the background's width map, the object's groups the object's
+    half = half_width_of(fresh_std, {"groups": fit}, image=fresh_mean)
+    for g, region in ((0, 0), (6, 0), (3, 1)):
+        where = fresh == g
+        expected = fit["multipliers"][g] * apply_width_map(fresh_std[where], fit["maps"][region])
+        np.testing.assert_allclose(half[where], expected, rtol=1e-12)
+    # an image of another shape: all its background in the group inside the footprint, with the larger of the two
+    # background multipliers
+    crop_std, crop_mean = fresh_std[:2, :20, :20], fresh_mean[:2, :20, :20]
+    crop = group_labels(crop_std, with_footprint, crop_mean)
     assert not (crop == 0).any() and (crop == 6).any()
+    swapped = fit | {"multipliers": [fit["multipliers"][6], *fit["multipliers"][1:6], fit["multipliers"][0]]}
+    crop_half = half_width_of(crop_std, {"groups": swapped}, image=crop_mean)
+    background = crop == 6
+    expected = max(fit["multipliers"][0], fit["multipliers"][6]) * apply_width_map(crop_std, fit["maps"][0])
+    np.testing.assert_allclose(crop_half[background], expected[background], rtol=1e-12)
+    with pytest.raises(ValueError, match="labels 0..6 outside -1..5"):
+        fit_group_intervals(err, std, split, 0.9)  # a footprint's labels fitted as if there were none
 
 
 def test_object_conditional_multiplier_falls_back_for_a_class_too_small(rng):

@@ -205,3 +205,20 @@ def test_paper_comparison_keeps_the_papers_convention():
     row = next(line for line in text.splitlines() if line.startswith("| fbp |"))
     assert "28.00 ± 1.00" in row and "35.00" not in row
     assert PAPER_GAUGE in text
+
+
+def test_intervals_whose_support_is_found_from_the_mean_are_scored(rng):
+    """A calibration fitted on measured references finds the support from the prediction's mean (relative to each
+    image's level): ``uncertainty_scores`` passes the mean, and scores the half-widths ``half_width`` gives."""
+    from nanoct.evaluation.evaluate import uncertainty_scores
+    from nanoct.learn.calibration import fit_intervals, half_width
+
+    yy, xx = np.mgrid[:24, :24] - 12
+    disc = np.hypot(xx, yy) <= 6
+    gts = np.stack([disc * level for level in (0.2, 0.002, 0.05, 0.1)] * 3) + rng.normal(0, 1e-4, (12, 24, 24))
+    means = gts + rng.normal(0, 0.003, gts.shape)
+    stds = np.abs(rng.normal(0.003, 0.001, gts.shape))
+    cal = fit_intervals(means[:8], stds[:8], gts[:8], levels=(0.9,), support_source="relative")
+    scores = uncertainty_scores(stds[8:], means[8:], gts[8:], calibration=cal)
+    inside = np.abs(means[8:] - gts[8:]) <= half_width({"calibration": cal}, stds[8:], 0.9, mean=means[8:])
+    assert scores["uncertainty"]["all"]["intervals"]["0.9"]["coverage"] == pytest.approx(inside.mean())

@@ -119,7 +119,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 10 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 11 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -332,6 +332,9 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
     gts = pairs.read_phantoms(pairs.indices("val"))
     rule = cal_mod.reference_rule(pairs, gts)
     assert rule["support_source"] == "relative" and rule["object_conditional"] is True and rule["footprint"] is True
+    # a split mixing measured pairs with phantoms (a matched set's): no footprint, the phantoms lie anywhere
+    mixed = np.concatenate([gts, np.clip(gts[:1], 0, None)])
+    assert cal_mod.reference_rule(pairs, mixed)["footprint"] is False
     np.testing.assert_array_equal(rule["known"], fov_disc(pairs.geometry) > 0)
     assert cal_mod.reference_rule(tiny_store, tiny_store.read_phantoms([0, 1])) == {}
     # the std outside ``known`` (the support is the mean's) does not move the fit; the groups' fit is that

@@ -173,3 +173,19 @@ def test_tiled_prediction(setup, tmp_path):
     np.testing.assert_allclose(out, expected, atol=1e-5)
     with pytest.raises(NanoctError, match="overlap"):
         predict(big, run, progress=False, tile=0, overlap=40, name="bad")
+
+
+def test_a_residual_unet_is_stored_under_its_own_name(setup, tmp_path):
+    """A residual UNet's prediction is ``<input>+unet-res`` by default, so the tables never count it as the
+    paper's UNet; its output is the input minus the network's correction."""
+    path, _ = setup
+    config = TrainConfig("unet", "fbp", epochs=1, batch_size=2, model_kwargs=SMALL | {"residual": True})
+    run = train(path, tmp_path / "res", config, progress=False)
+    assert predict(path, run, progress=False) == "fbp+unet-res"
+    store = DataStore.open(path)
+    test = store.indices("test")
+    model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
+    x = torch.from_numpy(store.read_reconstruction("fbp", test))[:, None]
+    with torch.no_grad():
+        expected = (x - model.net(x))[:, 0].numpy()
+    np.testing.assert_allclose(store.read_reconstruction("fbp+unet-res", test), expected, atol=1e-5)

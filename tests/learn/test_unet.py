@@ -168,3 +168,8 @@ def test_residual_unet_starts_at_its_input_and_learns_a_correction():
     for bad in ({"use_sigmoid": True}, {"out_bias": -7.0}):
         with pytest.raises(NanoctError, match="residual UNet"):
             build_model("unet", residual=True, **bad)
+    # --param residual=False arrives as a string: read as the word it is, anything else refused
+    assert "residual" not in build_model("unet", residual="False").hparams
+    assert build_model("unet", residual="TRUE", channels=list(SMALL)).hparams["residual"] is True
+    with pytest.raises(NanoctError, match="residual must be true or false"):
+        build_model("unet", residual="yes")

@@ -42,6 +42,7 @@ __all__ = [
     "fit_footprint",
     "fit_group_cuts",
     "fit_group_intervals",
+    "footprint_fits",
     "object_region",
     "fit_support_threshold",
     "group_guaranteed_coverage",
@@ -191,13 +192,20 @@ def half_width_of(
     pixel's group (:func:`group_labels`, from the std, or from ``image`` = the prediction's mean
     where the support is defined on the mean), and the group's multiplier (``multiplier`` =
     ``"multiplier"``: split conformal; ``"rcps_multiplier"``: risk control) times its region's
-    (object or background) width map. Otherwise ``entry[multiplier] * g(std)``, g = ``entry["map"]``
+    (object or background) width map. An image of another shape than the calibration's footprint has
+    all its background in the group inside it, with the larger of the two background groups'
+    multipliers. Otherwise ``entry[multiplier] * g(std)``, g = ``entry["map"]``
     (:func:`apply_width_map`) where the entry has one, else the identity.
     """
     groups = entry.get("groups")
     if groups:
         labels = group_labels(std, groups, image)
-        q = np.asarray(groups[f"{multiplier}s"], dtype=np.float64)[labels]
+        multipliers = np.asarray(groups[f"{multiplier}s"], dtype=np.float64)
+        if groups.get("footprint") and not footprint_fits(groups, np.shape(std)):
+            # all the background is in the group inside the footprint: take the wider of the two
+            inside = len(groups["cuts"]) + 2
+            multipliers[inside] = max(multipliers[0], multipliers[inside])
+        q = multipliers[labels]
         maps = groups["maps"]
         on_object = object_region(labels, len(groups["cuts"]) + 1)
         return q * np.where(on_object, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
@@ -397,6 +405,11 @@ def fit_footprint(support: np.ndarray) -> np.ndarray:
     return np.asarray(support, bool).reshape(-1, *np.shape(support)[-2:]).any(axis=0)
 
 
+def footprint_fits(groups: dict[str, Any], shape: tuple[int, ...]) -> bool:
+    """Whether the footprint of ``groups`` (:func:`encode_mask`) has the image shape of ``shape`` (its last two)."""
+    return tuple(int(v) for v in groups["footprint"]["shape"]) == tuple(shape[-2:])
+
+
 def object_region(labels: np.ndarray, n_bins: int) -> np.ndarray:
     """Where :func:`group_labels` puts a pixel on the object's support (groups 1..``n_bins``)."""
     labels = np.asarray(labels)
@@ -413,8 +426,8 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
     K - 1 std cut points on the support (:func:`fit_group_cuts`). ``groups["footprint"]``
     (optional, :func:`encode_mask` of :func:`fit_footprint`) splits the background: its pixels inside
     the footprint form group K + 1. An image of another shape than the footprint has all its
-    background in group K + 1 (the wider of the two background groups: the intervals stay valid,
-    only wider).
+    background in group K + 1 (:func:`half_width_of` then gives it the larger of the two background
+    multipliers).
 
     Raises
     ------
@@ -427,8 +440,7 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
     bins = 1 + np.searchsorted(np.asarray(groups["cuts"], np.float64), np.asarray(std, np.float64), side="right")
     background = np.zeros(np.shape(std), np.int64)
     if groups.get("footprint"):
-        footprint = decode_mask(groups["footprint"])
-        inside = footprint if footprint.shape == np.shape(std)[-2:] else True
+        inside = decode_mask(groups["footprint"]) if footprint_fits(groups, np.shape(std)) else True
         background = np.where(inside, len(groups["cuts"]) + 2, 0)
     return np.where(support, bins, background).astype(np.int64)
 
@@ -561,15 +573,21 @@ def fit_group_intervals(
     Raises
     ------
     ValueError
-        If there is no positive finite multiplier, or ``truth`` has another shape than ``err``.
+        If there is no positive finite multiplier, labels outside -1..n_groups - 1, or ``truth`` has
+        another shape than ``err``.
     """
     err, std = np.abs(np.asarray(err, np.float64)), np.asarray(std, np.float64)
     labels = np.asarray(labels)
+    n_groups = n_bins + 1 + int(footprint)
+    if labels.size and not -1 <= int(labels.min()) <= int(labels.max()) < n_groups:
+        raise ValueError(
+            f"group labels {int(labels.min())}..{int(labels.max())} outside -1..{n_groups - 1} "
+            f"({n_bins} object bins{', a footprint' if footprint else ''})"
+        )
     if truth is not None:
         if np.shape(truth) != err.shape:
             raise ValueError(f"the reference's object has shape {np.shape(truth)}, the errors {err.shape}")
         truth = np.asarray(truth, bool)
-    n_groups = n_bins + 1 + int(footprint)
     maps = _region_maps(err, std, labels, level, n_bins)
     base = np.where(object_region(labels, n_bins), apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     known = labels >= 0

@@ -76,7 +76,7 @@ def uncertainty_scores(
     levels = cal.get("levels") or {}
 
     def both(std: np.ndarray, entries: dict[str, dict[str, Any]], edge: np.ndarray | None) -> dict[str, Any]:
-        half = {k: half_width_of(std, v) for k, v in entries.items()}
+        half = {k: half_width_of(std, v, image=recos) for k, v in entries.items()}
         return {
             region: uncertainty_summary(std, recos, gts, half_widths=half, baseline=edge, mask=mask)
             for region, mask in (("all", None), ("support", support))

@@ -9,7 +9,8 @@ also write ``uncertainty/<name>``; their latent samples for sample ``i`` are dra
 generator seeded with ``i``, so results do not depend on batching or on interruptions. The
 stored std is the network's own (raw) std; the calibration fitted on the validation split
 (:mod:`nanoct.learn.calibration`: per interval level a multiplier per group of pixels, the
-background and the std fifths of the object) is stored with the parameters (the half-width:
+background (for measured references split at the sample's footprint) and the std fifths of the
+object) is stored with the parameters (the half-width:
 :func:`nanoct.learn.calibration.half_width`), and images whose std level is unlike the
 validation split's, or whose sinogram shows more apparent motion than the training scans, are
 flagged (a warning, and the note ``ood`` of the result: :func:`ood_check`).
@@ -193,7 +194,8 @@ def predict(
     if indices.size == 0:
         raise NanoctError(f"the {split} split of {store.path} has no samples; nothing to post-process")
     check_input(store, input_name, indices, split)
-    out = name or prediction_name(input_name, str(ckpt["model"]), train_input)
+    model_label = str(ckpt["model"]) + ("-res" if ckpt["hparams"].get("residual") else "")  # a residual UNet
+    out = name or prediction_name(input_name, model_label, train_input)
     params = {
         "input": input_name,
         "run": str(run.resolve()),
