@@ -201,13 +201,13 @@ def half_width_of(
     if groups:
         labels = group_labels(std, groups, image)
         multipliers = np.asarray(groups[f"{multiplier}s"], dtype=np.float64)
+        n_bins = len(groups["cuts"]) + 1
         if groups.get("footprint") and not footprint_fits(groups, np.shape(std)):
             # all the background is in the group inside the footprint: take the wider of the two
-            inside = len(groups["cuts"]) + 2
-            multipliers[inside] = max(multipliers[0], multipliers[inside])
+            multipliers[n_bins + 1] = max(multipliers[0], multipliers[n_bins + 1])
         q = multipliers[labels]
         maps = groups["maps"]
-        on_object = object_region(labels, len(groups["cuts"]) + 1)
+        on_object = object_region(labels, n_bins)
         return q * np.where(on_object, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     base = apply_width_map(std, entry["map"]) if entry.get("map") else np.asarray(std, dtype=np.float64)
     return float(entry[multiplier]) * base
@@ -441,7 +441,7 @@ def group_labels(std: np.ndarray, groups: dict[str, Any], image: np.ndarray | No
     background = np.zeros(np.shape(std), np.int64)
     if groups.get("footprint"):
         inside = decode_mask(groups["footprint"]) if footprint_fits(groups, np.shape(std)) else True
-        background = np.where(inside, len(groups["cuts"]) + 2, 0)
+        background = np.where(inside, len(groups["cuts"]) + 2, 0)  # K + 1, K = len(cuts) + 1 object bins
     return np.where(support, bins, background).astype(np.int64)
 
 
