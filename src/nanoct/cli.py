@@ -491,20 +491,20 @@ def predict(
 ) -> None:
     """Post-process reconstructions/<input> with a trained network.
 
-    Writes reconstructions/<input>+<model> (and uncertainty/<input>+<model> for invertible
-    nets), or <input>+<model>@<train input> when applied to another input than it was
-    trained on (the paper's input-mixing tables). The stored std of invertible nets is the
-    network's own; intervals mean +- multiplier x g(std), one multiplier per level and group
-    (background, and the five std fifths of the object's support; for measured references the
-    background split at the sample's footprint), are fitted once on the
-    validation split of the data it was trained on (group-conditional split conformal, with the
-    coverage guaranteed with probability 90 %) and stored with the result (export them with
-    'nanoct export --interval'); --calibrate-on fits them on another data set's validation split,
-    e.g. a measured scan's own slices with a known motion added and its FBP as reference, where
-    each group's multiplier also covers the reference's object pixels it holds
-    (object-conditional; docs/uncertainty.md). Images whose std level is above the validation split's, or
-    whose sinogram shows more apparent motion than the training scans, are reported as out of
-    distribution (docs/uncertainty.md).
+    Writes reconstructions/<input>+<model> (unet-res for a residual UNet; and
+    uncertainty/<input>+<model> for invertible nets), or <input>+<model>@<train input> when
+    applied to another input than it was trained on (the paper's input-mixing tables). The
+    stored std of invertible nets is the network's own; intervals mean +- multiplier x g(std),
+    one multiplier per level and group (background, and the five std fifths of the object's
+    support; for measured references the background split at the sample's footprint), are fitted
+    once on the validation split of the data it was trained on (group-conditional split
+    conformal, with the coverage guaranteed with probability 90 %) and stored with the result
+    (export them with 'nanoct export --interval'); --calibrate-on fits them on another data
+    set's validation split, e.g. a measured scan's own slices with a known motion added and its
+    FBP as reference, where each group's multiplier also covers the reference's object pixels it
+    holds (object-conditional; docs/uncertainty.md). Images whose std level is above the
+    validation split's, or whose sinogram shows more apparent motion than the training scans,
+    are reported as out of distribution (docs/uncertainty.md).
     """
     from .learn.predict import predict as predict_model
 
