@@ -222,3 +222,37 @@ def test_intervals_whose_support_is_found_from_the_mean_are_scored(rng):
     scores = uncertainty_scores(stds[8:], means[8:], gts[8:], calibration=cal)
     inside = np.abs(means[8:] - gts[8:]) <= half_width({"calibration": cal}, stds[8:], 0.9, mean=means[8:])
     assert scores["uncertainty"]["all"]["intervals"]["0.9"]["coverage"] == pytest.approx(inside.mean())
+
+
+def test_measured_references_are_scored_on_their_object_not_on_their_positive_noise(rng):
+    """A measured reference is positive over about half its background (its noise): the support row scores the
+    object :func:`truth_support` finds (here the disc), says how many references are measured, and the table's
+    note says how their support is found; phantoms keep ``gt > 0`` and the note as it was."""
+    from nanoct.evaluation.evaluate import format_uncertainty_table, uncertainty_scores
+    from nanoct.evaluation.metrics import support_mask, truth_support
+    from nanoct.learn.calibration import fit_intervals
+
+    yy, xx = np.mgrid[:32, :32] - 16
+    disc = np.hypot(xx, yy) <= 7
+    gts = disc * 0.1 + rng.normal(0, 2e-3, (12, 32, 32))
+    means = gts + rng.normal(0, 0.003, gts.shape) * (1 + 2 * disc)
+    stds = np.abs(rng.normal(0.003, 0.001, gts.shape))
+    cal = fit_intervals(means[:8], stds[:8], gts[:8], levels=(0.9,), support_source="relative")
+    scores = uncertainty_scores(stds[8:], means[8:], gts[8:], calibration=cal)
+    found = truth_support(gts[8:])
+    # the disc dilated (the smoothing widens it by a pixel or two), not the positive noise
+    assert (found >= support_mask(disc)).all() and (found <= support_mask(disc, 4)).all()
+    assert support_mask(gts[8:]).mean() > 2 * found.mean()
+    err = np.abs(means[8:] - gts[8:])
+    assert scores["uncertainty"]["support"]["mean_abs_error"] == pytest.approx(err[found].mean())
+    assert scores["measured_references"] == 4
+    note = format_uncertainty_table({"dremel+ciunet-res": scores})
+    assert "4 of the references are measured" in note and "truth_support" in note
+
+    phantoms = np.clip(gts, 0, None)
+    plain = uncertainty_scores(stds[8:], means[8:], phantoms[8:], calibration=cal)
+    assert "measured_references" not in plain
+    assert plain["uncertainty"]["support"]["mean_abs_error"] == pytest.approx(
+        np.abs(means[8:] - phantoms[8:])[support_mask(phantoms[8:])].mean()
+    )
+    assert "are measured" not in format_uncertainty_table({"dremel+ciunet-res": plain})

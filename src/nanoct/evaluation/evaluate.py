@@ -23,7 +23,7 @@ from ..io.store import DataStore
 from ..names import parse_name, setting_key
 from .conclusions import format_conclusions
 from .conformal import half_width_of
-from .metrics import EDGE_SIGMA, edge_std, summarize, support_mask, uncertainty_summary
+from .metrics import EDGE_SIGMA, edge_std, summarize, truth_support, uncertainty_summary
 
 __all__ = [
     "GAUGE_NOTE",
@@ -58,7 +58,9 @@ def uncertainty_scores(
         ``rcps_multiplier``: half-width :func:`nanoct.evaluation.conformal.half_width_of`), ``delta``,
         ``edge_sigma`` and ``edge_multipliers``; without it no intervals are scored.
     support : bool array (n, H, W), optional
-        The object's support (default :func:`nanoct.evaluation.metrics.support_mask` of ``gts``).
+        The object's support (default :func:`nanoct.evaluation.metrics.truth_support` of ``gts``: a
+        phantom's ``gt > 0`` dilated, a measured reference's smoothed level above a fraction of its
+        own 99th percentile).
 
     Returns
     -------
@@ -67,10 +69,11 @@ def uncertainty_scores(
         :func:`nanoct.evaluation.metrics.uncertainty_summary`, with the partial correlation given the
         edge baseline), ``edge_baseline`` = {``sigma``, ``all``, ``support``} and ``guarantee`` =
         {``delta``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``}}} (the
-        validation split's, empty without a calibration).
+        validation split's, empty without a calibration); ``measured_references`` (how many of
+        ``gts`` are measured references: with a negative value) where there are any.
     """
     cal = calibration or {}
-    support = support_mask(gts) if support is None else support
+    support = truth_support(gts) if support is None else support
     sigma = float(cal.get("edge_sigma", EDGE_SIGMA))
     edges = edge_std(recos, sigma)
     levels = cal.get("levels") or {}
@@ -89,12 +92,14 @@ def uncertainty_scores(
         | {"rcps_multiplier": v["rcps_multiplier"]}
         for k, v in levels.items()
     }
-    return {
+    out = {
         "std_error_corr": own["all"]["std_error_corr"],
         "uncertainty": own,
         "edge_baseline": {"sigma": sigma, **both(edges, edge_entries, None)},
         "guarantee": {"delta": cal.get("delta"), "levels": guarantee},
     }
+    measured = int((np.asarray(gts).reshape(-1, *np.shape(gts)[-2:]).min(axis=(1, 2)) < 0).sum())
+    return out | ({"measured_references": measured} if measured else {})
 
 
 def per_image_values(results: dict[str, dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
@@ -139,7 +144,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
             "the split fractions"
         )
     gts = store.read_phantoms(idx)
-    support = support_mask(gts)
+    support = truth_support(gts)
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
         if not store.reconstruction_done(name, idx).all():
@@ -294,6 +299,14 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
         f"{sigma:g} px)-smoothed Sobel magnitude of the mean, its multipliers fitted the same way. Support: "
         "ground truth > 0 dilated by 2 px. Conventions: docs/uncertainty.md.",
     ]
+    measured = max(results[n].get("measured_references", 0) for n in names)
+    if measured:
+        lines[-1] += (
+            f" {measured} of the references are measured (reconstructions, with negative values): their support is "
+            "the reference smoothed above a fraction of its 99th percentile, dilated by 2 px "
+            "(nanoct.evaluation.metrics.truth_support), and a calibration fitted on measured references finds "
+            "its groups from the mean, not the std (docs/uncertainty.md)."
+        )
     return "\n".join(lines) + "\n"
 
 
