@@ -64,7 +64,7 @@ from skimage.metrics import structural_similarity
 
 from nanoct.cli import run
 from nanoct.core.geometry import Geometry
-from nanoct.evaluation.conformal import group_labels
+from nanoct.evaluation.conformal import FOOTPRINT_TOLERANCE, footprint_outside, group_labels
 from nanoct.evaluation.metrics import register, truth_support
 from nanoct.io.store import DataStore, create_scan
 from nanoct.learn.calibration import fit_intervals, half_width, reference_rule
@@ -269,6 +269,7 @@ def evaluate(work: Path, refs: np.ndarray, noise: np.ndarray, g_ref: Geometry, s
     outside = (np.abs(refs[slices] - mean) > calibrations["pairs"]) & disc
     images.update(std=std, reference=refs[slices], outside=outside)
     table["ood"] = store.reconstruction_note(name, "ood")
+    table["ood_pairs"] = store.reconstruction_note(SCAN_CALIBRATED, "ood")
     return table, images
 
 
@@ -372,11 +373,41 @@ def summarize(table: dict, slices: list[int]) -> None:
         print("  object coverage by group, calibrated on pairs (labelled background outside the footprint, std fifths "
               "1-5, labelled background inside the footprint; covered/pixels): "
               + ", ".join(f"{c / n:.3f} ({n})" if n else "- (0)" for c, n in by_group))  # fmt: skip
-    ood = table.get("ood") or {}
-    print(
-        f"OOD ({ood.get('statistic')}, alpha {ood.get('alpha')}): flagged {ood.get('flagged')}; "
-        f"by {json.dumps(ood.get('flagged_by'))}"
-    )
+    for key, against in (("ood", "matched set"), ("ood_pairs", "measured pairs")):
+        ood = table.get(key) or {}
+        print(
+            f"OOD against the {against} ({ood.get('statistic')}, alpha {ood.get('alpha')}): flagged "
+            f"{ood.get('flagged')}; by {json.dumps(ood.get('flagged_by'))}"
+        )
+        outside = (ood.get("footprint") or {}).get("outside")
+        if outside:
+            print(
+                f"  support outside the pairs' footprint (field of view): largest {max(outside.values()):.4f} "
+                f"(slice {max(outside, key=outside.get)}), evaluated slices "
+                + ", ".join(f"{s}: {outside[str(s)]:.4f}" for s in slices)
+            )
+
+
+def footprint_check(work: Path) -> None:
+    """What ``predict``'s footprint check (:func:`nanoct.evaluation.conformal.footprint_outside`, the field of view)
+    sees on the scan's pairs-calibrated CiUNetRes predictions, all slices: as predicted, moved by 3 and 5 px along the
+    rows, and mirrored left-right (images that are not the calibrating scan as it lay)."""
+    store = DataStore.open(work / "moved_bin2")
+    groups = store.reconstruction_params(SCAN_CALIBRATED)["calibration"]["levels"]["0.9"]["groups"]
+    every = np.arange(store.n)
+    mean, std = store.read_reconstruction(SCAN_CALIBRATED, every), store.read_uncertainty(SCAN_CALIBRATED, every)
+    known = fov_disc(store.geometry) > 0
+
+    def moved(d: int) -> tuple[np.ndarray, np.ndarray]:
+        return ndimage.shift(mean, (0, 0, d), order=1), ndimage.shift(std, (0, 0, d), order=1)
+
+    cases = {"as predicted": (mean, std), "moved 3 px": moved(3), "moved 5 px": moved(5)}
+    cases["mirrored"] = (mean[:, :, ::-1], std[:, :, ::-1])
+    print(f"footprint check (flagged: more than {FOOTPRINT_TOLERANCE:.0%} of the support outside the footprint):")
+    for key, (m, s) in cases.items():
+        f = footprint_outside(s, groups, m, known)
+        flagged = int((f > FOOTPRINT_TOLERANCE).sum())
+        print(f"  {key}: median {np.median(f):.4f}, largest {f.max():.4f}, flagged {flagged} of {f.size} slices")
 
 
 def save_picture(folder: Path, table: dict, images: dict, slices: list[int], chosen: list[int]) -> None:
@@ -445,6 +476,7 @@ def main() -> None:
         print("\nseconds: " + ", ".join(f"{k} {v:.0f}" for k, v in times.items()))
         print(f"matched set: {json.dumps(DataStore.open(work / 'matched').meta['simulation']['like'])}")
         summarize(table, slices)
+        footprint_check(work)
         pairs_cross_fit(work)
         if args.json:
             Path(args.json).write_text(json.dumps({str(k): v for k, v in table.items()}, indent=1))

@@ -17,6 +17,7 @@ from nanoct.evaluation.conformal import (
     fit_group_intervals,
     fit_support_threshold,
     fit_width_map,
+    footprint_outside,
     group_guaranteed_coverage,
     group_labels,
     guaranteed_coverage,
@@ -310,6 +311,31 @@ def test_a_footprint_keeps_the_background_outside_the_sample_narrow(rng):
     np.testing.assert_allclose(crop_half[background], expected[background], rtol=1e-12)
     with pytest.raises(ValueError, match="labels 0..6 outside -1..5"):
         fit_group_intervals(err, std, split, 0.9)  # a footprint's labels fitted as if there were none
+
+
+def test_footprint_outside_counts_the_support_that_leaves_the_footprint(rng):
+    """The slices of the calibrating sample lie inside its footprint (0); the same sample moved 4 px has the support
+    pixels beyond the footprint's edge outside it, as counted by hand; ``known`` leaves out the pixels it excludes."""
+    _, std, mean, _ = _footprint_data(6, rng, size=32)
+    rule = {"source": "mean", "threshold": 0.5, "radius": 0}
+    support = support_of(mean, 0.5, 0)
+    groups = {"support": rule, "cuts": fit_group_cuts(std, support), "footprint": encode_mask(fit_footprint(support))}
+    np.testing.assert_array_equal(footprint_outside(std, groups, mean), np.zeros(6))
+    moved_mean, moved_std = np.roll(mean, 4, axis=2), np.roll(std, 4, axis=2)
+    moved = support_of(moved_mean, 0.5, 0)
+    by_hand = (moved & ~support[0]).sum(axis=(1, 2)) / moved.sum(axis=(1, 2))
+    found = footprint_outside(moved_std, groups, moved_mean)
+    np.testing.assert_allclose(found, by_hand)
+    assert (found[::2] > 0.2).all() and (found[1::2] == 0).all()  # the odd slices' core (radius 5) stays inside
+    left = np.zeros(mean.shape[1:], bool)
+    left[:, :16] = True  # the moved disc's left half stays inside the footprint
+    np.testing.assert_array_equal(footprint_outside(moved_std, groups, moved_mean, known=left), 0)
+    np.testing.assert_array_equal(footprint_outside(std[0], groups, mean[0]), [0.0])  # one image
+    for bad in ({k: v for k, v in groups.items() if k != "footprint"}, groups):
+        with pytest.raises(ValueError, match="no footprint of the images' shape"):
+            footprint_outside(
+                std[:, :20, :20] if bad is groups else std, bad, mean[:, :20, :20] if bad is groups else mean
+            )
 
 
 def test_object_conditional_multiplier_falls_back_for_a_class_too_small(rng):

@@ -66,6 +66,49 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
         store.delete_reconstruction(name)
 
 
+def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tiny_store):
+    """A calibration on one sample's measured pairs (a footprint): its own slices pass, the same sample moved by
+    12 px (or another sample placed elsewhere) is flagged by ``footprint`` with the fraction of its support outside
+    the footprint; the std level, the same as the calibration's, flags nothing."""
+    from nanoct.evaluation.conformal import decode_mask, footprint_outside
+    from nanoct.learn.calibration import fit_intervals
+
+    store = DataStore.open(tiny_store.path, mode="r+")
+    n, size = 20, store.geometry.n
+    rng = np.random.default_rng(8)
+    yy, xx = np.mgrid[:size, :size] - (size - 1) / 2
+    radii = rng.uniform(10, 16, n)
+    levels = rng.lognormal(np.log(0.05), 1.0, n)  # slices whose intensity differs by orders of magnitude
+    gts = np.stack([(np.hypot(xx, yy) <= r) * lv for r, lv in zip(radii, levels)]) + rng.normal(
+        0, 1e-3, (n, size, size)
+    )
+    means = gts + rng.normal(0, 2e-3, gts.shape)
+    stds = np.abs(rng.normal(2e-3, 5e-4, gts.shape))
+    cal = fit_intervals(
+        means, stds, gts, levels=(0.9,), support_source="relative", object_conditional=True, footprint=True
+    )
+    groups = cal["levels"]["0.9"]["groups"]
+    name = "footprint+fake"
+    store.prepare_reconstruction(name, {"calibration": cal}, uncertainty=True)
+    everything = np.arange(store.n)
+    moved = everything[everything % 2 == 1]
+    for i in everything:
+        j = int(i) % n
+        mean = np.roll(means[j], 12, axis=1) if i in moved else means[j]
+        store.write_reconstruction(name, int(i), mean.astype(np.float32), std=stds[j].astype(np.float32))
+    with pytest.warns(OutOfDistributionWarning, match="outside the footprint of the scan"):
+        record = ood_check(store, name, everything)
+    assert store.reconstruction_note(name, "ood") == record
+    expected = footprint_outside(
+        store.read_uncertainty(name, everything), groups, store.read_reconstruction(name, everything)
+    )
+    assert [record["footprint"]["outside"][str(i)] for i in everything] == pytest.approx(expected.tolist())
+    assert record["footprint"]["flagged"] == record["flagged"] == moved.tolist()
+    assert record["flagged_by"] == {str(i): ["footprint"] for i in moved}
+    assert decode_mask(groups["footprint"]).mean() < 0.5
+    store.delete_reconstruction(name)
+
+
 def _moved_profiles(shifts: np.ndarray, n_det: int = 91, width: float = 6.0) -> np.ndarray:
     """A sinogram whose view k is a Gaussian profile centred at detector coordinate ``shifts[k]``."""
     x = np.arange(n_det) - (n_det - 1) / 2

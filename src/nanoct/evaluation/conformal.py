@@ -43,6 +43,8 @@ __all__ = [
     "fit_group_cuts",
     "fit_group_intervals",
     "footprint_fits",
+    "footprint_outside",
+    "FOOTPRINT_TOLERANCE",
     "object_region",
     "fit_support_threshold",
     "group_guaranteed_coverage",
@@ -73,6 +75,11 @@ WIDTH_MAP_BINS = 20
 OBJECT_WIDTH_BINS = 5
 #: Smallest slope of a width map in log(std) -> log(width); it keeps the map strictly increasing.
 WIDTH_MAP_MIN_SLOPE = 0.05
+#: Fraction of an image's prediction-time support (on its known pixels) that may lie outside the
+#: calibration's footprint before the image is flagged as not of the calibrating scan
+#: (:func:`footprint_outside`). On the I13 scan's 67 slices (``benchmarks/semireal_networks.py``) 66 have
+#: 0 % (slice 0, nearly empty and no pair's source, 18-21 %); moved by 3 px, 22 slices exceed it.
+FOOTPRINT_TOLERANCE = 0.02
 
 
 def level_key(level: float) -> str:
@@ -408,6 +415,35 @@ def fit_footprint(support: np.ndarray) -> np.ndarray:
 def footprint_fits(groups: dict[str, Any], shape: tuple[int, ...]) -> bool:
     """Whether the footprint of ``groups`` (:func:`encode_mask`) has the image shape of ``shape`` (its last two)."""
     return tuple(int(v) for v in groups["footprint"]["shape"]) == tuple(shape[-2:])
+
+
+def footprint_outside(
+    std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None, known: np.ndarray | None = None
+) -> np.ndarray:
+    """Per image (n, H, W), the fraction of its prediction-time support that lies outside the footprint of ``groups``.
+
+    The footprint (:func:`fit_footprint`) is where the calibrating scan's sample is in some slice; the
+    background inside it gets the wider intervals that pay for the object pixels a network misses.
+    An image whose own support leaves it (another sample, or the same one moved or mirrored) may
+    have missed object pixels outside it too, where the background's narrow intervals do not
+    cover them. Only the pixels of ``known`` (bool (H, W), e.g. the field of view the footprint was
+    fitted on) count; an image without support there gives 0. ``image``: the prediction's mean,
+    where the support is defined on it (:func:`group_labels`).
+
+    Raises
+    ------
+    ValueError
+        If ``groups`` has no footprint or one of another image shape.
+    """
+    if not groups.get("footprint") or not footprint_fits(groups, np.shape(std)):
+        raise ValueError(f"no footprint of the images' shape {tuple(np.shape(std)[-2:])} in these groups")
+    std = np.asarray(std).reshape(-1, *np.shape(std)[-2:])
+    image = None if image is None else np.asarray(image).reshape(std.shape)
+    support = object_region(group_labels(std, groups, image), len(groups["cuts"]) + 1)
+    if known is not None:
+        support &= np.asarray(known, bool)
+    outside = (support & ~decode_mask(groups["footprint"])).sum(axis=(1, 2))
+    return outside / np.maximum(support.sum(axis=(1, 2)), 1)
 
 
 def object_region(labels: np.ndarray, n_bins: int) -> np.ndarray:

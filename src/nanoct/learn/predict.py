@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError, StoreError
-from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS
+from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS, FOOTPRINT_TOLERANCE, footprint_fits, footprint_outside
 from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
@@ -288,19 +288,28 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
 
     With both, an image is flagged if either p-value is at most alpha / 2 (Bonferroni: at most a
     fraction alpha of in-distribution images in all), and its p-value is
-    ``min(1, 2 * min(p_std, p_scan))``; with the std alone, ``p_std <= alpha`` flags it. The
-    record (merged with earlier ones of other samples) is stored as the note ``ood`` of ``name``
-    and a :class:`OutOfDistributionWarning` names the flagged samples and which statistic flagged
+    ``min(1, 2 * min(p_std, p_scan))``; with the std alone, ``p_std <= alpha`` flags it.
+
+    A calibration with a footprint (fitted on one scan's measured pairs) also flags, as
+    ``footprint``, an image of which more than :data:`nanoct.evaluation.conformal.FOOTPRINT_TOLERANCE`
+    of the prediction-time support in the field of view lies outside the footprint
+    (:func:`nanoct.evaluation.conformal.footprint_outside`): not a slice of the calibrating scan as
+    it lay there, so its background may hide missed object pixels that the intervals do not cover.
+
+    The record (merged with earlier ones of other samples) is stored as the note ``ood`` of ``name``
+    and a :class:`OutOfDistributionWarning` names the flagged samples and which check flagged
     them: their intervals may not hold their level.
 
     Returns
     -------
     dict
         ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices),
-        ``flagged_by`` = {sample index: the statistics with ``p <= alpha / 2``} and per statistic
-        (``std``, and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``}.
+        ``flagged_by`` = {sample index: the statistics with ``p <= alpha / 2``, and ``footprint``} and per
+        statistic (``std``, and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``};
+        with a footprint, ``footprint`` = {``tolerance``, ``outside``: {sample index: fraction}, ``flagged``}.
     """
-    ood = store.reconstruction_params(name)["calibration"]["ood"]
+    calibration = store.reconstruction_params(name)["calibration"]
+    ood = calibration["ood"]
     alpha = float(ood["alpha"])
     keys = [str(int(i)) for i in indices]
     p_by = {"std": ood_p_values(image_statistic(store.read_uncertainty(name, indices)), ood["val"])}
@@ -312,8 +321,15 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     combined = np.minimum(1.0, len(p_by) * np.min(np.stack(list(p_by.values())), axis=0))
     p_values = {**old.get("p_values", {}), **{k: float(v) for k, v in zip(keys, combined)}}
     record: dict[str, Any] = {"statistic": " + ".join(statistics), "alpha": alpha, "p_values": p_values}
-    record["flagged"] = sorted(int(i) for i, v in p_values.items() if v <= alpha)
     by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
+    outside = _footprint_outside(store, name, calibration, indices)
+    off = set()
+    if outside is not None:
+        fractions = {**(old.get("footprint") or {}).get("outside", {}), **dict(zip(keys, outside.tolist()))}
+        off = {k for k, v in fractions.items() if v > FOOTPRINT_TOLERANCE}
+        record["footprint"] = {"tolerance": FOOTPRINT_TOLERANCE, "outside": fractions, "flagged": sorted(map(int, off))}
+        by = {k: v + ["footprint"] * (k in off) for k, v in by.items()}
+    record["flagged"] = sorted({int(i) for i, v in p_values.items() if v <= alpha} | {int(k) for k in off})
     earlier = {k: v for k, v in old.get("flagged_by", {}).items() if k not in by}
     record["flagged_by"] = earlier | {k: v for k, v in by.items() if v}
     for s, p in p_by.items():
@@ -324,19 +340,35 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     if new:
         which = sorted({s for k in keys for s in by[k]})
         what = {
-            "std": "std level above the validation split's",
-            "scan": "more apparent motion in the sinogram than the training scans",
+            "std": f"std level above the validation split's, p <= {share:g}",
+            "scan": f"more apparent motion in the sinogram than the training scans, p <= {share:g}",
+            "footprint": f"more than {FOOTPRINT_TOLERANCE:.0%} of the object outside the footprint of the scan the "
+            "intervals were calibrated on: another sample, or this one moved",
         }
         reasons = "; ".join(f"{s}: {what[s]}" for s in which)
         shown = ", ".join(f"{i} ({'+'.join(by[str(i)])})" for i in new[:10])
         warnings.warn(
-            f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution ({reasons}; "
-            f"p <= {share:g}{' each' if len(p_by) > 1 else ''}): samples {shown}{' ...' if len(new) > 10 else ''}; "
-            "their intervals may not hold their stated level",
+            f"{len(new)} of {len(indices)} images of reconstructions/{name} look out of distribution ({reasons}): "
+            f"samples {shown}{' ...' if len(new) > 10 else ''}; their intervals may not hold their stated level",
             OutOfDistributionWarning,
             stacklevel=2,
         )
     return record
+
+
+def _footprint_outside(
+    store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray
+) -> np.ndarray | None:
+    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images ``indices`` of ``name`` on the field of
+    view (parallel beam), None where the calibration has no footprint of this image size."""
+    groups = next(iter((calibration.get("levels") or {}).values()), {}).get("groups") or {}
+    if not groups.get("footprint") or not footprint_fits(groups, store.geometry.image_shape):
+        return None
+    from ..sim.matched import fov_disc
+
+    known = fov_disc(store.geometry) > 0 if store.geometry.kind == "parallel" else None
+    std = store.read_uncertainty(name, indices)
+    return footprint_outside(std, groups, store.read_reconstruction(name, indices), known)
 
 
 def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int) -> dict | None:
