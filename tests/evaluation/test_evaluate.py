@@ -247,7 +247,8 @@ def test_measured_references_are_scored_on_their_object_not_on_their_positive_no
     assert scores["uncertainty"]["support"]["mean_abs_error"] == pytest.approx(err[found].mean())
     assert scores["measured_references"] == 4
     note = format_uncertainty_table({"dremel+ciunet-res": scores})
-    assert "4 of the references are measured" in note and "truth_support" in note
+    assert scores["references"] == 4
+    assert "4 of the 4 references are measured" in note and "truth_support" in note
 
     phantoms = np.clip(gts, 0, None)
     plain = uncertainty_scores(stds[8:], means[8:], phantoms[8:], calibration=cal)

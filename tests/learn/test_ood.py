@@ -66,47 +66,60 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
         store.delete_reconstruction(name)
 
 
-def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tiny_store):
-    """A calibration on one sample's measured pairs (a footprint): its own slices pass, the same sample moved by
-    12 px (or another sample placed elsewhere) is flagged by ``footprint`` with the fraction of its support outside
-    the footprint; the std level, the same as the calibration's, flags nothing."""
+def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tmp_path):
+    """A calibration on one sample's measured pairs (a footprint, fitted on the field of view): fresh slices of the
+    sample pass, also with something beyond the field of view; the sample moved by 12 px is flagged by
+    ``footprint`` with the fraction of its support outside the footprint; a later check of one sample, moved back,
+    unflags it and keeps the others' record; the std level, the calibration's, flags nothing."""
+    from nanoct.core.geometry import Geometry
     from nanoct.evaluation.conformal import decode_mask, footprint_outside
+    from nanoct.io.store import create_scan
     from nanoct.learn.calibration import fit_intervals
+    from nanoct.sim.matched import fov_disc
 
-    store = DataStore.open(tiny_store.path, mode="r+")
-    n, size = 20, store.geometry.n
+    geometry = Geometry.from_dict({**get_preset("tiny-parallel").to_dict(), "center_offset": 20.0})
+    known = fov_disc(geometry) > 0  # radius 25 px of a 63 px image: the corners are outside
+    assert not known.all()
+    size, n = geometry.n, 20
+    store = create_scan(tmp_path / "scan", geometry, np.zeros((8, *geometry.sino_shape)), {"file": "constructed"})
     rng = np.random.default_rng(8)
     yy, xx = np.mgrid[:size, :size] - (size - 1) / 2
     radii = rng.uniform(10, 16, n)
     levels = rng.lognormal(np.log(0.05), 1.0, n)  # slices whose intensity differs by orders of magnitude
-    gts = np.stack([(np.hypot(xx, yy) <= r) * lv for r, lv in zip(radii, levels)]) + rng.normal(
-        0, 1e-3, (n, size, size)
-    )
-    means = gts + rng.normal(0, 2e-3, gts.shape)
-    stds = np.abs(rng.normal(2e-3, 5e-4, gts.shape))
-    cal = fit_intervals(
-        means, stds, gts, levels=(0.9,), support_source="relative", object_conditional=True, footprint=True
-    )
+
+    def slices(noise: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        gts = np.stack([(np.hypot(xx, yy) <= r) * v for r, v in zip(radii, levels)])
+        gts = gts + noise.normal(0, 1e-3, gts.shape)
+        return gts, gts + noise.normal(0, 2e-3, gts.shape), np.abs(noise.normal(2e-3, 5e-4, gts.shape))
+
+    gts, means, stds = slices(rng)
+    rule = {"support_source": "relative", "known": known, "object_conditional": True, "footprint": True}
+    cal = fit_intervals(means, stds, gts, levels=(0.9,), **rule)
     groups = cal["levels"]["0.9"]["groups"]
+    assert decode_mask(groups["footprint"]).mean() < 0.5
     name = "footprint+fake"
     store.prepare_reconstruction(name, {"calibration": cal}, uncertainty=True)
-    everything = np.arange(store.n)
-    moved = everything[everything % 2 == 1]
-    for i in everything:
-        j = int(i) % n
-        mean = np.roll(means[j], 12, axis=1) if i in moved else means[j]
-        store.write_reconstruction(name, int(i), mean.astype(np.float32), std=stds[j].astype(np.float32))
+    _, fresh, fresh_std = slices(np.random.default_rng(9))
+    corner = (np.hypot(xx + 28, yy + 28) <= 4) * levels.max()  # outside the field of view
+    images = {
+        i: fresh[i] + (corner if i == 2 else 0) if i not in (1, 5) else np.roll(fresh[i], 12, axis=1) for i in range(8)
+    }
+    for i, image in images.items():
+        store.write_reconstruction(name, i, image.astype(np.float32), std=fresh_std[i].astype(np.float32))
+    everything = np.arange(8)
     with pytest.warns(OutOfDistributionWarning, match="outside the footprint of the scan"):
         record = ood_check(store, name, everything)
     assert store.reconstruction_note(name, "ood") == record
-    expected = footprint_outside(
-        store.read_uncertainty(name, everything), groups, store.read_reconstruction(name, everything)
-    )
+    written = store.read_reconstruction(name, everything), store.read_uncertainty(name, everything)
+    expected = footprint_outside(written[1], groups, written[0], known)
     assert [record["footprint"]["outside"][str(i)] for i in everything] == pytest.approx(expected.tolist())
-    assert record["footprint"]["flagged"] == record["flagged"] == moved.tolist()
-    assert record["flagged_by"] == {str(i): ["footprint"] for i in moved}
-    assert decode_mask(groups["footprint"]).mean() < 0.5
-    store.delete_reconstruction(name)
+    assert record["footprint"]["flagged"] == record["flagged"] == [1, 5]
+    assert record["flagged_by"] == {"1": ["footprint"], "5": ["footprint"]}
+    assert footprint_outside(written[1][2], groups, written[0][2])[0] > 0.02  # the corner, were every pixel counted
+    store.write_reconstruction(name, 5, fresh[5].astype(np.float32), std=fresh_std[5].astype(np.float32))
+    again = ood_check(store, name, np.array([5]))
+    assert again["flagged"] == again["footprint"]["flagged"] == [1] and set(again["flagged_by"]) == {"1"}
+    assert set(again["footprint"]["outside"]) == {str(i) for i in everything}
 
 
 def _moved_profiles(shifts: np.ndarray, n_det: int = 91, width: float = 6.0) -> np.ndarray:

@@ -420,23 +420,42 @@ def footprint_fits(groups: dict[str, Any], shape: tuple[int, ...]) -> bool:
 def footprint_outside(
     std: np.ndarray, groups: dict[str, Any], image: np.ndarray | None = None, known: np.ndarray | None = None
 ) -> np.ndarray:
-    """Per image (n, H, W), the fraction of its prediction-time support that lies outside the footprint of ``groups``.
+    """Per image, the fraction of its prediction-time support that lies outside the footprint of ``groups``.
 
     The footprint (:func:`fit_footprint`) is where the calibrating scan's sample is in some slice; the
     background inside it gets the wider intervals that pay for the object pixels a network misses.
-    An image whose own support leaves it (another sample, or the same one moved or mirrored) may
-    have missed object pixels outside it too, where the background's narrow intervals do not
-    cover them. Only the pixels of ``known`` (bool (H, W), e.g. the field of view the footprint was
-    fitted on) count; an image without support there gives 0. ``image``: the prediction's mean,
-    where the support is defined on it (:func:`group_labels`).
+    An image whose own support leaves it (another sample, the same one moved or mirrored, or a
+    slice with nothing in it, whose support relative to its own level is its noise) is unlike
+    every calibrating image there, and may have missed object pixels outside the footprint, where
+    the background's narrow intervals do not cover them.
+
+    Parameters
+    ----------
+    std : array (H, W) or (n, H, W)
+        The prediction's stored std.
+    groups : dict
+        The groups of a calibration level with a footprint (:func:`group_labels`).
+    image : array of the shape of ``std``, optional
+        The prediction's mean, where the support is defined on it.
+    known : bool array (H, W), optional
+        The pixels that count (e.g. the field of view the footprint was fitted on); default all.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n,) fractions in [0, 1]; an image without support on ``known`` gives 0.
 
     Raises
     ------
     ValueError
-        If ``groups`` has no footprint or one of another image shape.
+        If ``groups`` has no footprint, or one of another image shape.
     """
-    if not groups.get("footprint") or not footprint_fits(groups, np.shape(std)):
-        raise ValueError(f"no footprint of the images' shape {tuple(np.shape(std)[-2:])} in these groups")
+    if not groups.get("footprint"):
+        raise ValueError("these groups have no footprint (a calibration on one scan's measured pairs has one)")
+    if not footprint_fits(groups, np.shape(std)):
+        raise ValueError(
+            f"the footprint is {tuple(groups['footprint']['shape'])}, the images {tuple(np.shape(std)[-2:])}"
+        )
     std = np.asarray(std).reshape(-1, *np.shape(std)[-2:])
     image = None if image is None else np.asarray(image).reshape(std.shape)
     support = object_region(group_labels(std, groups, image), len(groups["cuts"]) + 1)

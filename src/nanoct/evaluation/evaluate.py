@@ -69,8 +69,8 @@ def uncertainty_scores(
         :func:`nanoct.evaluation.metrics.uncertainty_summary`, with the partial correlation given the
         edge baseline), ``edge_baseline`` = {``sigma``, ``all``, ``support``} and ``guarantee`` =
         {``delta``, ``levels`` = {level key: {``multiplier``, ``guaranteed_coverage``, ``rcps_multiplier``}}} (the
-        validation split's, empty without a calibration); ``measured_references`` (how many of
-        ``gts`` are measured references: with a negative value) where there are any.
+        validation split's, empty without a calibration); where some of ``gts`` are measured
+        references (with a negative value), ``measured_references`` (how many) and ``references`` (of how many).
     """
     cal = calibration or {}
     support = truth_support(gts) if support is None else support
@@ -98,8 +98,9 @@ def uncertainty_scores(
         "edge_baseline": {"sigma": sigma, **both(edges, edge_entries, None)},
         "guarantee": {"delta": cal.get("delta"), "levels": guarantee},
     }
-    measured = int((np.asarray(gts).reshape(-1, *np.shape(gts)[-2:]).min(axis=(1, 2)) < 0).sum())
-    return out | ({"measured_references": measured} if measured else {})
+    lows = np.asarray(gts).reshape(-1, *np.shape(gts)[-2:]).min(axis=(1, 2))
+    measured = int((lows < 0).sum())
+    return out | ({"measured_references": measured, "references": int(lows.size)} if measured else {})
 
 
 def per_image_values(results: dict[str, dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
@@ -118,6 +119,16 @@ def store_setting(store: DataStore) -> str | None:
     """
     perturbed = bool((store.meta.get("simulation") or {}).get("perturbed", True))
     return setting_key(store.geometry.kind, perturbed)
+
+
+def _field_of_view(store: DataStore, gts: np.ndarray) -> np.ndarray | None:
+    """Where a measured reference is known (a parallel-beam scan's field of view, as the calibration on measured
+    references takes it); None for phantoms and fan beam."""
+    if store.geometry.kind != "parallel" or not np.asarray(gts).min() < 0:
+        return None
+    from ..sim.matched import fov_disc
+
+    return fov_disc(store.geometry) > 0
 
 
 def evaluate_store(store: DataStore, split: str = "test", names: list[str] | None = None) -> dict[str, dict[str, Any]]:
@@ -144,7 +155,7 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
             "the split fractions"
         )
     gts = store.read_phantoms(idx)
-    support = truth_support(gts)
+    support = truth_support(gts, known=_field_of_view(store, gts))
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
         if not store.reconstruction_done(name, idx).all():
@@ -299,13 +310,12 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
         f"{sigma:g} px)-smoothed Sobel magnitude of the mean, its multipliers fitted the same way. Support: "
         "ground truth > 0 dilated by 2 px. Conventions: docs/uncertainty.md.",
     ]
-    measured = max(results[n].get("measured_references", 0) for n in names)
-    if measured:
+    measured = max((results[n].get("measured_references", 0), results[n].get("references", 0)) for n in names)
+    if measured[0]:
         lines[-1] += (
-            f" {measured} of the references are measured (reconstructions, with negative values): their support is "
-            "the reference smoothed above a fraction of its 99th percentile, dilated by 2 px "
-            "(nanoct.evaluation.metrics.truth_support), and a calibration fitted on measured references finds "
-            "its groups from the mean, not the std (docs/uncertainty.md)."
+            f" {measured[0]} of the {measured[1]} references are measured (reconstructions, with negative values): "
+            "their support is the reference smoothed above a fraction of its 99th percentile in the field of view, "
+            "dilated by 2 px (nanoct.evaluation.metrics.truth_support)."
         )
     return "\n".join(lines) + "\n"
 

@@ -12,7 +12,8 @@ stored std is the network's own (raw) std; the calibration fitted on the validat
 background (for measured references split at the sample's footprint) and the std fifths of the
 object) is stored with the parameters (the half-width:
 :func:`nanoct.learn.calibration.half_width`), and images whose std level is unlike the
-validation split's, or whose sinogram shows more apparent motion than the training scans, are
+validation split's, whose sinogram shows more apparent motion than the training scans, or (for
+intervals calibrated on one scan's measured pairs) whose object leaves that scan's footprint, are
 flagged (a warning, and the note ``ood`` of the result: :func:`ood_check`).
 
 The parameters (run directory, checkpoint file and epoch, model, architecture, train input)
@@ -46,6 +47,10 @@ from .scan_ood import store_scan_scores
 from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, parallel_tiles, predict_tiled
 
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
+
+
+#: Images per step of the footprint check (its labels take about 33 bytes per pixel).
+FOOTPRINT_CHUNK = 16
 
 
 class OutOfDistributionWarning(UserWarning):
@@ -292,9 +297,14 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
 
     A calibration with a footprint (fitted on one scan's measured pairs) also flags, as
     ``footprint``, an image of which more than :data:`nanoct.evaluation.conformal.FOOTPRINT_TOLERANCE`
-    of the prediction-time support in the field of view lies outside the footprint
-    (:func:`nanoct.evaluation.conformal.footprint_outside`): not a slice of the calibrating scan as
-    it lay there, so its background may hide missed object pixels that the intervals do not cover.
+    of the prediction-time support lies outside the footprint
+    (:func:`nanoct.evaluation.conformal.footprint_outside`; parallel beam: on the field of view, fan
+    beam: on every pixel): not a slice of the calibrating scan as it lay there (another sample, the
+    same one moved, or a slice with nothing in it, whose support is its noise), so its background
+    may hide missed object pixels that the intervals do not cover. This check is not a p-value and
+    has no false-alarm rate; where the footprint has another image size than the prediction (a
+    tiled prediction) it is not made (all the background then takes the wider of the two
+    background multipliers, :func:`nanoct.evaluation.conformal.half_width_of`).
 
     The record (merged with earlier ones of other samples) is stored as the note ``ood`` of ``name``
     and a :class:`OutOfDistributionWarning` names the flagged samples and which check flagged
@@ -303,16 +313,18 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     Returns
     -------
     dict
-        ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices),
-        ``flagged_by`` = {sample index: the statistics with ``p <= alpha / 2``, and ``footprint``} and per
-        statistic (``std``, and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``};
-        with a footprint, ``footprint`` = {``tolerance``, ``outside``: {sample index: fraction}, ``flagged``}.
+        ``statistic``, ``alpha``, ``p_values`` = {sample index: p}, ``flagged`` (sorted indices: those with
+        ``p <= alpha``, and those the footprint check flags), ``flagged_by`` = {sample index: the statistics
+        with ``p <= alpha / 2`` (``alpha`` with the std alone), and ``footprint``} and per statistic (``std``,
+        and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``}; with the footprint check,
+        ``footprint`` = {``tolerance``, ``outside``: {sample index: fraction}, ``flagged``}.
     """
     calibration = store.reconstruction_params(name)["calibration"]
     ood = calibration["ood"]
     alpha = float(ood["alpha"])
     keys = [str(int(i)) for i in indices]
-    p_by = {"std": ood_p_values(image_statistic(store.read_uncertainty(name, indices)), ood["val"])}
+    stds = store.read_uncertainty(name, indices)
+    p_by = {"std": ood_p_values(image_statistic(stds), ood["val"])}
     if ood.get("scan"):
         p_by["scan"] = ood_p_values(store_scan_scores(store, indices, ood["scan"]), ood["scan"]["scores"])
     old = store.reconstruction_note(name, "ood") or {}
@@ -322,8 +334,8 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     p_values = {**old.get("p_values", {}), **{k: float(v) for k, v in zip(keys, combined)}}
     record: dict[str, Any] = {"statistic": " + ".join(statistics), "alpha": alpha, "p_values": p_values}
     by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
-    outside = _footprint_outside(store, name, calibration, indices)
-    off = set()
+    outside = _footprint_outside(store, name, calibration, indices, stds)
+    off: set[str] = set()
     if outside is not None:
         fractions = {**(old.get("footprint") or {}).get("outside", {}), **dict(zip(keys, outside.tolist()))}
         off = {k for k, v in fractions.items() if v > FOOTPRINT_TOLERANCE}
@@ -342,8 +354,8 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
         what = {
             "std": f"std level above the validation split's, p <= {share:g}",
             "scan": f"more apparent motion in the sinogram than the training scans, p <= {share:g}",
-            "footprint": f"more than {FOOTPRINT_TOLERANCE:.0%} of the object outside the footprint of the scan the "
-            "intervals were calibrated on: another sample, or this one moved",
+            "footprint": f"more than {FOOTPRINT_TOLERANCE:.0%} of the support outside the footprint of the scan the "
+            "intervals were calibrated on: another sample, this one moved, or a slice with nothing in it",
         }
         reasons = "; ".join(f"{s}: {what[s]}" for s in which)
         shown = ", ".join(f"{i} ({'+'.join(by[str(i)])})" for i in new[:10])
@@ -357,18 +369,27 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
 
 
 def _footprint_outside(
-    store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray
+    store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray, stds: np.ndarray
 ) -> np.ndarray | None:
-    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images ``indices`` of ``name`` on the field of
-    view (parallel beam), None where the calibration has no footprint of this image size."""
+    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images ``indices`` of ``name`` (their std
+    ``stds``), on the field of view for parallel beam, ``FOOTPRINT_CHUNK`` images at a time; None where the
+    calibration has no footprint of this image size."""
     groups = next(iter((calibration.get("levels") or {}).values()), {}).get("groups") or {}
     if not groups.get("footprint") or not footprint_fits(groups, store.geometry.image_shape):
         return None
     from ..sim.matched import fov_disc
 
     known = fov_disc(store.geometry) > 0 if store.geometry.kind == "parallel" else None
-    std = store.read_uncertainty(name, indices)
-    return footprint_outside(std, groups, store.read_reconstruction(name, indices), known)
+    parts = [
+        footprint_outside(
+            stds[start : start + FOOTPRINT_CHUNK],
+            groups,
+            store.read_reconstruction(name, indices[start : start + FOOTPRINT_CHUNK]),
+            known,
+        )
+        for start in range(0, len(indices), FOOTPRINT_CHUNK)
+    ]
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int) -> dict | None:
