@@ -150,6 +150,8 @@ def _check_device(device: str | None) -> None:
 
 
 def _parse_params(items: list[str]) -> dict[str, Any]:
+    """``--param name=value`` items as keyword arguments: each value read as JSON (0.2, [16,32], true), the words
+    true and false in any case (Python's True, False) as booleans, anything else as the string it is."""
     params: dict[str, Any] = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -158,7 +160,7 @@ def _parse_params(items: list[str]) -> dict[str, Any]:
         try:
             params[key] = json.loads(value)
         except json.JSONDecodeError:
-            params[key] = value
+            params[key] = value.lower() == "true" if value.lower() in ("true", "false") else value
     return params
 
 
