@@ -1,0 +1,107 @@
+"""How much the object's width-fifth coverage of a finished study moves with the network's training seed.
+
+Usage::
+
+    PYTHONPATH=src python benchmarks/coverage_seeds.py runs/tiny-parallel --row dremel+cinn-res --seeds 8 --work DIR
+
+The companion of ``coverage_resplit.py``, which keeps the networks and moves the split: this keeps the
+split and moves the network. The study's data set is copied to ``DIR`` (the study is not touched);
+the row's network is trained again there by ``nanoct train`` with every argument of the study's run
+(``runs/<model>-<input>/config.json``: epochs, batch size, learning rate and schedule, precision,
+architecture), except the seed: ``--seed S`` (data order, training noise, initialisation) and, for a
+model with an initialisation seed of its own (CiNN), ``--param seed=S``. Seed 0 is the study's own
+run, copied. Each network predicts the test split with the study's sampling and calibrates on the
+validation split (``nanoct predict --name <row>-sS``), and ``nanoct evaluate``'s scores are printed:
+PSNR, 90 % coverage of all pixels and of the object's support, and of the support's five half-width
+fifths (narrowest first). Seed 0 must give the study's own numbers. ``DIR`` keeps everything: run
+the command again to resume.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nanoct.cli import run
+from nanoct.evaluation.evaluate import evaluate_store
+from nanoct.io.store import DataStore
+from nanoct.names import parse_name
+
+BAND = (0.87, 0.93)
+
+
+def _nanoct(*args: object) -> None:
+    code = run([str(a) for a in args])
+    if code != 0:
+        raise SystemExit(f"nanoct {' '.join(map(str, args))} failed with status {code}")
+
+
+def train_arguments(config: dict) -> list[str]:
+    """The ``nanoct train`` options that repeat a run's ``config.json``, without its seed."""
+    args = ["--model", config["model"], "--input", config["input"], "--epochs", config["epochs"]]
+    args += ["--batch-size", config["batch_size"], "--lr", config["lr"], "--precision", config["precision"]]
+    args += ["--lr-schedule", config["scheduler"] or "none"]
+    for key, value in sorted(config["hparams"].items()):
+        if key != "seed":
+            args += ["--param", f"{key}={json.dumps(value)}"]
+    return [str(a) for a in args]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("study", help="a finished 'nanoct reproduce --preset ...' folder (data, runs)")
+    parser.add_argument("--row", default="dremel+cinn-res", help="<input>+<model> of a sampling network")
+    parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--level", default="0.9")
+    parser.add_argument("--work", required=True)
+    args = parser.parse_args()
+    study, work = Path(args.study), Path(args.work)
+    source, model, _ = parse_name(args.row)
+    if model is None:
+        raise SystemExit(f"--row {args.row!r} must name a prediction, <input>+<model>")
+    study_run = study / "runs" / f"{model}-{source}"
+    config = json.loads((study_run / "config.json").read_text())
+    sampling = json.loads((study_run / "calibration.json").read_text())["best"]["reconstruct"]
+    data = work / "data"
+    if not (data / "zarr.json").is_file():
+        shutil.copytree(study / "data", data)
+    start = time.perf_counter()
+    names = []
+    for seed in range(args.seeds):
+        run_dir = work / f"run{seed}"
+        if seed == 0:
+            if not run_dir.is_dir():
+                shutil.copytree(study_run, run_dir)
+        else:  # a finished run is left as it is, an interrupted one resumes
+            seeded = ["--seed", seed] + (["--param", f"seed={seed}"] if "seed" in config["hparams"] else [])
+            _nanoct("train", data, *train_arguments(config), "--out", run_dir, *seeded, "-q")
+        name = f"{args.row}-s{seed}"
+        flags = ["--antithetic"] if sampling.get("antithetic") else []
+        _nanoct("predict", data, "--run", run_dir, "--samples", sampling["n_samples"], *flags, "--name", name, "-q")
+        names.append(name)
+    scores = evaluate_store(DataStore.open(data), "test", names)
+    rows = []
+    print(f"{args.row}, test split, {float(args.level):.0%} intervals (support: object fifths, narrowest first)")
+    for name in names:
+        r = scores[name]["uncertainty"]
+        sup, every = r["support"]["intervals"][args.level], r["all"]["intervals"][args.level]
+        rows.append(sup["coverage_by_width"])
+        print(f"  {name}: PSNR {scores[name]['psnr_mean']:.2f}, all {every['coverage']:.3f}, support "
+              f"{sup['coverage']:.3f}, fifths " + " / ".join(f"{c:.3f}" for c in sup["coverage_by_width"]))  # fmt: skip
+    cells = np.asarray(rows)
+    inside = (cells >= BAND[0]) & (cells <= BAND[1])
+    spread = zip(cells.min(axis=0), cells.mean(axis=0), cells.max(axis=0))
+    per_fifth = "; ".join(f"{a:.3f} / {m:.3f} / {b:.3f}" for a, m, b in spread)
+    print(f"  per fifth over the seeds, min / mean / max: {per_fifth}")
+    print(f"  cells in {BAND[0]:.0%}-{BAND[1]:.0%}: {int(inside.sum())} of {inside.size}; seeds with all five in it: "
+          f"{int(inside.all(axis=1).sum())} of {len(rows)}")  # fmt: skip
+    print(f"total {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
