@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nanoct.cli import run
+from cli_run import cli
 from nanoct.core.geometry import Geometry
 from nanoct.io.store import DataStore, create_scan
 from nanoct.learn.predict import predict
@@ -45,15 +45,6 @@ CIUNET = ["--lr", "1e-3", "--param", "blocks_per_scale=1", "--param", "condition
           "--param", "cond_channels=[16,16,32,32,64]"]  # fmt: skip
 UNET = ["--param", "out_bias=-7.0", "--param", "skip_channels=32"]
 SAMPLES = {"n_samples": 16, "antithetic": True}
-
-
-def _cli(*args: object) -> float:
-    """Run one nanoct command in this process; its seconds."""
-    start = time.perf_counter()
-    code = run([str(a) for a in args])
-    if code != 0:
-        raise SystemExit(f"nanoct {' '.join(map(str, args))} failed with status {code}")
-    return round(time.perf_counter() - start, 2)
 
 
 def _peak_gb() -> float | None:
@@ -69,11 +60,11 @@ def _peak_gb() -> float | None:
 def prepare(folder: Path) -> None:
     """The data set, the CPU-trained run and its CPU prediction."""
     store, run_dir = folder / "tiny", folder / "run_cpu"
-    _cli("generate", "--preset", "tiny-parallel", "--n", 40, "--out", store, "-q")
-    _cli("reconstruct", store, "--method", "dremel", "--split", "all", "-q")
-    _cli("train", store, "--model", "ciunet-res", "--input", "dremel", "--epochs", 2, "--out", run_dir, "-q", *CIUNET)
+    cli("generate", "--preset", "tiny-parallel", "--n", 40, "--out", store, "-q")
+    cli("reconstruct", store, "--method", "dremel", "--split", "all", "-q")
+    cli("train", store, "--model", "ciunet-res", "--input", "dremel", "--epochs", 2, "--out", run_dir, "-q", *CIUNET)
     (run_dir / "last.pt").unlink()  # best.pt is what predict reads; half the size to carry
-    _cli("predict", store, "--run", run_dir, "--samples", 16, "--antithetic", "--name", "cpu-pred", "-q")
+    cli("predict", store, "--run", run_dir, "--samples", 16, "--antithetic", "--name", "cpu-pred", "-q")
 
 
 def _slice_store(path: Path, image: np.ndarray) -> Path:
@@ -99,7 +90,7 @@ def check(folder: Path, device: str, size: int, batches: list[int], out: Path) -
     if torch.cuda.is_available():
         res["gpu"] = torch.cuda.get_device_name(0)
     # (1) the CPU-trained network on the device
-    res["predict_s"] = _cli("predict", tiny, "--run", run_cpu, "--samples", 16, "--antithetic", "--device", device,
+    res["predict_s"] = cli("predict", tiny, "--run", run_cpu, "--samples", 16, "--antithetic", "--device", device,
                             "--name", "dev-pred", "-q")  # fmt: skip
     store = DataStore.open(tiny)
     test = store.indices("test")
@@ -113,18 +104,18 @@ def check(folder: Path, device: str, size: int, batches: list[int], out: Path) -
     for model, extra in (("ciunet-res", CIUNET), ("unet", UNET)):
         run_dir = work / f"run_{model}"
         common = ("--model", model, "--input", "dremel", "--precision", "bf16", "--device", device, "--out", run_dir)
-        res[f"train_{model}_s"] = _cli("train", tiny, *common, "--epochs", 4, "-q", *extra)
+        res[f"train_{model}_s"] = cli("train", tiny, *common, "--epochs", 4, "-q", *extra)
         res[f"train_{model}_peak_gb"] = _peak_gb()
-        res[f"resume_{model}_s"] = _cli("train", tiny, *common, "--epochs", 5, "-q", *extra)
+        res[f"resume_{model}_s"] = cli("train", tiny, *common, "--epochs", 5, "-q", *extra)
         res[f"log_{model}_last"] = (run_dir / "log.csv").read_text().splitlines()[-1]
         samples = ["--samples", 16, "--antithetic"] if model != "unet" else []
-        res[f"predict_{model}_s"] = _cli("predict", tiny, "--run", run_dir, "--device", device, "-q", *samples)
-    res["evaluate_s"] = _cli("evaluate", tiny, "--out", work / "report")
+        res[f"predict_{model}_s"] = cli("predict", tiny, "--run", run_dir, "--device", device, "-q", *samples)
+    res["evaluate_s"] = cli("evaluate", tiny, "--out", work / "report")
     # (3) a large slice in tiles of the trained size
     image = resize(store.read_reconstruction("dremel", test[:1])[0], (size, size), order=1).astype(np.float32)
     big = _slice_store(work / "big", image)
     _peak_gb()
-    res["tiled_cli_s"] = _cli("predict", big, "--run", run_cpu, "--tile", 0, "--samples", 16, "--antithetic",
+    res["tiled_cli_s"] = cli("predict", big, "--run", run_cpu, "--tile", 0, "--samples", 16, "--antithetic",
                               "--device", device, "--no-calibrate", "--split", "all", "-q")  # fmt: skip
     res["tiled_cli_peak_gb"] = _peak_gb()
     first = DataStore.open(big).read_reconstruction("dremel+ciunet-res", [0])[0]
@@ -140,7 +131,7 @@ def check(folder: Path, device: str, size: int, batches: list[int], out: Path) -
     crop = image[(size - 512) // 2 : (size + 512) // 2, (size - 512) // 2 : (size + 512) // 2]
     for k, dev_name in enumerate(("cpu", device)):
         sub = _slice_store(work / f"crop{k}", crop)
-        res[f"tiled512_{dev_name}_s"] = _cli("predict", sub, "--run", run_cpu, "--tile", 0, "--samples", 16,
+        res[f"tiled512_{dev_name}_s"] = cli("predict", sub, "--run", run_cpu, "--tile", 0, "--samples", 16,
                                              "--antithetic", "--device", dev_name, "--no-calibrate", "--split", "all",
                                              "-q")  # fmt: skip
     res["max_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 2)

@@ -27,18 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nanoct.cli import run
+from cli_run import cli
 from nanoct.evaluation.evaluate import evaluate_store
 from nanoct.io.store import DataStore
 from nanoct.names import parse_name
 
 BAND = (0.87, 0.93)
-
-
-def _nanoct(*args: object) -> None:
-    code = run([str(a) for a in args])
-    if code != 0:
-        raise SystemExit(f"nanoct {' '.join(map(str, args))} failed with status {code}")
 
 
 def train_arguments(config: dict) -> list[str]:
@@ -79,10 +73,10 @@ def main() -> None:
                 shutil.copytree(study_run, run_dir)
         else:  # a finished run is left as it is, an interrupted one resumes
             seeded = ["--seed", seed] + (["--param", f"seed={seed}"] if "seed" in config["hparams"] else [])
-            _nanoct("train", data, *train_arguments(config), "--out", run_dir, *seeded, "-q")
+            cli("train", data, *train_arguments(config), "--out", run_dir, *seeded, "-q")
         name = f"{args.row}-s{seed}"
         flags = ["--antithetic"] if sampling.get("antithetic") else []
-        _nanoct("predict", data, "--run", run_dir, "--samples", sampling["n_samples"], *flags, "--name", name, "-q")
+        cli("predict", data, "--run", run_dir, "--samples", sampling["n_samples"], *flags, "--name", name, "-q")
         names.append(name)
     scores = evaluate_store(DataStore.open(data), "test", names)
     rows = []

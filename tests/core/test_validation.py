@@ -34,6 +34,7 @@ def test_check_choice_and_bool():
         with pytest.raises(ValueError, match="c=.*use one of a, b"):
             check_choice(value, "c", ("a", "b"))
     assert check_bool(np.bool_(True), "f") is True and check_bool(0, "f") is False
+    assert check_bool("False", "f") is False and check_bool("TRUE", "f") is True  # the words, any case
     for value in ("yes", 2, 0.0, None):
         with pytest.raises(ValueError, match="f=.*true or false"):
             check_bool(value, "f")

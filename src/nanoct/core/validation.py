@@ -132,16 +132,18 @@ def check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
 
 
 def check_bool(value: Any, name: str) -> bool:
-    """Require a boolean (``True``/``False``, or the integers 0 and 1).
+    """Require a boolean (``True``/``False``, the integers 0 and 1, or the words true and false in any case).
 
     Raises
     ------
     ValueError
         For anything else.
     """
+    if isinstance(value, str) and value.lower() in ("true", "false"):
+        return value.lower() == "true"
     if isinstance(value, (bool, np.bool_)) or (isinstance(value, (int, np.integer)) and value in (0, 1)):
         return bool(value)
-    raise ValueError(f"{name}={value!r} must be true or false")
+    raise ValueError(f"{name}={value!r} is not a boolean; {name} must be true or false")
 
 
 def check_rng(rng: Any) -> np.random.Generator:

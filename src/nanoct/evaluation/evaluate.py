@@ -121,16 +121,6 @@ def store_setting(store: DataStore) -> str | None:
     return setting_key(store.geometry.kind, perturbed)
 
 
-def _field_of_view(store: DataStore, gts: np.ndarray) -> np.ndarray | None:
-    """Where a measured reference is known (a parallel-beam scan's field of view, as the calibration on measured
-    references takes it); None for phantoms and fan beam."""
-    if store.geometry.kind != "parallel" or not np.asarray(gts).min() < 0:
-        return None
-    from ..sim.matched import fov_disc
-
-    return fov_disc(store.geometry) > 0
-
-
 def evaluate_store(store: DataStore, split: str = "test", names: list[str] | None = None) -> dict[str, dict[str, Any]]:
     """PSNR/SSIM (mean, std, n, and per image) of reconstructions over a split, plus uncertainty scores.
 
@@ -154,8 +144,10 @@ def evaluate_store(store: DataStore, split: str = "test", names: list[str] | Non
             f"the data set at {store.path} has no '{split}' samples; generate more samples or change "
             "the split fractions"
         )
+    from ..sim.matched import reference_view
+
     gts = store.read_phantoms(idx)
-    support = truth_support(gts, known=_field_of_view(store, gts))
+    support = truth_support(gts, known=reference_view(store.geometry, gts))
     results: dict[str, dict[str, Any]] = {}
     for name in names or store.reconstruction_names():
         if not store.reconstruction_done(name, idx).all():

@@ -539,11 +539,11 @@ def reference_rule(store: DataStore, gts: np.ndarray) -> dict[str, Any]:
     83 / 90 % (without the 2 px dilation 76 / 92 %), with object-conditional multipliers 90 / 99 %,
     and with the footprint as well 90 / 92 %. For phantoms nothing changes (an empty dict).
     """
-    if not np.asarray(gts).min() < 0 or store.geometry.kind != "parallel":
-        return {}
-    from ..sim.matched import fov_disc
+    from ..sim.matched import reference_view
 
-    known = fov_disc(store.geometry) > 0
+    known = reference_view(store.geometry, gts)
+    if known is None:
+        return {}
     every = bool((np.asarray(gts).reshape(len(gts), -1).min(axis=1) < 0).all())
     return {"support_source": "relative", "known": known, "object_conditional": True, "footprint": every}
 

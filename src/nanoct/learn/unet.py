@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..core.validation import check_bool
 from .base import VALUE_SCALES, PostProcessor, image_range
 
 __all__ = ["LOSS_SCALES", "UNet", "UNetPost", "padded_size"]
@@ -181,15 +182,6 @@ class UNet(nn.Module):
 LOSS_SCALES = VALUE_SCALES
 
 
-def _flag(name: str, value: Any) -> bool:
-    """A boolean argument: True/False, or "true"/"false" in any case (``--param name=value``)."""
-    if isinstance(value, str) and value.lower() in ("true", "false"):
-        return value.lower() == "true"
-    if isinstance(value, bool):
-        return value
-    raise ValueError(f"{name} must be true or false, got {value!r}")
-
-
 class UNetPost(PostProcessor):
     """UNet post-processing (``name = "unet"``): trained with the mean squared error.
 
@@ -216,8 +208,8 @@ class UNetPost(PostProcessor):
     ) -> None:
         if loss_scale not in LOSS_SCALES:
             raise ValueError(f"loss_scale must be one of {', '.join(LOSS_SCALES)}, got {loss_scale!r}")
-        residual = _flag("residual", residual)
-        use_sigmoid = not residual if use_sigmoid is None else _flag("use_sigmoid", use_sigmoid)
+        residual = check_bool(residual, "residual")
+        use_sigmoid = not residual if use_sigmoid is None else check_bool(use_sigmoid, "use_sigmoid")
         if residual and (use_sigmoid or out_bias):
             raise ValueError(
                 "a residual UNet corrects its input with a linear output that starts at zero: "

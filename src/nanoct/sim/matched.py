@@ -99,6 +99,7 @@ __all__ = [
     "MatchedPlan",
     "fov_disc",
     "generate_like",
+    "reference_view",
     "matched_source",
     "measured_pair",
     "parse_mix",
@@ -240,6 +241,15 @@ def fov_disc(geometry: Geometry) -> np.ndarray:
     radius = max((geometry.n_det - 1) / 2 * geometry.det_spacing - abs(geometry.center_offset), 1.0)
     r = np.arange(n) - (n - 1) / 2
     return ((r[None, :] ** 2 + r[:, None] ** 2) <= radius**2).astype(np.float32)
+
+
+def reference_view(geometry: Geometry, references: np.ndarray) -> np.ndarray | None:
+    """Where references reconstructed from measured data are known: the field of view (:func:`fov_disc`, bool) of
+    a parallel-beam scan whose references have negative values (an FBP's noise); None for phantoms (no negative
+    value) and fan beam."""
+    if geometry.kind != "parallel" or not np.asarray(references).min() < 0:
+        return None
+    return fov_disc(geometry) > 0
 
 
 @dataclass(frozen=True)
