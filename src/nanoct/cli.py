@@ -505,8 +505,9 @@ def predict(
     set's validation split, e.g. a measured scan's own slices with a known motion added and its
     FBP as reference, where each group's multiplier also covers the reference's object pixels it
     holds (object-conditional; docs/uncertainty.md). Images whose std level is above the
-    validation split's, or whose sinogram shows more apparent motion than the training scans,
-    are reported as out of distribution (docs/uncertainty.md).
+    validation split's, whose sinogram shows more apparent motion than the training scans, or
+    (intervals calibrated on one scan's measured pairs) with more than 2 % of their object outside
+    that scan's footprint are reported as out of distribution (docs/uncertainty.md).
     """
     from .learn.predict import predict as predict_model
 
