@@ -193,6 +193,13 @@ def test_per_image_values_in_split_order_and_conclusions_in_json(tiny_store, tmp
     assert "| dremel | " in md and "PSNR registered [dB]" in md
     assert payload["setting"] == "parallel" and payload["conclusions"][0]["id"] == checks[0]["id"]
     assert "The paper's conclusions (parallel)" in (tmp_path / "evaluation.md").read_text()
+    # a store with none of the conclusions' rows (one row, "fbp" renamed) gets no block of "not applicable"
+    only = {"other": results["fbp"]}
+    none_apply = check_conclusions(per_image_values(only), "parallel")
+    assert {c["verdict"] for c in none_apply} == {"not applicable"}
+    _, js = write_report_tables(store, only, tmp_path / "none", conclusions=none_apply, setting="parallel")
+    assert "The paper's conclusions" not in (tmp_path / "none" / "evaluation.md").read_text()
+    assert len(json.loads(js.read_text())["conclusions"]) == len(none_apply)
 
 
 def test_paper_comparison_keeps_the_papers_convention():

@@ -32,3 +32,7 @@ def test_resampling_orthogonal_haar_and_couplings_identity_at_init(images, check
     torch.testing.assert_close(z1, z2)
     torch.testing.assert_close(z1.norm(dim=1), x.reshape(2, -1).norm(dim=1))
     assert torch.all(lj == 0)
+    # a string from a caller is read as the word it is (bool("False") would be True), anything else refused
+    assert CiNN(**{**TINY, "actnorm": "False"}).hparams["actnorm"] is False
+    with pytest.raises(ValueError, match="actnorm='no' is not a boolean"):
+        CiNN(**{**TINY, "actnorm": "no"})

@@ -62,3 +62,10 @@ def test_resampling_orthogonal_haar_and_couplings_identity_at_init(images, check
     an = m.flow.get_module_by_name("actnorm_in")
     expected = (x * an.scale.exp() + an.bias).reshape(2, -1)
     torch.testing.assert_close(z1, expected, atol=1e-5, rtol=0)
+    # strings from a caller are read as the words they are (bool("False") would be True)
+    words = CiUNet(**{**TINY, "actnorm": "false", "cond_norm": "FALSE"})
+    assert words.hparams["actnorm"] is False and words.hparams["cond_norm"] is False
+    assert not any(isinstance(mod, torch.nn.BatchNorm2d) for mod in words.cond_net.modules())
+    for key in ("actnorm", "cond_norm"):
+        with pytest.raises(ValueError, match=f"{key}='off' is not a boolean"):
+            CiUNet(**{**TINY, key: "off"})

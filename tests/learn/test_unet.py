@@ -173,3 +173,5 @@ def test_residual_unet_starts_at_its_input_and_learns_a_correction():
     assert build_model("unet", residual="TRUE", channels=list(SMALL)).hparams["residual"] is True
     with pytest.raises(NanoctError, match="residual must be true or false"):
         build_model("unet", residual="yes")
+    plain = build_model("unet", use_norm="false", channels=list(SMALL))
+    assert plain.hparams["use_norm"] is False and not any(isinstance(m, torch.nn.BatchNorm2d) for m in plain.modules())

@@ -346,7 +346,9 @@ def write_report_tables(
     :func:`uncertainty_scores`), the input-mixing tables under ``"mixing"``, the paper's
     setting under ``"setting"``, the conclusion checks
     (:func:`nanoct.evaluation.conclusions.check_conclusions`) under ``"conclusions"`` and
-    :func:`nanoct.io.provenance.environment_info` under ``"environment"``.
+    :func:`nanoct.io.provenance.environment_info` under ``"environment"``. The Markdown shows the
+    conclusion checks only when at least one is applicable (a store with none of their rows, e.g. a
+    set of measured pairs with Dremel and one network, has no such section).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -355,7 +357,7 @@ def write_report_tables(
     mixing = mixing_matrices(results)
     uq = format_uncertainty_table(results, f"Uncertainty, split '{split}'")
     text = format_table(results, title) + ("\n" + uq if uq else "") + ("\n" + format_mixing(mixing) if mixing else "")
-    if conclusions:
+    if any(c["verdict"] != "not applicable" for c in conclusions or []):  # none: the store has none of their rows
         text += f"\n### The paper's conclusions ({setting})\n\n" + format_conclusions(conclusions)
     md, js = out / "evaluation.md", out / "evaluation.json"
     payload = {

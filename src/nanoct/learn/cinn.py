@@ -32,6 +32,7 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.core.validation import check_bool
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
@@ -189,7 +190,7 @@ class CiNN(ConditionalFlow):
             cond_width=int(cond_width),
             fc_cond_dim=int(fc_cond_dim),
             hidden_ratio=float(hidden_ratio),
-            actnorm=bool(actnorm),
+            actnorm=check_bool(actnorm, "actnorm"),
             target_noise=float(target_noise),
             target_noise_scale=str(target_noise_scale),
             orthogonal_map=str(orthogonal_map),

@@ -31,6 +31,7 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
+from nanoct.core.validation import check_bool
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
@@ -130,10 +131,10 @@ class CiUNet(ConditionalFlow):
             blocks_per_scale=int(blocks_per_scale),
             pre_blocks=int(pre_blocks),
             cond_channels=cond_channels,
-            cond_norm=bool(cond_norm),
+            cond_norm=check_bool(cond_norm, "cond_norm"),
             hidden_ratio=float(hidden_ratio),
             kernel_size=int(kernel_size),
-            actnorm=bool(actnorm),
+            actnorm=check_bool(actnorm, "actnorm"),
             target_noise=float(target_noise),
             target_noise_scale=str(target_noise_scale),
             orthogonal_map=str(orthogonal_map),
@@ -144,7 +145,7 @@ class CiUNet(ConditionalFlow):
         )
         self.multiple = 2 ** (n_scales - 1)
         self.cond_net = UNet(
-            1, 1, channels=cond_channels, use_sigmoid=False, use_norm=bool(cond_norm), pad_mode="reflect"
+            1, 1, channels=cond_channels, use_sigmoid=False, use_norm=self.hparams["cond_norm"], pad_mode="reflect"
         )
         # the UNet's 1x1 output layer is not used for conditioning: drop it, so that no
         # parameter goes without a gradient (DistributedDataParallel requires that)

@@ -220,7 +220,7 @@ class UNetPost(PostProcessor):
             channels=[int(c) for c in channels],
             skip_channels=skips,
             use_sigmoid=use_sigmoid,
-            use_norm=bool(use_norm),
+            use_norm=check_bool(use_norm, "use_norm"),
             pad_mode=str(pad_mode),
             out_bias=float(out_bias),
             **({} if loss_scale == "absolute" else {"loss_scale": str(loss_scale)}),
