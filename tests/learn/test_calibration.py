@@ -8,6 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from scipy import ndimage
 
 import nanoct.learn.calibration as cal_mod
 from nanoct.core.errors import NanoctError
@@ -195,6 +196,11 @@ def test_fit_reads_validation_data_only(setup, tmp_path):
     changed = calibrate(path, run, reconstruct_kwargs=M, refit=True)
     new, old = changed["levels"]["0.9"]["pooled"]["map"]["width"], before["levels"]["0.9"]["pooled"]["map"]["width"]
     assert new != pytest.approx(old, rel=1e-3)
+    # without refit the stored fit is reused, until the input is made again (reconstruct --overwrite: a new id)
+    assert calibrate(path, run, reconstruct_kwargs=M) == changed
+    store._group["reconstructions/fbp"].attrs["created"] = "made again"
+    again = calibrate(path, run, reconstruct_kwargs=M)
+    assert again["input_fingerprint"]["created"] == "made again" and again["levels"] == changed["levels"]
 
 
 @pytest.mark.slow
@@ -358,5 +364,14 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
     by_hand = fit_group_intervals(np.abs(means - gts), stds, labels, 0.9, truth=truth, footprint=True)
     assert len(by_hand["multipliers"]) == 7
     assert {k: groups[k] for k in by_hand} == by_hand and groups["support"]["source"] == "relative"
+    # nor does the mean outside ``known`` (an FBP's streaks there, beyond the support's 2 px dilation) move the
+    # support's threshold, the groups or the multipliers (the support on the mean as given, so that the pixels
+    # inside keep their values)
+    absolute = {**rule, "support_source": "mean"}
+    far = ~ndimage.binary_dilation(rule["known"], iterations=3)
+    assert far.sum() > 50
+    bright = np.where(far, means.max(), means)
+    fit_abs = cal_mod.fit_intervals(means, stds, gts, levels=(0.9,), **absolute)
+    assert cal_mod.fit_intervals(bright, stds, gts, levels=(0.9,), **absolute)["levels"] == fit_abs["levels"]
     assert fit["object_conditional"] and "class_multipliers" in groups
     assert not cal_mod.fit_intervals(means, stds, gts, levels=(0.9,))["object_conditional"]

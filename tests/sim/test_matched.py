@@ -122,6 +122,11 @@ def test_bad_input_is_named(scan, tiny_store, tmp_path):
 def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
     np.testing.assert_array_equal(matched._slice_groups(10, 2), np.arange(10).reshape(5, 2))
     np.testing.assert_array_equal(matched._slice_groups(1, 2), [[0]])
+    # fewer rows than the binning: each row is one slice, binned along the detector only, one group each
+    np.testing.assert_array_equal(matched._slice_groups(3, 4), [[0], [1], [2]])
+    for rows, b in ((3, 4), (10, 2), (11, 2)):
+        binned = matched.bin_sinograms(np.zeros((matched._slice_groups(rows, b).size, 2, 8)), b)
+        assert binned.shape[0] == matched._slice_groups(rows, b).shape[0]
     monkeypatch.setattr(matched, "MAX_SLICES", 2)
     np.testing.assert_array_equal(matched._slice_groups(11, 2), [[0, 1], [8, 9]])
     plan = plan_matched(scan.path, binning=1)
@@ -227,3 +232,15 @@ def test_a_zero_fourth_mix_is_the_three_family_set():
     assert parse_mix("0,0,1,1") == (0.0, 0.0, 0.5, 0.5)
     with pytest.raises(NanoctError, match="three or four numbers"):
         parse_mix("1,1,1,1,1")
+
+
+def test_the_field_of_view_is_where_every_view_sees_in_image_units():
+    """The disc every view sees: radius ((L - 1) / 2 - |axis offset|) detector pixels of det_spacing each."""
+    from nanoct.core.geometry import Geometry
+
+    angles = np.linspace(0, np.pi, 8, endpoint=False)
+    r2 = (np.arange(41) - 20.0) ** 2
+    r2 = r2[None, :] + r2[:, None]
+    for spacing, offset, radius in ((2.0, -3.0, 14.0), (0.5, 4.0, 3.0)):  # ((21 - 1) / 2 - |offset|) * spacing
+        g = Geometry.from_angles(angles, 41, 21, det_spacing=spacing, center_offset=offset)
+        np.testing.assert_array_equal(matched.fov_disc(g) > 0, r2 <= radius**2)

@@ -341,24 +341,32 @@ def support_of(image: np.ndarray, threshold: float, radius: int, fill: bool = Fa
 
 
 def fit_support_threshold(
-    image: np.ndarray, truth_support: np.ndarray, radius: int, n_candidates: int = 64, fill: bool = False
+    image: np.ndarray,
+    truth_support: np.ndarray,
+    radius: int,
+    n_candidates: int = 64,
+    fill: bool = False,
+    mask: np.ndarray | None = None,
 ) -> float:
     """The threshold of :func:`support_of` whose support best matches ``truth_support`` (largest IoU).
 
     Candidates: ``n_candidates`` quantiles of ``image`` between its 50th and 99.5th percentiles.
+    ``mask`` (bool, broadcast to ``image``): the pixels where the truth is known (e.g. the field of view
+    of a measured reference); the quantiles and the IoU are taken over those only. Default: all.
 
     Raises
     ------
     ValueError
-        If ``truth_support`` is empty or ``image`` is constant.
+        If ``truth_support`` is empty or ``image`` is constant (on ``mask``).
     """
     image = np.asarray(image, np.float64)
-    truth = np.asarray(truth_support, bool)
-    if not truth.any() or image.min() == image.max():
+    where = np.broadcast_to(np.asarray(True if mask is None else mask, bool), image.shape)
+    truth = np.asarray(truth_support, bool) & where
+    if not truth.any() or image[where].min() == image[where].max():
         raise ValueError("no support to match: the truth's support is empty or the image is constant")
     best, best_iou = float("nan"), -1.0
-    for t in np.unique(np.quantile(image, np.linspace(0.5, 0.995, n_candidates))):
-        s = support_of(image, float(t), radius, fill)
+    for t in np.unique(np.quantile(image[where], np.linspace(0.5, 0.995, n_candidates))):
+        s = support_of(image, float(t), radius, fill) & where
         iou = float((s & truth).sum() / (s | truth).sum())
         if iou > best_iou:
             best, best_iou = float(t), iou

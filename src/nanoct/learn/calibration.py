@@ -208,12 +208,15 @@ def ood_p_values(values: np.ndarray, reference: list[float] | np.ndarray) -> np.
     return (1.0 + above) / (ref.size + 1.0)
 
 
-def _support_rule(image: np.ndarray, gts: np.ndarray, source: str, fill: bool, radius: int) -> dict[str, Any]:
+def _support_rule(
+    image: np.ndarray, gts: np.ndarray, source: str, fill: bool, radius: int, known: np.ndarray | None
+) -> dict[str, Any]:
     """The prediction-time support (:func:`nanoct.evaluation.conformal.support_of` of ``image``, the
     :func:`nanoct.evaluation.conformal.support_image` of ``source``, holes filled with ``fill``, dilated
     by ``radius``) whose threshold best matches the validation images' true support
-    (:func:`nanoct.evaluation.metrics.truth_support`, largest IoU)."""
-    threshold = fit_support_threshold(image, truth_support(gts, radius), radius, fill=fill)
+    (:func:`nanoct.evaluation.metrics.truth_support`, largest IoU) on the pixels ``known`` (default all)."""
+    truth = truth_support(gts, radius, known=known)
+    threshold = fit_support_threshold(image, truth, radius, fill=fill, mask=known)
     return {"source": source, "threshold": threshold, "radius": radius, "fill": fill}
 
 
@@ -335,7 +338,7 @@ def fit_intervals(
     edge_fit: dict[str, float] = {}
     try:
         image = support_image(support_source, stds, means)
-        rule = _support_rule(image, np.asarray(gts), support_source, fill_holes, support_radius)
+        rule = _support_rule(image, np.asarray(gts), support_source, fill_holes, support_radius, known)
         support = support_of(image, rule["threshold"], rule["radius"], fill_holes)
         cuts = fit_group_cuts(stds, support & keep, OBJECT_WIDTH_BINS)
         groups: dict[str, Any] = {"support": rule, "cuts": cuts}
@@ -450,7 +453,8 @@ def calibrate(
     -------
     dict
         The entry: what it was fitted for (``format``, ``checkpoint``, ``checkpoint_sha256``,
-        ``epoch``, ``store``, ``input``, ``reconstruct``, ``n_samples``, ``split`` = "val",
+        ``epoch``, ``store``, ``input`` and its ``input_fingerprint`` (refitted when the input is made
+        again, e.g. with ``--overwrite``), ``reconstruct``, ``n_samples``, ``split`` = "val",
         ``n_images``) and :func:`fit_intervals`'s result, with ``ood.scan`` the reference of the
         apparent-motion statistic (:func:`nanoct.learn.scan_ood.scan_reference`) where the data
         set has train or validation samples.
@@ -480,8 +484,13 @@ def calibrate(
     if not 0 < delta < 1:
         raise NanoctError(f"delta {delta} must lie strictly between 0 and 1 (e.g. 0.1)")
     old = entries.get(name)
-    if not refit and isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
-        return old  # the same checkpoint file (so the same model, input and epoch), data set and M
+    if (
+        not refit
+        and isinstance(old, dict)
+        and all(old.get(k) == v for k, v in key.items())
+        and old.get("input_fingerprint") == _input_fingerprint(store, old.get("input"))
+    ):
+        return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
     own = entries.get(checkpoint)
     if isinstance(own, dict) and store.indices("val").size == 0:
         # a data set without validation samples (an imported scan): the fit on the run's own
@@ -495,6 +504,7 @@ def calibrate(
     key |= {
         "epoch": int(ckpt["epoch"]),
         "input": str(ckpt["input"]),
+        "input_fingerprint": _input_fingerprint(store, str(ckpt["input"])),
         "n_samples": _n_samples(str(ckpt["model"]), kwargs),
     }
     val = store.indices("val")
@@ -517,6 +527,15 @@ def calibrate(
     entries[name] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry
+
+
+def _input_fingerprint(store: DataStore, name: str | None) -> dict[str, Any] | None:
+    """The store's fingerprint of the input reconstruction ``name`` (its parameters and creation id, as JSON
+    reads it back), None where there is none: a calibration is refitted when its input was made again."""
+    try:
+        return json.loads(json.dumps(store.recons.fingerprint(str(name))))
+    except KeyError:
+        return None
 
 
 def reference_rule(store: DataStore, gts: np.ndarray) -> dict[str, Any]:

@@ -238,7 +238,7 @@ def fov_disc(geometry: Geometry) -> np.ndarray:
     """Pixels every view of a parallel-beam scan sees: within ``(L - 1) / 2 - |axis offset|`` of the axis
     (at least 1 px), as a float32 (N, N) mask; a measured pair's reference is known only there."""
     n = geometry.n
-    radius = max((geometry.n_det - 1) / 2 * geometry.det_spacing - abs(geometry.center_offset), 1.0)
+    radius = max(((geometry.n_det - 1) / 2 - abs(geometry.center_offset)) * geometry.det_spacing, 1.0)
     r = np.arange(n) - (n - 1) / 2
     return ((r[None, :] ** 2 + r[:, None] ** 2) <= radius**2).astype(np.float32)
 
@@ -406,10 +406,11 @@ def plan_matched(
 def _slice_groups(n_slices: int, binning: int) -> np.ndarray:
     """Rows of the (binned) slices measured: at most ``MAX_SLICES`` groups of ``binning`` rows, evenly spread.
 
-    Returns an array (groups, rows per group); with fewer rows than ``binning``, one group of all.
+    Returns an array (groups, rows per group); with fewer rows than ``binning``, one group per row (the
+    rows are then binned along the detector only, as :func:`~nanoct.sim.scan_stats.bin_sinograms` does).
     """
     if n_slices < binning:
-        return np.arange(n_slices)[None, :]
+        return np.arange(n_slices)[:, None]
     n_groups = n_slices // binning
     chosen = np.unique(np.round(np.linspace(0, n_groups - 1, min(n_groups, MAX_SLICES))).astype(int))
     return chosen[:, None] * binning + np.arange(binning)[None, :]
