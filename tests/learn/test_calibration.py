@@ -309,6 +309,25 @@ def test_calibrate_on_another_data_set_keeps_both_fits(setup, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_tiled_prediction_of_another_image_size_uses_the_runs_own_calibration(setup, tmp_path):
+    """--tile on a data set of another image size that has a validation split: the run's own (untiled) fit, as
+    for a scan without one; before that fit exists, an error that names the ways out, and nothing written. The
+    tiles per batch, on which the latent draws depend, are recorded."""
+    path, run = _copy(setup, tmp_path)
+    big = tmp_path / "big"
+    generate_dataset(big, get_preset("small-parallel"), 2, seed=1, workers=0, progress=False,
+                     split_fractions=(0, 0.5, 0.5))  # fmt: skip
+    reconstruct_dataset(big, "fbp", workers=0, progress=False)
+    with pytest.raises(NanoctError, match=r"127x127 images, the run .* 63x63.*--calibrate-on .*--no-calibrate"):
+        predict(big, run, progress=False, tile=0, reconstruct_kwargs=M)
+    assert DataStore.open(big).reconstruction_names() == ["fbp"]
+    own = calibrate(path, run, reconstruct_kwargs=M)
+    assert predict(big, run, progress=False, tile=0, reconstruct_kwargs=M, batch_size=4) == "fbp+cinn-res"
+    params = DataStore.open(big).reconstruction_params("fbp+cinn-res")
+    assert params["calibration"] == own
+    assert params["tiling"] == {"size": 63, "overlap": 16, "margin": 2, "batch": 4}
+
+
 def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):
     path, run = _copy(setup, tmp_path)
     with pytest.raises(NanoctError, match="no data set there"):

@@ -33,8 +33,12 @@ def test_p_values_flag_at_most_alpha_of_exchangeable_images(rng):
     assert np.mean(p <= 0.05) == pytest.approx(1 / (n_val + 1), abs=0.005)
 
 
-def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store):
-    """Constructed shift: std levels 1.5 times the validation split's are flagged, in-distribution ones rarely."""
+def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store, monkeypatch):
+    """Constructed shift: std levels 1.5 times the validation split's are flagged, in-distribution ones rarely
+    (the stds read 5 images at a time, so that the p-values are checked across the chunks' borders)."""
+    import nanoct.learn.predict as predict_mod
+
+    monkeypatch.setattr(predict_mod, "OOD_CHUNK", 5)
     store = DataStore.open(tiny_store.path, mode="r+")
     rng = np.random.default_rng(5)
     val_levels = rng.lognormal(np.log(0.05), 0.1, 20)

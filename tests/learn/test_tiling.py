@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-from nanoct.learn.tiling import edge_window, parallel_tiles, predict_tiled, tile_starts
+from nanoct.learn.tiling import batch_seed, edge_window, parallel_tiles, predict_tiled, tile_starts
 
 
 def test_tile_starts_cover_the_image():
@@ -167,10 +167,29 @@ def test_parallel_workers_stop_at_an_error():
 
     def failing(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
         calls.append(seed)
-        if seed == 1_000_003 + 1:  # the second batch (seed 1)
+        if seed == batch_seed(1, 1):  # the second batch of the image seeded 1
             raise ValueError("broken batch")
         return x, None
 
     with pytest.raises(ValueError, match="broken batch"):
         predict_tiled(np.zeros((100, 100), np.float32), failing, 20, overlap=6, margin=2, batch=1, seed=1, workers=2)
     assert 2 <= len(calls) <= 6  # of 49 batches
+
+
+def test_batch_seeds_differ_between_images_and_a_small_image_shows_its_progress(capsys):
+    """Each batch of tiles of each image draws its own latent samples: no image's k-th batch shares the seed of
+    another image's batch (the earlier ``seed * 1_000_003 + k`` gave image 0's batch k the seed of image k's
+    first); an image smaller than a tile, padded, still shows its progress bar."""
+    seeds = [batch_seed(image, k) for image in range(50) for k in range(40)]
+    assert len(set(seeds)) == len(seeds) and batch_seed(7, 0) == 7
+    seen: list[int] = []
+
+    def network(x: np.ndarray, seed: int) -> tuple[np.ndarray, None]:
+        seen.append(seed)
+        return x, None
+
+    predict_tiled(np.zeros((60, 60), np.float32), network, 20, overlap=6, margin=2, batch=4, seed=0)
+    predict_tiled(np.zeros((60, 60), np.float32), network, 20, overlap=6, margin=2, batch=4, seed=1)
+    assert len(set(seen)) == len(seen) == 8  # 16 tiles in 4 batches, two images
+    out, _ = predict_tiled(np.ones((12, 30), np.float32), network, 20, overlap=6, margin=2, progress=True, desc="s")
+    assert out.shape == (12, 30) and "s: 100%" in capsys.readouterr().err

@@ -6,7 +6,8 @@ network trained on one method is applied to another (the paper's input-mixing ta
 With ``tile``, images of any size are predicted in overlapping tiles of the size the network was
 trained on (:mod:`nanoct.learn.tiling`). Networks that return a pixel-wise standard deviation
 also write ``uncertainty/<name>``; their latent samples for sample ``i`` are drawn from a
-generator seeded with ``i``, so results do not depend on batching or on interruptions. The
+generator seeded with ``i``, so results do not depend on batching or on interruptions (tiled, on the
+batch of tiles, which is recorded: :func:`nanoct.learn.tiling.predict_tiled`). The
 stored std is the network's own (raw) std; the calibration fitted on the validation split
 (:mod:`nanoct.learn.calibration`: per interval level a multiplier per group of pixels, the
 background (for measured references split at the sample's footprint) and the std fifths of the
@@ -49,8 +50,9 @@ from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, parallel_tiles, predict_til
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
 
 
-#: Images per step of the footprint check (its labels take about 33 bytes per pixel).
-FOOTPRINT_CHUNK = 16
+#: Images read at a time by the out-of-distribution checks (the footprint check's labels take about 33 bytes
+#: per pixel), so that their memory does not grow with the split.
+OOD_CHUNK = 16
 
 
 class OutOfDistributionWarning(UserWarning):
@@ -154,7 +156,8 @@ def predict(
         smooth window: images of any size in bounded memory, with a progress bar per image. The
         geometry of the data set may then differ from the training data's; the calibration is the
         run's own (fitted untiled on its validation split) where the data set has no validation
-        split.
+        split or another image size than the run's. For a sampling network the stored ``tiling`` also
+        records ``batch_size`` (tiles per call), on which its latent draws depend.
     overlap : int
         Pixels shared by neighbouring tiles.
     calibrate_on : path, optional
@@ -187,6 +190,8 @@ def predict(
     tiling = _tiling(store, run, ckpt, tile, overlap)
     kwargs = dict(reconstruct_kwargs or {})
     sampling = model_class(str(ckpt["model"])).has_uncertainty
+    if tiling and sampling:  # a tile's latent draws depend on the batch of tiles it is in: part of the result
+        tiling["batch"] = int(batch_size)
     if kwargs and not sampling:
         raise NanoctError(
             f"the run at {run} holds a '{ckpt['model']}', which gives one output per image and no std; the "
@@ -323,8 +328,9 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     ood = calibration["ood"]
     alpha = float(ood["alpha"])
     keys = [str(int(i)) for i in indices]
-    stds = store.read_uncertainty(name, indices)
-    p_by = {"std": ood_p_values(image_statistic(stds), ood["val"])}
+    chunks = [indices[start : start + OOD_CHUNK] for start in range(0, len(indices), OOD_CHUNK)]
+    levels = [image_statistic(store.read_uncertainty(name, chunk)) for chunk in chunks]  # memory: one chunk
+    p_by = {"std": ood_p_values(np.concatenate(levels) if levels else np.zeros(0), ood["val"])}
     if ood.get("scan"):
         p_by["scan"] = ood_p_values(store_scan_scores(store, indices, ood["scan"]), ood["scan"]["scores"])
     old = store.reconstruction_note(name, "ood") or {}
@@ -334,7 +340,7 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     p_values = {**old.get("p_values", {}), **{k: float(v) for k, v in zip(keys, combined)}}
     record: dict[str, Any] = {"statistic": " + ".join(statistics), "alpha": alpha, "p_values": p_values}
     by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
-    outside = _footprint_outside(store, name, calibration, indices, stds)
+    outside = _footprint_outside(store, name, calibration, chunks)
     off: set[str] = set()
     if outside is not None:
         fractions = {**(old.get("footprint") or {}).get("outside", {}), **dict(zip(keys, outside.tolist()))}
@@ -369,11 +375,11 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
 
 
 def _footprint_outside(
-    store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray, stds: np.ndarray
+    store: DataStore, name: str, calibration: dict[str, Any], chunks: list[np.ndarray]
 ) -> np.ndarray | None:
-    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images ``indices`` of ``name`` (their std
-    ``stds``), on the field of view for parallel beam, ``FOOTPRINT_CHUNK`` images at a time; None where the
-    calibration has no footprint of this image size."""
+    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images of ``name`` in ``chunks`` (lists of
+    sample indices, ``OOD_CHUNK`` at most, read one at a time), on the field of view for parallel beam;
+    None where the calibration has no footprint of this image size."""
     groups = next(iter((calibration.get("levels") or {}).values()), {}).get("groups") or {}
     if not groups.get("footprint") or not footprint_fits(groups, store.geometry.image_shape):
         return None
@@ -381,13 +387,8 @@ def _footprint_outside(
 
     known = fov_disc(store.geometry) > 0 if store.geometry.kind == "parallel" else None
     parts = [
-        footprint_outside(
-            stds[start : start + FOOTPRINT_CHUNK],
-            groups,
-            store.read_reconstruction(name, indices[start : start + FOOTPRINT_CHUNK]),
-            known,
-        )
-        for start in range(0, len(indices), FOOTPRINT_CHUNK)
+        footprint_outside(store.read_uncertainty(name, chunk), groups, store.read_reconstruction(name, chunk), known)
+        for chunk in chunks
     ]
     return np.concatenate(parts) if parts else np.zeros(0)
 

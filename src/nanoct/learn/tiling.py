@@ -36,7 +36,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_MARGIN", "DEFAULT_OVERLAP", "edge_window", "parallel_tiles", "predict_tiled", "tile_starts"]
+__all__ = [
+    "DEFAULT_MARGIN",
+    "DEFAULT_OVERLAP",
+    "batch_seed",
+    "edge_window",
+    "parallel_tiles",
+    "predict_tiled",
+    "tile_starts",
+]
 
 #: Pixels shared by neighbouring tiles (at least 2 margins plus a ramp).
 DEFAULT_OVERLAP = 16
@@ -145,6 +153,14 @@ def _in_order(call: Callable[[int], Any], n: int, workers: int) -> Iterator[Any]
                 future.cancel()
 
 
+def batch_seed(seed: int, k: int) -> int:
+    """The seed of the k-th batch of tiles of an image seeded ``seed``: ``seed`` itself for the first (so one
+    tile is the untiled prediction), else a 32-bit hash of ``(seed, k)`` by ``numpy.random.SeedSequence``, which
+    meets the seed of another batch or image only by chance (not, as ``seed * c + k`` did, image ``seed``'s
+    k-th batch meeting image k's first)."""
+    return int(seed) if k == 0 else int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1)[0])
+
+
 def predict_tiled(
     image: np.ndarray,
     network: TileFunction,
@@ -173,8 +189,9 @@ def predict_tiled(
     batch : int
         Tiles per call of ``network``.
     seed : int
-        The first call gets ``seed``, the k-th ``seed * 1_000_003 + k`` (latent samples of sampling
-        networks), so a prediction depends on nothing but the image, its seed and the tiling, and a
+        The first call gets ``seed``, the k-th a seed drawn from ``numpy.random.SeedSequence([seed, k])``
+        (:func:`batch_seed`; latent samples of sampling networks), so a prediction depends on nothing but
+        the image, its seed, the tiling and ``batch`` (a tile's draws depend on the batch it is in), and a
         single tile is the untiled prediction with that seed.
     workers : int
         Calls of ``network`` running at once, each on its own batch, from as many threads (``network``
@@ -194,7 +211,16 @@ def predict_tiled(
     if min(h0, w0) < tile:
         padded = np.pad(image, ((0, max(tile - h0, 0)), (0, max(tile - w0, 0))), mode="edge")
         mean, std = predict_tiled(
-            padded, network, tile, overlap=overlap, margin=margin, batch=batch, seed=seed, workers=workers
+            padded,
+            network,
+            tile,
+            overlap=overlap,
+            margin=margin,
+            batch=batch,
+            seed=seed,
+            workers=workers,
+            progress=progress,
+            desc=desc,
         )
         return mean[:h0, :w0], None if std is None else std[:h0, :w0]
     ys, xs = tile_starts(h0, tile, overlap), tile_starts(w0, tile, overlap)
@@ -207,7 +233,7 @@ def predict_tiled(
 
     def call(k: int) -> tuple[np.ndarray, np.ndarray | None]:
         tiles = np.stack([image[y : y + tile, x : x + tile] for y, x in parts[k]])
-        return network(tiles, seed if k == 0 else seed * 1_000_003 + k)
+        return network(tiles, batch_seed(seed, k))
 
     with tqdm(total=len(corners), desc=desc, unit="tile", disable=not progress) as bar:
         for part, (mean, std) in zip(parts, _in_order(call, len(parts), workers)):
