@@ -137,6 +137,11 @@ BAD_ARGS = {
     "predict device": (["predict", "{w}/par", "--run", "{w}/run", "--device", "gpu0"], "--device"),
     "predict missing run": (["predict", "{w}/par", "--run", "{w}/norun"], "norun"),
     "predict samples": (["predict", "{w}/par", "--run", "{w}/run", "-M", 0], "--samples"),
+    "predict name slash": (["predict", "{w}/par", "--run", "{w}/run", "--name", "a/b"], "--name 'a/b'"),
+    "predict name empty": (["predict", "{w}/par", "--run", "{w}/run", "--name", ""], "--name ''"),
+    "predict tile too large": (["predict", "{w}/par", "--run", "{w}/run", "--tile", 500], "--tile 500 is larger"),
+    "train lr inf": (["train", "{w}/par", "-i", "fbp", "--out", "{w}/r2", "--lr", "inf"], "lr (inf)"),
+    "train negative seed": (["train", "{w}/par", "-i", "fbp", "--out", "{w}/r2", "--seed", -5], "--seed -5"),
     "predict other geometry": (["predict", "{w}/fan", "--run", "{w}/run", "--device", "cpu"], "geometry"),
     "predict calibrate-on": (
         ["predict", "{w}/par", "--run", "{w}/run", "--calibrate-on", "{w}/nothere"],

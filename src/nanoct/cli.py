@@ -1321,7 +1321,10 @@ def _expected_error(exc: BaseException) -> str | None:
     if isinstance(exc, (NanoctError, ValueError)):
         return str(exc)
     if isinstance(exc, MemoryError):
-        return "not enough memory for this request; use a smaller --n or preset"
+        return (
+            "not enough memory for this request; ask for less at once (a smaller --n, preset, --size, --tile, "
+            "--samples or --batch-size, or fewer rows), or run it on a machine with more memory"
+        )
     if isinstance(exc, OSError):
         where = " ".join(str(f) for f in (exc.filename, exc.filename2) if f)
         reason = exc.strerror or errno.errorcode.get(exc.errno or 0) or str(exc)

@@ -162,11 +162,26 @@ def _bad(tmp_path, scan, case):
         return [str(src), "--format", "edf", *extra], "unknown"
     if case == "bad-crop":
         return [str(src), "--crop", "50,20", *extra], "--crop"
+    if case == "axis-outside":  # binned by 2: the axis 25 binned pixels from the centre of 45 columns
+        return [str(src), "--binning", "2", "--center-offset", "50", *extra], "--center-offset 50: the rotation axis"
+    if case == "size-absurd":
+        return [str(src), "--size", "100000", *extra], "--size 100000 is more than 4 times"
     raise AssertionError(case)
 
 
 @pytest.mark.parametrize(
-    "case", ["missing-key", "angle-count", "flats-shape", "nonpositive", "nan", "unknown-format", "bad-crop"]
+    "case",
+    [
+        "missing-key",
+        "angle-count",
+        "flats-shape",
+        "nonpositive",
+        "nan",
+        "unknown-format",
+        "bad-crop",
+        "axis-outside",
+        "size-absurd",
+    ],
 )
 def test_bad_input_gives_one_error_line_and_writes_nothing(tmp_path, scan, case, capsys):
     args, message = _bad(tmp_path, scan, case)

@@ -111,8 +111,9 @@ def test_bad_input_is_named(scan, tiny_store, tmp_path):
         plan_matched(tiny_store.path)
     with pytest.raises(NanoctError, match="--bin 3 does not divide"):
         plan_matched(scan.path, binning=3)
-    with pytest.raises(NanoctError, match="--mix"):
-        parse_mix("1,2")
+    for bad in ("1,2", "1e308,1e308,1"):  # too few; a sum that overflows
+        with pytest.raises(NanoctError, match="--mix"):
+            parse_mix(bad)
     assert parse_mix("2,1,1") == (0.5, 0.25, 0.25)
     with pytest.raises(NanoctError, match="--n 0"):
         generate_like(tmp_path / "x", plan_matched(scan.path, binning=2), 0, workers=0, progress=False)

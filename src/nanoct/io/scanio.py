@@ -78,6 +78,9 @@ __all__ = [
 
 HDF5_FORMATS = ("nxtomo", *LAYOUTS, "hdf5")
 FORMATS = (*HDF5_FORMATS, "tiff", "npy", "mrc")
+#: The largest ``--size`` accepted, in detector columns (an image wider than the field of view, for an
+#: object that leaves it, needs some margin; four times the detector is mostly outside every view).
+MAX_SIZE_RATIO = 4
 
 
 @dataclass(frozen=True)
@@ -551,6 +554,17 @@ def import_scan(
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
+    if n_det > 0 and abs(offset) >= n_det / 2:
+        raise NanoctError(
+            f"--center-offset {center_offset:g}: the rotation axis would lie at column {(n_det - 1) / 2 + offset:.1f} "
+            f"of the {n_det} detector columns kept (after --crop and --binning), outside the detector; give its "
+            "offset from the centre of the raw detector in raw pixels, or 'auto'"
+        )
+    if size is not None and n_det > 0 and size > MAX_SIZE_RATIO * n_det:
+        raise NanoctError(
+            f"--size {size} is more than {MAX_SIZE_RATIO} times the {n_det} detector columns kept: the image would "
+            f"be mostly outside every view; leave --size out (N = {n_det}) or give at most {MAX_SIZE_RATIO * n_det}"
+        )
     try:
         geometry = Geometry.from_angles(
             kept.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset

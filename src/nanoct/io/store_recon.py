@@ -52,6 +52,17 @@ def check_name(name: str) -> str:
     return name
 
 
+def differing_keys(old: Any, new: Any, prefix: str = "") -> list[str]:
+    """The keys (dotted, two levels deep at most) in which two parameter records differ, e.g. ``tiling.overlap``;
+    ``[prefix]`` (or ``["params"]``) where they are not both dicts, or are dicts that differ deeper."""
+    if not (isinstance(old, dict) and isinstance(new, dict)) or prefix.count(".") >= 1:
+        return [prefix or "params"] if old != new else []
+    out: list[str] = []
+    for key in sorted(old.keys() | new.keys(), key=str):
+        out += differing_keys(old.get(key), new.get(key), f"{prefix}.{key}" if prefix else str(key))
+    return out
+
+
 def _keys(name: str) -> tuple[str, ...]:
     return (f"reconstructions/{name}", f"reconstructions/{name}_shifts", f"uncertainty/{name}", f"progress/{name}")
 
@@ -123,7 +134,8 @@ class ReconstructionArrays:
                 return self.prepare(name, params, shifts, uncertainty)
             if old != params:
                 raise StoreError(
-                    f"{key} in {self.path} was made with other parameters ({old}); "
+                    f"{key} in {self.path} was made with other parameters (differs in: "
+                    f"{', '.join(differing_keys(old, params))}); "
                     f"delete it (nanoct reconstruct ... --overwrite) or choose other parameters"
                 )
             self.repair(name)

@@ -504,7 +504,8 @@ def calibrate(
         raise NanoctError(
             f"{store.path} holds {n}x{n} images, the run at {run} was trained on {size}x{size}: its intervals are "
             "fitted on a validation split of the trained size; predict on the data set the run was trained on "
-            "first (it fits the calibration), pass --calibrate-on a data set of that size, or --no-calibrate"
+            "first, with the same --samples/--antithetic (it fits the calibration), pass --calibrate-on a data set "
+            "of that size, or --no-calibrate"
         )
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:

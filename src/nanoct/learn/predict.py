@@ -38,6 +38,7 @@ from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS, FOOTPRINT_TOLE
 from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
+from ..io.store_recon import check_name, differing_keys
 from ..names import prediction_name
 from .calibration import Inference, image_statistic, ood_p_values
 from .calibration import calibrate as calibrate_run
@@ -205,7 +206,7 @@ def predict(
         raise NanoctError(f"the {split} split of {store.path} has no samples; nothing to post-process")
     check_input(store, input_name, indices, split)
     model_label = str(ckpt["model"]) + ("-res" if ckpt["hparams"].get("residual") else "")  # a residual UNet
-    out = name or prediction_name(input_name, model_label, train_input)
+    out = prediction_name(input_name, model_label, train_input) if name is None else check_name(name)
     params = {
         "input": input_name,
         "run": str(run.resolve()),
@@ -226,9 +227,10 @@ def predict(
         try:
             store.prepare_reconstruction(out, params, uncertainty=sampling)
         except StoreError as exc:
+            differs = ", ".join(differing_keys(store.reconstruction_params(out), params))
             raise NanoctError(
-                f"reconstructions/{out} in {store.path} was made with another network, checkpoint or std "
-                f"calibration ({store.reconstruction_params(out)}); use --overwrite to replace it"
+                f"reconstructions/{out} in {store.path} was made with another network, checkpoint, tiling or std "
+                f"calibration (differs in: {differs}); use --overwrite to replace it, or --name to keep both"
             ) from exc
         todo = indices[~store.reconstruction_done(out, indices)]
         if todo.size:
@@ -413,6 +415,12 @@ def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None,
             f"tile {size} with overlap {overlap}: the tile must be at least {4 * margin + 2} pixels and the overlap "
             f"between {2 * margin + 1} and half the tile; e.g. --tile 0 (the trained size, {trained}) with the "
             f"default overlap {DEFAULT_OVERLAP}"
+        )
+    largest = max(trained, *store.geometry.image_shape)
+    if size > largest:
+        raise NanoctError(
+            f"--tile {size} is larger than the images ({store.geometry.n}x{store.geometry.n}) and the trained size "
+            f"({trained}): a tile of at most {largest} pixels covers them (e.g. --tile 0, the trained size)"
         )
     return {"size": size, "overlap": int(overlap), "margin": margin}
 

@@ -314,6 +314,8 @@ def train(
     clip = spec.clip_grad if c.clip_grad is None else (float(c.clip_grad) or None)
     sched = (spec.scheduler or "none") if c.scheduler is None else str(c.scheduler)
     _check_request(epochs, batch_size, lr, c.max_steps, sched, c.precision)
+    if int(seed) < 0:
+        raise NanoctError(f"--seed {seed} must be >= 0")
 
     # ---------------------------------------------------------------- processes and device
     world = int(os.environ.get("WORLD_SIZE", "1"))
@@ -372,9 +374,10 @@ def train(
 
 def _check_request(epochs: int, batch_size: int, lr: float, max_steps: int | None, sched: str, precision: str) -> None:
     """NanoctError for a non-positive count or rate, an unknown schedule or precision."""
-    if epochs < 1 or batch_size < 1 or not lr > 0 or (max_steps is not None and max_steps < 1):
+    if epochs < 1 or batch_size < 1 or not 0 < lr < math.inf or (max_steps is not None and max_steps < 1):
         raise NanoctError(
-            f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive"
+            f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive "
+            "(and finite)"
         )
     if sched not in SCHEDULERS:
         raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")

@@ -142,14 +142,14 @@ def parse_mix(text: str) -> tuple[float, ...]:
         parts = tuple(float(v) for v in text.split(","))
     except ValueError:
         parts = ()
-    if len(parts) not in (3, 4) or not all(math.isfinite(p) and p >= 0 for p in parts) or sum(parts) <= 0:
+    total = sum(parts)
+    if len(parts) not in (3, 4) or not all(math.isfinite(p) and p >= 0 for p in parts) or not 0 < total < math.inf:
         raise NanoctError(
             f"--mix {text!r} must be three or four numbers >= 0 (shapes, ellipses, scan slices[, measured pairs]) "
-            "with a positive sum, e.g. 0.4,0.2,0.4 (training) or 0,0,0,1 (the scan's own pairs, for calibration)"
+            "with a positive finite sum, e.g. 0.4,0.2,0.4 (training) or 0,0,0,1 (the scan's own pairs, for calibration)"
         )
     if len(parts) == 4 and parts[3] == 0:
         parts = parts[:3]
-    total = sum(parts)
     return tuple(_round(p / total) for p in parts)
 
 
