@@ -1,5 +1,7 @@
 import json
 import os
+import re
+import shutil
 
 import numpy as np
 import pytest
@@ -7,6 +9,7 @@ import pytest
 from nanoct.core.errors import NanoctError, StoreError
 from nanoct.core.geometry import get_preset
 from nanoct.io.store import DataStore, split_assignment
+from nanoct.recon.batch import reconstruct_dataset
 
 
 def test_paper_split_proportions():
@@ -122,6 +125,21 @@ def test_missing_foreign_and_damaged_stores(tmp_path, tiny_store):
     (broken / "zarr.json").write_text("{not json")
     with pytest.raises(StoreError, match="damaged"):
         DataStore.open(broken)
+    # an array's metadata emptied or overwritten: the file is named with what to do, when the store is opened
+    copy = tmp_path / "copy"
+    shutil.copytree(tiny_store.path, copy)
+    reconstruct_dataset(copy, "fbp", workers=0, progress=False)
+    for meta, content, remedy in (
+        (copy / "sinograms" / "zarr.json", b"", "delete it and generate it again"),
+        (copy / "reconstructions" / "fbp" / "zarr.json", b"\xff\xfe", "run the command that made 'fbp' again"),
+    ):
+        good = meta.read_bytes()
+        meta.write_bytes(content)
+        with pytest.raises(StoreError, match=re.escape(f"{meta} is damaged")) as info:
+            DataStore.open(copy)
+        assert remedy in str(info.value)
+        meta.write_bytes(good)
+    assert DataStore.open(copy).reconstruction_done("fbp").all()
 
 
 def test_damaged_chunk_is_reported(tmp_path):

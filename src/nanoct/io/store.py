@@ -210,6 +210,7 @@ class DataStore:
         except Exception as exc:  # damaged metadata
             raise StoreError(f"the data set at {path} is damaged ({exc}); {_REGENERATE}") from exc
         store = cls(path, group)
+        _check_metadata(store)
         _check_arrays(store)
         return store
 
@@ -491,6 +492,38 @@ class DataStore:
             "version": self.meta.get("version"),
             "reconstructions": recons,
         }
+
+
+#: Groups whose members are one result each (a reconstruction, its std or its progress flags).
+_RESULT_GROUPS = ("reconstructions", "uncertainty", "progress")
+
+
+def _check_metadata(store: DataStore) -> None:
+    """Raise StoreError naming the first metadata file (``zarr.json``) of the store's arrays and groups, two
+    levels deep, that cannot be read as JSON (emptied, truncated, overwritten), with what to do about it.
+
+    zarr would otherwise fail only when the array is used, with the bare decoder message.
+    """
+    remedy = "delete it and import the scan again ('nanoct import')" if store.is_scan else _REGENERATE
+
+    def read(meta: Path, what: str) -> dict[str, Any]:
+        try:
+            data = json.loads(meta.read_bytes())
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"{meta} is damaged ({type(exc).__name__}: {exc}); {what}") from exc
+        return data if isinstance(data, dict) else {}
+
+    for child in sorted(p for p in store.path.iterdir() if (p / "zarr.json").is_file()):
+        if read(child / "zarr.json", f"the data set at {store.path} is damaged; {remedy}").get("node_type") != "group":
+            continue
+        for sub in sorted(p for p in child.iterdir() if (p / "zarr.json").is_file()):
+            what = f"the data set at {store.path} is damaged; {remedy}"
+            if child.name in _RESULT_GROUPS:
+                what = (
+                    f"delete the folders '{sub.name}' in {', '.join(_RESULT_GROUPS)} of {store.path} and run the "
+                    f"command that made '{sub.name}' again"
+                )
+            read(sub / "zarr.json", what)
 
 
 def _check_arrays(store: DataStore) -> None:
