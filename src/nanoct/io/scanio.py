@@ -457,6 +457,22 @@ def _axis_after(offset: float, n_cols: int, crop: tuple[int, int] | None, binnin
     return ((axis - first + 0.5) / binning - 0.5) - (width - 1) / 2
 
 
+def _check_axis_and_size(raw_offset: float, offset: float, n_det: int, size: int | None) -> None:
+    """NanoctError for a rotation axis (``offset`` from the centre of the ``n_det`` columns kept; ``raw_offset`` as
+    given) outside the detector, or an image ``size`` of more than ``MAX_SIZE_RATIO`` times the columns."""
+    if n_det > 0 and abs(offset) >= n_det / 2:
+        raise NanoctError(
+            f"--center-offset {raw_offset:g}: the rotation axis would lie at column {(n_det - 1) / 2 + offset:.1f} "
+            f"of the {n_det} detector columns kept (after --crop and --binning), outside the detector; give its "
+            "offset from the centre of the raw detector in raw pixels, or 'auto'"
+        )
+    if size is not None and n_det > 0 and size > MAX_SIZE_RATIO * n_det:
+        raise NanoctError(
+            f"--size {size} is more than {MAX_SIZE_RATIO} times the {n_det} detector columns kept: the image would "
+            f"be mostly outside every view; leave --size out (N = {n_det}) or give at most {MAX_SIZE_RATIO * n_det}"
+        )
+
+
 def import_scan(
     src: str | os.PathLike[str],
     out: str | os.PathLike[str],
@@ -554,17 +570,7 @@ def import_scan(
     first, stop = crop if crop is not None else (0, n_cols)
     n_det = (stop - first) // max(binning, 1)
     offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
-    if n_det > 0 and abs(offset) >= n_det / 2:
-        raise NanoctError(
-            f"--center-offset {center_offset:g}: the rotation axis would lie at column {(n_det - 1) / 2 + offset:.1f} "
-            f"of the {n_det} detector columns kept (after --crop and --binning), outside the detector; give its "
-            "offset from the centre of the raw detector in raw pixels, or 'auto'"
-        )
-    if size is not None and n_det > 0 and size > MAX_SIZE_RATIO * n_det:
-        raise NanoctError(
-            f"--size {size} is more than {MAX_SIZE_RATIO} times the {n_det} detector columns kept: the image would "
-            f"be mostly outside every view; leave --size out (N = {n_det}) or give at most {MAX_SIZE_RATIO * n_det}"
-        )
+    _check_axis_and_size(center_offset, offset, n_det, size)
     try:
         geometry = Geometry.from_angles(
             kept.angles, n_det if size is None else size, max(n_det, 1), center_offset=offset

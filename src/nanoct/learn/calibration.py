@@ -491,22 +491,9 @@ def calibrate(
         and old.get("input_fingerprint") == _input_fingerprint(store, old.get("input"))
     ):
         return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
-    ckpt = load_checkpoint(ckpt_path)
-    other_size = int(ckpt["image_size"]) != store.geometry.n  # predicted in tiles
-    own = entries.get(checkpoint)
-    if isinstance(own, dict) and (store.indices("val").size == 0 or other_size):
-        # a data set without validation samples (an imported scan) or of another image size: the fit on the
-        # run's own validation data holds for the same checkpoint file and M
-        if all(own.get(k) == v for k, v in key.items() if k not in ("store", "store_meta_sha256")):
-            return own
-    if other_size:
-        n, size = store.geometry.n, int(ckpt["image_size"])
-        raise NanoctError(
-            f"{store.path} holds {n}x{n} images, the run at {run} was trained on {size}x{size}: its intervals are "
-            "fitted on a validation split of the trained size; predict on the data set the run was trained on "
-            "first, with the same --samples/--antithetic (it fits the calibration), pass --calibrate-on a data set "
-            "of that size, or --no-calibrate"
-        )
+    own = _runs_own(store, run, entries.get(checkpoint), key, int(load_checkpoint(ckpt_path)["image_size"]))
+    if own is not None:
+        return own
     ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:
         raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
@@ -537,6 +524,31 @@ def calibrate(
     entries[name] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry
+
+
+def _runs_own(store: DataStore, run: Path, own: Any, key: dict[str, Any], trained: int) -> dict[str, Any] | None:
+    """The run's own calibration entry ``own`` where it serves ``store``: a data set without validation samples
+    (an imported scan) or of another image size than the ``trained`` one (predicted in tiles), for the same
+    checkpoint file and sampling; None where the store is calibrated on its own validation split.
+
+    Raises
+    ------
+    NanoctError
+        For a store of another image size without such an entry.
+    """
+    other_size = trained != store.geometry.n
+    if isinstance(own, dict) and (store.indices("val").size == 0 or other_size):
+        if all(own.get(k) == v for k, v in key.items() if k not in ("store", "store_meta_sha256")):
+            return own
+    if other_size:
+        n = store.geometry.n
+        raise NanoctError(
+            f"{store.path} holds {n}x{n} images, the run at {run} was trained on {trained}x{trained}: its intervals "
+            "are fitted on a validation split of the trained size; predict on the data set the run was trained on "
+            "first, with the same --samples/--antithetic (it fits the calibration), pass --calibrate-on a data set "
+            "of that size, or --no-calibrate"
+        )
+    return None
 
 
 def _input_fingerprint(store: DataStore, name: str | None) -> dict[str, Any] | None:
