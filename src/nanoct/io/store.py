@@ -505,6 +505,7 @@ def _check_metadata(store: DataStore) -> None:
     zarr would otherwise fail only when the array is used, with the bare decoder message.
     """
     remedy = "delete it and import the scan again ('nanoct import')" if store.is_scan else _REGENERATE
+    damaged = f"the data set at {store.path} is damaged; {remedy}"
 
     def read(meta: Path, what: str) -> dict[str, Any]:
         try:
@@ -513,11 +514,14 @@ def _check_metadata(store: DataStore) -> None:
             raise StoreError(f"{meta} is damaged ({type(exc).__name__}: {exc}); {what}") from exc
         return data if isinstance(data, dict) else {}
 
-    for child in sorted(p for p in store.path.iterdir() if (p / "zarr.json").is_file()):
-        if read(child / "zarr.json", f"the data set at {store.path} is damaged; {remedy}").get("node_type") != "group":
+    def members(folder: Path) -> list[Path]:
+        return sorted(p for p in folder.iterdir() if (p / "zarr.json").is_file())
+
+    for child in members(store.path):
+        if read(child / "zarr.json", damaged).get("node_type") != "group":
             continue
-        for sub in sorted(p for p in child.iterdir() if (p / "zarr.json").is_file()):
-            what = f"the data set at {store.path} is damaged; {remedy}"
+        for sub in members(child):
+            what = damaged
             if child.name in _RESULT_GROUPS:
                 what = (
                     f"delete the folders '{sub.name}' in {', '.join(_RESULT_GROUPS)} of {store.path} and run the "

@@ -491,10 +491,10 @@ def calibrate(
         and old.get("input_fingerprint") == _input_fingerprint(store, old.get("input"))
     ):
         return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
-    own = _runs_own(store, run, entries.get(checkpoint), key, int(load_checkpoint(ckpt_path)["image_size"]))
+    ckpt = load_checkpoint(ckpt_path)
+    own = _runs_own(store, run, entries.get(checkpoint), key, int(ckpt["image_size"]))  # raises on another size
     if own is not None:
         return own
-    ckpt = load_checkpoint(ckpt_path, image_size=store.geometry.n)
     if not model_class(str(ckpt["model"])).has_uncertainty:
         raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
     kwargs = key["reconstruct"]

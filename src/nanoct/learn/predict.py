@@ -330,9 +330,8 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     ood = calibration["ood"]
     alpha = float(ood["alpha"])
     keys = [str(int(i)) for i in indices]
-    chunks = [indices[start : start + OOD_CHUNK] for start in range(0, len(indices), OOD_CHUNK)]
-    levels = [image_statistic(store.read_uncertainty(name, chunk)) for chunk in chunks]  # memory: one chunk
-    p_by = {"std": ood_p_values(np.concatenate(levels) if levels else np.zeros(0), ood["val"])}
+    levels, outside = _chunked_statistics(store, name, calibration, indices)
+    p_by = {"std": ood_p_values(levels, ood["val"])}
     if ood.get("scan"):
         p_by["scan"] = ood_p_values(store_scan_scores(store, indices, ood["scan"]), ood["scan"]["scores"])
     old = store.reconstruction_note(name, "ood") or {}
@@ -342,7 +341,6 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     p_values = {**old.get("p_values", {}), **{k: float(v) for k, v in zip(keys, combined)}}
     record: dict[str, Any] = {"statistic": " + ".join(statistics), "alpha": alpha, "p_values": p_values}
     by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
-    outside = _footprint_outside(store, name, calibration, chunks)
     off: set[str] = set()
     if outside is not None:
         fractions = {**(old.get("footprint") or {}).get("outside", {}), **dict(zip(keys, outside.tolist()))}
@@ -376,23 +374,27 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     return record
 
 
-def _footprint_outside(
-    store: DataStore, name: str, calibration: dict[str, Any], chunks: list[np.ndarray]
-) -> np.ndarray | None:
-    """:func:`nanoct.evaluation.conformal.footprint_outside` of the images of ``name`` in ``chunks`` (lists of
-    sample indices, ``OOD_CHUNK`` at most, read one at a time), on the field of view for parallel beam;
-    None where the calibration has no footprint of this image size."""
+def _chunked_statistics(
+    store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per image of ``name`` at ``indices``: the std statistic (:func:`nanoct.learn.calibration.image_statistic`)
+    and :func:`nanoct.evaluation.conformal.footprint_outside` (on the field of view for parallel beam; None where
+    the calibration has no footprint of this image size), each std read once, ``OOD_CHUNK`` images at a time."""
     groups = next(iter((calibration.get("levels") or {}).values()), {}).get("groups") or {}
-    if not groups.get("footprint") or not footprint_fits(groups, store.geometry.image_shape):
-        return None
-    from ..sim.matched import fov_disc
+    footprint = bool(groups.get("footprint")) and footprint_fits(groups, store.geometry.image_shape)
+    known = None
+    if footprint and store.geometry.kind == "parallel":
+        from ..sim.matched import fov_disc
 
-    known = fov_disc(store.geometry) > 0 if store.geometry.kind == "parallel" else None
-    parts = [
-        footprint_outside(store.read_uncertainty(name, chunk), groups, store.read_reconstruction(name, chunk), known)
-        for chunk in chunks
-    ]
-    return np.concatenate(parts) if parts else np.zeros(0)
+        known = fov_disc(store.geometry) > 0
+    levels, outside = [np.zeros(0)], [np.zeros(0)]
+    for start in range(0, len(indices), OOD_CHUNK):
+        chunk = indices[start : start + OOD_CHUNK]
+        stds = store.read_uncertainty(name, chunk)
+        levels.append(image_statistic(stds))
+        if footprint:
+            outside.append(footprint_outside(stds, groups, store.read_reconstruction(name, chunk), known))
+    return np.concatenate(levels), np.concatenate(outside) if footprint else None
 
 
 def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int) -> dict | None:
