@@ -474,7 +474,8 @@ def predict(
         None,
         "--tile",
         help="Predict in overlapping tiles of this size (0: the size the network was trained on), blended "
-        "smoothly: images of any size in bounded memory.",
+        "smoothly: images of any size in bounded memory; the intervals are the run's own calibration where the "
+        "data set has no validation split or another image size.",
     ),
     tile_overlap: int = typer.Option(16, "--tile-overlap", help="With --tile: pixels shared by neighbouring tiles."),
     out_name: str | None = typer.Option(
@@ -859,7 +860,7 @@ def import_(
         "(every estimator: opposite views, find_center_vo, centroids; see docs/measured_data.md).",
     ),
     size: int | None = typer.Option(
-        None, "--size", help="Image size N (default: detector columns after crop/binning)."
+        None, "--size", help="Image size N (default: detector columns after crop/binning; at most 4 times them)."
     ),
     tolerance: float = typer.Option(
         1e-3, "--tolerance", help="Fraction of non-positive flat/dark-corrected values raised to a floor."
