@@ -91,6 +91,38 @@ def test_import_every_format(tmp_path, scan, fmt, capsys):
     assert "no ground truth" in capsys.readouterr().out
 
 
+def test_the_same_import_again_rewrites_lost_damaged_and_unwritten_slices(tmp_path, scan, capsys):
+    src, _ = _write(tmp_path, scan, "nxtomo")
+    args = ["import", str(src), "--center-offset", str(OFFSET)]
+    assert run([*args, "--out", str(tmp_path / "ref"), "-q"]) == 0
+    out = tmp_path / "data"
+    assert run([*args, "--out", str(out), "-q"]) == 0
+    store = DataStore.open(out, mode="r+")
+    (out / "sinograms" / "c" / "0" / "0" / "0").unlink()  # a lost chunk
+    (out / "sinograms" / "c" / "1" / "0" / "0").write_bytes(b"xx")  # an unreadable one
+    store._array("done")[2] = False  # a slice an interrupted import did not finish
+    assert run(["info", str(out), "--check", "-q"]) == 2
+    assert "rerun 'nanoct import'" in capsys.readouterr().err
+    assert run([*args, "--out", str(out), "-q"]) == 0
+    assert run(["info", str(out), "--check", "-q"]) == 0
+    for s in range(SLICES):
+        ref = tmp_path / "ref" / "sinograms" / "c" / str(s) / "0" / "0"
+        assert (out / "sinograms" / "c" / str(s) / "0" / "0").read_bytes() == ref.read_bytes()
+    assert DataStore.open(out).complete_scan(DataStore.open(out).read_array("sinograms", range(SLICES))).size == 0
+
+
+def test_binning_says_which_pixels_it_leaves_out(tmp_path, scan, capsys):
+    src, _ = _write(tmp_path, scan, "nxtomo")  # 3 rows x 91 columns
+    assert run(["import", str(src), "--out", str(tmp_path / "b2"), "--binning", "2", "--center-offset", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "--binning 2 keeps 90 of the 91 detector columns selected (the last 1 are left out" in err
+    assert "keeps 2 of the 3 rows selected" in err
+    notes = DataStore.open(tmp_path / "b2").meta["scan"]["notes"]
+    assert DataStore.open(tmp_path / "b2").n == 1 and sum("--binning 2" in note for note in notes) == 2
+    assert run(["import", str(src), "--out", str(tmp_path / "c"), "--crop", "1,91", "--binning", "2"]) == 0
+    assert "detector columns selected" not in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def imported(tmp_path_factory, scan):
     """The scan imported from NXtomo twice: with the true axis offset and with offset 0."""

@@ -542,7 +542,8 @@ def import_scan(
     Returns
     -------
     DataStore
-        The new data set (re-running the same import on it is a no-op).
+        The new data set. Re-running the same import on it writes only the slices that an
+        interrupted import left unwritten or that are damaged (:meth:`DataStore.complete_scan`).
 
     Raises
     ------
@@ -587,7 +588,8 @@ def import_scan(
         "flats": 0 if kept.flats is None else int(kept.flats.shape[0]),
         "darks": 0 if kept.darks is None else int(kept.darks.shape[0]),
         "shared_motion": True,
-        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles), *notes],
+        "notes": [*raw.source.get("notes", []), *dropped, *repeated, *_angle_notes(kept.angles)]
+        + [*_binning_notes(lines.shape[1], lines.shape[2], binning), *notes],
     }
     if corrections is not None:
         scan["corrections"] = corrections.to_dict()
@@ -604,7 +606,9 @@ def import_scan(
     if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
-            return store  # the same import again: nothing to do
+            # the same import again: only slices an interrupted import left or that were damaged are written
+            DataStore.open(out, mode="r+").complete_scan(sinograms(lines, binning=binning))
+            return store
     return create_scan(out, geometry, sinograms(lines, binning=binning), scan)
 
 
@@ -626,6 +630,22 @@ def _auto_center(lines: np.ndarray, angles: np.ndarray, n_cols: int, crop: tuple
     estimate = estimate_axis(sinograms(lines[:, axis_rows(lines.shape[1])]), angles)
     first = crop[0] if crop is not None else 0
     return first + (lines.shape[2] - 1) / 2 - (n_cols - 1) / 2, estimate
+
+
+def _binning_notes(n_rows: int, n_cols: int, binning: int) -> list[str]:
+    """What ``binning`` leaves out of ``n_rows`` x ``n_cols`` selected pixels (the remainder, last rows and columns)."""
+    notes = []
+    if n_cols % max(binning, 1):
+        notes.append(
+            f"--binning {binning} keeps {n_cols // binning * binning} of the {n_cols} detector columns selected "
+            f"(the last {n_cols % binning} are left out; --crop chooses which)"
+        )
+    if binning > 1 and n_rows >= binning and n_rows % binning:
+        notes.append(
+            f"--binning {binning} keeps {n_rows // binning * binning} of the {n_rows} rows selected "
+            f"(the last {n_rows % binning} are left out; --rows chooses which)"
+        )
+    return notes
 
 
 def _angle_notes(angles: np.ndarray) -> list[str]:

@@ -304,6 +304,30 @@ class DataStore:
         """
         return find_damaged(self._group, self.path, _data_arrays(self.meta), np.flatnonzero(self.done), full)
 
+    def complete_scan(self, sinograms: np.ndarray) -> np.ndarray:
+        """Write the slices of an imported scan that an interrupted import left unwritten or that are damaged.
+
+        Parameters
+        ----------
+        sinograms : ndarray of shape (S, K, L)
+            The import's sinograms, as :func:`create_scan` was given them.
+
+        Returns
+        -------
+        ndarray of int
+            The slices written (empty when the data set was complete and intact).
+        """
+        if not self.is_scan or np.shape(sinograms) != self._array("sinograms").shape:
+            raise StoreError(f"{self.path} is not the imported scan of these sinograms; import into a new --out")
+        self.remove_partial_writes(("sinograms", "done"))
+        bad = np.union1d(np.flatnonzero(~self.done), self.damaged_samples(full=True)).astype(int)
+        array = self._array("sinograms")
+        for index in bad.tolist():  # one chunk per slice: a write replaces an unreadable chunk file whole
+            array[index] = np.asarray(sinograms[index], dtype=np.float32)
+        if bad.size:
+            self._array("done").set_coordinate_selection(bad, True)
+        return bad
+
     def repair_samples(self) -> np.ndarray:
         """Clear temporaries of killed writes and the ``done`` flags of samples whose chunk files are lost."""
         self.remove_partial_writes((*_data_arrays(self.meta), "done"))
@@ -324,7 +348,12 @@ class DataStore:
 
     def _read_done(self, name: str, idx: np.ndarray) -> np.ndarray:
         array, what = self._array(name), f"'{name}' of {self.path}"
-        return read_samples(array, idx, what=what, repair="nanoct generate", folder=self.path / name)
+        return read_samples(array, idx, what=what, repair=self.writer, folder=self.path / name)
+
+    @property
+    def writer(self) -> str:
+        """The command that writes (and rewrites) the data set's samples: ``nanoct import`` or ``nanoct generate``."""
+        return "nanoct import" if self.is_scan else "nanoct generate"
 
     def read_sample(self, index: int) -> Sample:
         """Read sample ``index``.
@@ -339,7 +368,8 @@ class DataStore:
         idx = np.array([index])
         if not read_flags(self._group, "done", idx)[0]:
             raise StoreError(
-                f"sample {index} of {self.path} is not generated yet; run 'nanoct generate' again to finish it"
+                f"sample {index} of {self.path} is not written yet; run '{self.writer}' again with the same "
+                "arguments to finish it"
             )
         names = _data_arrays(self.meta)
         return Sample(*(self._read_done(name, idx)[0] if name in names else None for name in _DATA_ARRAYS))
@@ -378,7 +408,8 @@ class DataStore:
         idx = np.asarray(list(indices), dtype=int)
         if not read_flags(self._group, "done", idx).all():
             raise StoreError(
-                f"some requested samples of {self.path} are not generated yet; run 'nanoct generate' again"
+                f"some requested samples of {self.path} are not written yet; run '{self.writer}' again with the "
+                "same arguments to finish it"
             )
         return self._read_done(name, idx)
 
