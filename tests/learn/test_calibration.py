@@ -259,6 +259,15 @@ def test_bad_input(setup, tmp_path):
         calibrate(path, tmp_path, reconstruct_kwargs=M)
 
 
+def test_a_damaged_calibration_file_is_refused_not_overwritten(tmp_path):
+    assert load_calibration(tmp_path) == {}
+    for text in ('{"best": {', "[1, 2]"):
+        (tmp_path / CALIBRATION_FILE).write_text(text)
+        with pytest.raises(NanoctError, match=r"calibration.json are damaged .*delete the file"):
+            load_calibration(tmp_path)
+        assert (tmp_path / CALIBRATION_FILE).read_text() == text
+
+
 @pytest.mark.slow
 def test_prediction_under_a_refitted_calibration_is_redone(setup, tmp_path):
     """A calibrated result of an older calibration (e.g. format 1) is redone, not refused: the same request."""

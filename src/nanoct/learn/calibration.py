@@ -407,13 +407,28 @@ def half_width(
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
-    """The entries of ``<run>/calibration.json`` by name (:func:`entry_name`; empty if absent or unreadable)."""
+    """The entries of ``<run>/calibration.json`` by name (:func:`entry_name`; empty if absent).
+
+    Raises
+    ------
+    NanoctError
+        If the file exists but cannot be read or is not a JSON object: it is not overwritten, since
+        it may hold other data sets' calibrations (deleting it makes ``predict`` fit them again).
+    """
     path = Path(run_dir) / CALIBRATION_FILE
+    if not path.exists():
+        return {}
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
+    except (OSError, ValueError) as exc:
+        data = exc
+    if not isinstance(data, dict):
+        cause = f"{type(data).__name__}: {data}" if isinstance(data, Exception) else "not a JSON object"
+        raise NanoctError(
+            f"the calibrations of {run_dir} in {path} are damaged ({cause}); delete the file and run "
+            "'nanoct predict' again (it fits the intervals again)"
+        )
+    return data
 
 
 def calibrate(
