@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nanoct.core.validation import check_bool, check_choice, check_float, check_int
+from nanoct.core.validation import check_bool, check_choice, check_float, check_int, check_int_list
 
 
 def test_check_float_bounds():
@@ -45,3 +45,10 @@ def test_check_int():
     for value in (0, 1.0, "2", True):
         with pytest.raises(ValueError, match="n="):
             check_int(value, "n", 1)
+
+
+def test_check_int_list():
+    assert check_int_list((np.int64(3), 4), "c", 1) == [3, 4] == check_int_list(np.array([3, 4]), "c", 1)
+    for value in ([], "34", 3, [3, 4.0], [3, 0], np.ones((2, 2), int)):
+        with pytest.raises(ValueError, match="c="):
+            check_int_list(value, "c", 1)

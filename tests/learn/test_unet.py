@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 
@@ -73,6 +75,23 @@ def test_bad_arguments():
         build_model("unet", depth=3)
     with pytest.raises(NanoctError, match="unknown"):
         build_model("resnet-9000")
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs", "expect"),
+    [
+        ("unet", {"channels": "nan"}, "channels='nan' must be a non-empty list of integers"),
+        ("unet", {"channels": [4.7, 8]}, "channels=4.7 must be an integer"),  # not truncated to 4
+        ("unet", {"skip_channels": True}, "skip_channels=True"),
+        ("ciunet", {"n_scales": 2.5}, "n_scales=2.5"),
+        ("ciunet", {"blocks_per_scale": 0}, "blocks_per_scale=0"),
+        ("cinn", {"cond_channels": "x"}, "cond_channels='x'"),
+        ("cinn", {"fc_dim": 64.5}, "fc_dim=64.5"),
+    ],
+)
+def test_architecture_numbers_must_be_whole(name, kwargs, expect):
+    with pytest.raises(NanoctError, match=re.escape(expect)):
+        build_model(name, **kwargs)
 
 
 def test_postprocessor_interface():

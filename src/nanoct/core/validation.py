@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_array", "check_bool", "check_choice", "check_float", "check_int", "check_rng"]
+__all__ = ["check_array", "check_bool", "check_choice", "check_float", "check_int", "check_int_list", "check_rng"]
 
 
 def check_array(
@@ -72,6 +72,20 @@ def check_int(value: Any, name: str, minimum: int) -> int:
     if value < minimum:
         raise ValueError(f"{name}={value!r} is too small; use an integer >= {minimum}")
     return int(value)
+
+
+def check_int_list(value: Any, name: str, minimum: int) -> list[int]:
+    """Validate a non-empty list (or tuple, or 1-D array) of integers, each ``>= minimum``; return it as ints.
+
+    Raises
+    ------
+    ValueError
+        For anything else (a string, a number, floats, an empty list); the message names it.
+    """
+    items = value.tolist() if isinstance(value, np.ndarray) and value.ndim == 1 else value
+    if not isinstance(items, (list, tuple)) or not items:
+        raise ValueError(f"{name}={value!r} must be a non-empty list of integers >= {minimum}, e.g. [16, 32, 64]")
+    return [check_int(v, name, minimum) for v in items]
 
 
 def check_float(

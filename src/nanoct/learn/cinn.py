@@ -29,10 +29,11 @@ from collections.abc import Sequence
 
 import FrEIA.framework as Ff
 import FrEIA.modules as Fm
+import numpy as np
 import torch
 from torch import nn
 
-from nanoct.core.validation import check_bool
+from nanoct.core.validation import check_bool, check_int, check_int_list
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
@@ -161,12 +162,11 @@ class CiNN(ConditionalFlow):
         conditional_scale: bool | str = False,
         location_weight: float = 0.0,
     ) -> None:
-        if int(n_scales) < 1:
-            raise ValueError(f"n_scales must be >= 1, got {n_scales}")
-        n_sections = int(n_scales) - 1
-        if isinstance(cond_channels, int):
+        n_sections = check_int(n_scales, "n_scales", 1) - 1
+        if isinstance(cond_channels, (int, np.integer)):
             cond_channels = [cond_channels] * n_sections
-        cond_channels = [int(c) for c in cond_channels]
+        empty = isinstance(cond_channels, (list, tuple)) and not cond_channels  # n_scales = 1: no sections
+        cond_channels = [] if empty else check_int_list(cond_channels, "cond_channels", 1)
         if len(cond_channels) != n_sections:
             raise ValueError(f"cond_channels needs n_scales - 1 = {n_sections} entries, got {len(cond_channels)}")
         for label, val, lo in (
@@ -175,11 +175,9 @@ class CiNN(ConditionalFlow):
             ("fc_blocks", fc_blocks, 0),
             ("cond_width", cond_width, 1),
             ("fc_cond_dim", fc_cond_dim, 1),
+            ("seed", seed, 0),
         ):
-            if int(val) < lo:
-                raise ValueError(f"{label} must be >= {lo}, got {val}")
-        if any(c < 1 for c in cond_channels):
-            raise ValueError(f"cond_channels must be positive, got {cond_channels}")
+            check_int(val, label, lo)
         coupling_block(str(coupling), float(clamp))  # checks the kind
         super().__init__(
             n_scales=int(n_scales),

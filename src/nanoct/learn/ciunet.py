@@ -31,7 +31,7 @@ import FrEIA.modules as Fm
 import torch
 from torch import nn
 
-from nanoct.core.validation import check_bool
+from nanoct.core.validation import check_bool, check_int, check_int_list
 from nanoct.learn.flow import ConditionalFlow
 from nanoct.learn.invertible import (
     ActNorm,
@@ -115,15 +115,12 @@ class CiUNet(ConditionalFlow):
         conditional_scale: bool | str = False,
         location_weight: float = 0.0,
     ) -> None:
-        n_scales = int(n_scales)
-        if n_scales < 2:
-            raise ValueError(f"n_scales must be >= 2, got {n_scales}")
-        cond_channels = [int(c) for c in cond_channels]
-        if len(cond_channels) != n_scales or min(cond_channels) < 1:
+        n_scales = check_int(n_scales, "n_scales", 2)
+        cond_channels = check_int_list(cond_channels, "cond_channels", 1)
+        if len(cond_channels) != n_scales:
             raise ValueError(f"cond_channels needs n_scales = {n_scales} positive entries, got {cond_channels}")
-        if int(blocks_per_scale) < 1 or int(pre_blocks) < 0:
-            raise ValueError(f"blocks_per_scale must be >= 1 and pre_blocks >= 0, got {blocks_per_scale}, {pre_blocks}")
-        if int(kernel_size) not in (1, 3, 5):
+        check_int(blocks_per_scale, "blocks_per_scale", 1), check_int(pre_blocks, "pre_blocks", 0)
+        if check_int(kernel_size, "kernel_size", 1) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
         coupling_block(str(coupling), float(clamp))  # checks the kind
         super().__init__(

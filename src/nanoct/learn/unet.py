@@ -16,11 +16,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..core.validation import check_bool
+from ..core.validation import check_bool, check_int, check_int_list
 from .base import VALUE_SCALES, PostProcessor, image_range
 
 __all__ = ["LOSS_SCALES", "UNet", "UNetPost", "padded_size"]
@@ -98,11 +99,11 @@ class UNet(nn.Module):
         out_bias: float = 0.0,
     ) -> None:
         super().__init__()
-        channels = [int(c) for c in channels]
-        if not channels or min(channels) < 1:
-            raise ValueError(f"channels {channels} must be a non-empty list of positive integers")
+        channels = check_int_list(channels, "channels", 1)
         skips = (
-            [int(skip_channels)] * len(channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+            [check_int(skip_channels, "skip_channels", 0)] * len(channels)
+            if isinstance(skip_channels, (int, np.integer))
+            else check_int_list(skip_channels, "skip_channels", 0)
         )
         if len(skips) != len(channels):
             raise ValueError(f"skip_channels {skips} must have one entry per scale ({len(channels)})")
@@ -215,9 +216,13 @@ class UNetPost(PostProcessor):
                 "a residual UNet corrects its input with a linear output that starts at zero: "
                 "leave out use_sigmoid=true and out_bias"
             )
-        skips: Any = int(skip_channels) if isinstance(skip_channels, int) else [int(s) for s in skip_channels]
+        skips: Any = (
+            check_int(skip_channels, "skip_channels", 0)
+            if isinstance(skip_channels, (int, np.integer))
+            else check_int_list(skip_channels, "skip_channels", 0)
+        )
         super().__init__(
-            channels=[int(c) for c in channels],
+            channels=check_int_list(channels, "channels", 1),
             skip_channels=skips,
             use_sigmoid=use_sigmoid,
             use_norm=check_bool(use_norm, "use_norm"),
