@@ -539,7 +539,7 @@ def predict(
 def _parse_levels(text: str) -> list[float]:
     """``"0.68,0.9"`` -> [0.68, 0.9]; a clear error for anything else."""
     try:
-        values = [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
     if not values or not all(0 < v < 1 for v in values):
@@ -574,13 +574,13 @@ def info(
     else:
         _print_info(data)
     if data.get("damaged"):
-        raise NanoctError(_damage_message(data["damaged"]))
+        raise NanoctError(_damage_message(data["damaged"], store.writer))
 
 
-def _damage_message(damaged: dict[str, list[int]]) -> str:
+def _damage_message(damaged: dict[str, list[int]], writer: str) -> str:
     parts = []
     for key, idx in damaged.items():
-        command = "generate" if key == "samples" else "predict" if is_prediction(key) else "reconstruct"
+        command = writer.split()[-1] if key == "samples" else "predict" if is_prediction(key) else "reconstruct"
         parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun 'nanoct {command}' to rewrite them)")
     return (
         "damaged data found: " + "; ".join(parts) + "; a chunk file that exists but cannot be read must be deleted "
@@ -852,7 +852,9 @@ def import_(
     line_integrals: bool = LINE_INTEGRALS,
     rows: str | None = ROWS,
     crop: str | None = CROP,
-    binning: int = typer.Option(1, "--binning", help="Average this many detector columns (and rows)."),
+    binning: int = typer.Option(
+        1, "--binning", help="Average this many detector columns (and rows); a remainder is left out, with a note."
+    ),
     center_offset: str = typer.Option(
         "0",
         "--center-offset",

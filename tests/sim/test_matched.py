@@ -139,8 +139,8 @@ def test_a_long_stack_is_sampled_evenly(scan, monkeypatch):
 def test_held_out_rows_serve_as_no_phantom_and_no_measured_pair(scan):
     """--hold-out: a binned slice with any held-out row is dropped from the scan slices and the measured pairs
     (what is left equals the full plan without it); the scan-wide measurements are unchanged."""
-    assert matched.parse_rows("4:6, 1,2,,") == (1, 2, 4, 5) and matched.parse_rows(None) == ()
-    for bad in ("3:3", "-1", "a", "1:2:3"):
+    assert matched.parse_rows("4:6, 1,2") == (1, 2, 4, 5) and matched.parse_rows(None) == matched.parse_rows("") == ()
+    for bad in ("3:3", "-1", "a", "1:2:3", "1,,2", "1,"):
         with pytest.raises(NanoctError, match="--hold-out"):
             matched.parse_rows(bad)
     full = plan_matched(scan.path, binning=2, mix=parse_mix("1,0,1,1"))

@@ -157,9 +157,7 @@ def parse_rows(text: str | None) -> tuple[int, ...]:
     """``--hold-out ROWS``: scan rows as a comma-separated list of rows and half-open ranges ``START:STOP``
     (``"30:36,50"`` is rows 30 to 35 and 50), sorted and without repeats; ``None`` or ``""`` is none."""
     rows: set[int] = set()
-    for part in (text or "").split(","):
-        if not part.strip():
-            continue
+    for part in (text or "").split(",") if (text or "").strip() else []:
         try:
             ends = [int(v) for v in part.split(":")]
         except ValueError:
