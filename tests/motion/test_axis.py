@@ -7,6 +7,7 @@ import pytest
 
 from nanoct.core.errors import NanoctError
 from nanoct.motion.axis import AGREEMENT_PX, axis_rows, estimate_axis, remove_air
+from nanoct.motion.estimate import start_axis
 from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 
 L, OFFSET = 128, 3.3
@@ -65,6 +66,19 @@ def test_limited_angle_uses_the_sharpness_of_reconstructions():
     assert "mirror" not in estimate.estimates and "vo" not in estimate.estimates
     assert estimate.used in (("centroid",), ("sharpness",))
     assert estimate.offset == pytest.approx(OFFSET, abs=0.5)
+
+
+def test_real_i13_cut_to_120_degrees_does_not_take_a_sharpness_bound_for_the_axis(i13):
+    """The first 61 views (-88 to +32 degrees) of rows 60:75: the sharpness score falls to its
+    search bound (+20 px); the axis (+6.2 on the whole scan) comes from the centroid, with a warning."""
+    li, angles = i13
+    sino = li.transpose(1, 0, 2)[60:75, :61]
+    estimate = estimate_axis(sino[axis_rows(sino.shape[0])], angles[:61])
+    assert estimate.estimates["sharpness"] == pytest.approx(20.0) and estimate.used == ("centroid",)
+    assert abs(estimate.offset - 6.2) <= 1.5 and any(note.startswith("warning") for note in estimate.notes)
+    with pytest.raises(NanoctError, match="no estimator .*--center-offset"):  # and without the centroid
+        estimate_axis(np.zeros_like(sino[:8]), angles[:61])
+    assert start_axis(np.zeros_like(sino[:8]), angles[:61]) == 0.0  # projection matching starts at the centre
 
 
 def test_limited_angle_without_air_falls_back_to_sharpness():

@@ -26,7 +26,9 @@ The estimators (each in detector pixels from the detector centre, positive to th
 ``sharpness``
     Only when none of the above applies (a limited-angle tilt series): the offset that minimises
     the total variation of Hann-filtered FBP slices over their L2 norm inside the field of view (a
-    wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel.
+    wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel. A best value
+    at the grid's bound is no minimum and is not used; the untrusted centroid is then the axis,
+    with a warning, and without it no estimator applies (an error asks for the offset).
 
 The axis is the centroid's where it is trusted: of the four, only the centroid is not biased by
 motion (the fit on ``(1, cos phi, sin phi)`` separates the axis from the shifts, which it leaves
@@ -51,6 +53,7 @@ from .matching import apply_vertical, extend_edges
 __all__ = [
     "AGREEMENT_PX",
     "AIR_BAND",
+    "CENTROID_TOLERANCE",
     "MAX_ABSORBANCE",
     "MAX_AIR_FRACTION",
     "AxisEstimate",
@@ -65,6 +68,9 @@ __all__ = [
 
 #: Estimators further apart than this (pixels) make the estimate carry a warning.
 AGREEMENT_PX = 0.5
+
+#: Largest relative spread of the views' total mass for which the centroid is trusted.
+CENTROID_TOLERANCE = 0.01
 
 #: Where more than this fraction of a view's pixels reads as air, the "air" is taken for a flat,
 #: low-contrast object (a crop inside the sample, Diamond K11 18014: every pixel within the band).
@@ -209,17 +215,20 @@ def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
     return float(np.median(values))
 
 
-def _sharpness(sino: np.ndarray, phi: np.ndarray) -> float:
-    """The offset whose Hann FBP slices have the least total variation relative to their norm.
+def _sharpness(sino: np.ndarray, phi: np.ndarray) -> tuple[float, bool]:
+    """The offset whose Hann FBP slices have the least total variation relative to their norm, and
+    whether that is a minimum inside the search range (not at its bound).
 
     Searched on a 1-pixel grid over a quarter of the detector's half width each side of its
-    centre, refined on a 0.1-pixel grid. The rows are extended smoothly by half their width
-    each side (:func:`~nanoct.motion.matching.extend_edges`: an object wider than the field of
-    view leaves no edge artefact) and scored inside the disc of radius 0.45 L, as total
-    variation over the L2 norm: a wrong axis turns edges into arcs and doubles them, which adds
-    variation, while the norm of an FBP image barely depends on the axis (each view fills its own
-    line of the Fourier plane). Dividing by the L1 norm instead rewards the wrong axis on
-    limited-angle data, whose smeared slices have the larger L1 norm.
+    centre, refined on a 0.1-pixel grid. A best value at either end of the grid is no minimum:
+    on I13 24737 cut to its first 120 degrees the score falls all the way to the bound (+20 px,
+    where the axis lies at +6.2), so it is returned flagged rather than trusted. The rows are
+    extended smoothly by half their width each side (:func:`~nanoct.motion.matching.extend_edges`:
+    an object wider than the field of view leaves no edge artefact) and scored inside the disc of
+    radius 0.45 L, as total variation over the L2 norm: a wrong axis turns edges into arcs and
+    doubles them, which adds variation, while the norm of an FBP image barely depends on the axis
+    (each view fills its own line of the Fourier plane). Dividing by the L1 norm instead rewards the
+    wrong axis on limited-angle data, whose smeared slices have the larger L1 norm.
     """
     n_det = sino.shape[2]
     pad = n_det // 2
@@ -239,12 +248,14 @@ def _sharpness(sino: np.ndarray, phi: np.ndarray) -> float:
         return total
 
     coarse = np.arange(-(n_det // 8), n_det // 8 + 1, 1.0)
-    best = coarse[int(np.argmin([score(c) for c in coarse]))]
-    fine = best + np.arange(-1.0, 1.0001, 0.1)
-    return float(fine[int(np.argmin([score(c) for c in fine]))])
+    index = int(np.argmin([score(c) for c in coarse]))
+    if index in (0, coarse.size - 1):
+        return float(coarse[index]), False
+    fine = coarse[index] + np.arange(-1.0, 1.0001, 0.1)
+    return float(fine[int(np.argmin([score(c) for c in fine]))]), True
 
 
-def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = 0.01) -> AxisEstimate:
+def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = CENTROID_TOLERANCE) -> AxisEstimate:
     """Rotation-axis offset from every estimator that applies (see the module docstring).
 
     Parameters
@@ -263,7 +274,8 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = 0.
     Raises
     ------
     NanoctError
-        For data that are not finite or shapes that do not match.
+        For data that are not finite or shapes that do not match, or views to which no estimator
+        applies (limited-angle views without a sharpness minimum or a centroid).
     """
     sino = np.asarray(sinograms, dtype=np.float64)
     sino = sino[None] if sino.ndim == 2 else sino
@@ -289,8 +301,22 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = 0.
         used.append("vo")
     _centroid(clean, phi, air, centroid_tolerance, estimates, used, notes)
     if not used:
-        estimates["sharpness"] = _sharpness(clean[:4], phi)
-        used.append("sharpness")
+        estimates["sharpness"], found = _sharpness(clean[:4], phi)
+        if found:
+            used.append("sharpness")
+        else:
+            notes.append(
+                f"sharpness: not used (no minimum within +-{sino.shape[2] // 8} px: the best value lies at the "
+                "search bound)"
+            )
+    if not used and "centroid" in estimates:
+        used.append("centroid")
+        notes.append("warning: the axis comes from the centroid alone, which is not trusted here; check it")
+    if not used:
+        raise NanoctError(
+            "no estimator of the rotation axis applies to these views (" + "; ".join(notes) + "); give the axis "
+            "offset in pixels (--center-offset)"
+        )
     chosen = ["centroid"] if "centroid" in used else used
     offset = float(np.median([estimates[name] for name in chosen]))
     result = AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)

@@ -55,7 +55,7 @@ from .matching import apply_vertical, match_projections, views_and_angles
 from .registration import register_shifts
 from .vertical import row_profiles, tilt_from_profiles, vertical_motion
 
-__all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours"]
+__all__ = ["HORIZONTAL_ESTIMATORS", "Motion3D", "estimate_motion", "prealign_neighbours", "start_axis"]
 
 #: The horizontal estimators :func:`estimate_motion` chooses from.
 HORIZONTAL_ESTIMATORS = ("auto", "centroid", "matching")
@@ -213,7 +213,7 @@ def estimate_motion(
     if method == "centroid":
         d = d_centroid
     else:
-        start = estimate_axis(sinos[axis_rows(sinos.shape[0])], phi).offset if center is None else float(center)
+        start = start_axis(sinos[axis_rows(sinos.shape[0])], phi) if center is None else float(center)
         record["focus"] = {}
         d, focus_axis = _match_and_focus(straight, phi, start, center is None, record["focus"])
     d = remove_translation(d, phi)
@@ -221,8 +221,14 @@ def estimate_motion(
     # the axis with the views moved back by their shifts: the estimators then see a still object
     rows_axis = axis_rows(sinos.shape[0])
     corrected = np.stack([fourier_shift(sino, d) for sino in sinos[rows_axis]])
-    axis = estimate_axis(corrected, phi)
-    if method == "matching" and center is None and record["focus"]["accepted"][1]:
+    focused = method == "matching" and center is None and record["focus"]["accepted"][1]
+    try:
+        axis = estimate_axis(corrected, phi)
+    except NanoctError:
+        if not (focused or center is not None):
+            raise
+        axis = AxisEstimate(0.0, {}, (), ("no axis estimator applies to the corrected views",), air)
+    if focused:
         d = d - (start - focus_axis)  # the pair (start, d) as (focus_axis, d less the constant the focus found)
         note = "focus: the axis of the sharpest slices with the matched shifts (no opposite view or centroid trusted)"
         estimates = {**axis.estimates, "focus": focus_axis}
@@ -233,6 +239,28 @@ def estimate_motion(
     d = remove_translation(d + d0, phi)
     v = v + v0 if vertical else v
     return Motion3D(d, v - v.mean(), axis, method, record, tilt_deg)
+
+
+def start_axis(sinos: np.ndarray, phi: np.ndarray) -> float:
+    """The axis projection matching starts from: the estimators' (:func:`estimate_axis`), or the detector
+    centre where none applies (the autofocus after matching fits the axis).
+
+    Parameters
+    ----------
+    sinos : ndarray of shape (S, K, L)
+        Line integrals of a few rows.
+    phi : ndarray of shape (K,)
+        View angles in radians.
+
+    Returns
+    -------
+    float
+        Axis offset from the detector centre (pixels).
+    """
+    try:
+        return estimate_axis(sinos, phi).offset
+    except NanoctError:
+        return 0.0
 
 
 def _tilt(proj: np.ndarray, phi: np.ndarray, limited: bool) -> tuple[float, str]:

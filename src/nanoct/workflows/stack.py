@@ -299,13 +299,13 @@ def _focus_matching(
     first autofocus from the start axis runs to its bounds (too little structure to focus on: the
     K11 interior crop, 22 x 26 pixels), so that the caller falls back to Dremel and matching.
     """
-    from ..motion.estimate import estimate_motion
+    from ..motion.estimate import estimate_motion, start_axis
     from ..motion.focus import focus_smooth
 
     rows = _matching_rows(store) or [int(i) for i in params["motion_slices"]]
     clean, _ = remove_air(read_straight(store, rows, vertical))
     given = None if params["center"] == "auto" else float(params["center"])
-    start = estimate_axis(clean[axis_rows(len(rows))], store.geometry.angles).offset if given is None else given
+    start = start_axis(clean[axis_rows(len(rows))], store.geometry.angles) if given is None else given
     projections = clean.transpose(1, 0, 2)
     if not focus_smooth(projections, store.geometry.angles, start).accepted:
         return None
