@@ -32,7 +32,7 @@ COMMANDS = {
         "tiff",
     ),  # fmt: skip
     "neutron-sinogram": (
-        [str(REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"), "--angles", "0:360"],
+        [str(REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"), "--angles", "0:360", "--open-beam"],
         (1, 459, 503),
         "tiff",
     ),
@@ -50,6 +50,22 @@ def test_each_real_scan_imports_with_one_command(scan, tmp_path, capsys):
     assert sino.shape == (views, cols) and np.isfinite(sino).all()
     assert run(["import", *argv, "--out", str(tmp_path / "again"), "-q"]) == 0
     assert capsys.readouterr().out == ""
+    # show draws a measured slice (sinogram and FBP; a scan has no phantom or unperturbed data)
+    assert run(["show", str(tmp_path / "data"), "--index", str(slices - 1), "--out", str(tmp_path / "s.png")]) == 0
+    assert (tmp_path / "s.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_raw_counts_without_flats_are_refused_unless_normalised_by_their_air(tmp_path, capsys):
+    neutron = REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"
+    argv = ["import", str(neutron), "--angles", "0:360", "--out", str(tmp_path / "d")]
+    assert run(argv) == 2 and not (tmp_path / "d").exists()
+    err = capsys.readouterr().err
+    assert "raw counts, whose -log is no line integral" in err and "--open-beam" in err
+    assert run(["stack", str(neutron), "--angles", "0:360", "--out", str(tmp_path / "s.zarr"), "-w", "0"]) == 2
+    assert "raw counts" in capsys.readouterr().err and not (tmp_path / "s.zarr").exists()
+    assert run([*argv, "--open-beam", "-q"]) == 0  # air near 0, the object positive
+    sino = DataStore.open(tmp_path / "d").read_array("sinograms", [0])[0]
+    assert abs(np.median(sino[:, 2:27])) < 0.02 and sino.max() > 0.5
 
 
 def test_the_i13_angles_file_lists_more_values_than_projections(tmp_path, capsys):

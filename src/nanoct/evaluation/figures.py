@@ -23,6 +23,7 @@ from .metrics import reliability
 
 __all__ = [
     "RELIABILITY_LEVELS",
+    "SCAN_PANELS",
     "compare_reconstructions",
     "reliability_diagram",
     "show_sample",
@@ -48,7 +49,9 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     """Write a figure of one sample, like the paper's figures 1-3.
 
     Panels: the phantom; its motion per view; unperturbed and perturbed sinograms and their
-    difference; FBP of the unperturbed and of the perturbed data (the motion artefacts).
+    difference; FBP of the unperturbed and of the perturbed data (the motion artefacts). A slice
+    of an imported scan, which has no phantom, motion or unperturbed data, shows its measured
+    sinogram, its FBP with the stored axis and the slice's reconstructions in the store.
 
     Parameters
     ----------
@@ -66,6 +69,8 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     """
     from matplotlib.figure import Figure
 
+    if store.is_scan:
+        return _show_scan(store, index, out)
     sample = store.read_sample(index)
     geometry = store.geometry
     fbp_eta = fbp(geometry, sample.sinogram_eta).image
@@ -100,6 +105,43 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
     image(fig.add_subplot(grid[1, 2]), fbp_eta, "FBP of y_eta (no motion)", vmin=0, vmax=1)
     image(fig.add_subplot(grid[1, 3]), fbp_meas, "FBP of y (motion artefacts)", vmin=0, vmax=1)
     fig.suptitle(f"{store.path.name}: {geometry.kind} beam, N={geometry.n}, K={geometry.n_angles}, L={geometry.n_det}")
+    return _save(fig, out, dpi=100)
+
+
+#: Reconstructions of a scan's slice that :func:`show_sample` shows next to its FBP.
+SCAN_PANELS = 3
+
+
+def _show_scan(store: DataStore, index: int, out: str | os.PathLike[str]) -> Path:
+    """:func:`show_sample` for a slice of an imported scan."""
+    from matplotlib.figure import Figure
+
+    sinogram = store.read_sample(index).sinogram
+    geometry = store.geometry
+    names = [name for name in store.reconstruction_names() if store.recons.done(name, [index])[0]]
+    images = [(f"{name} (store)", store.read_reconstruction(name, [index])[0]) for name in names[:SCAN_PANELS]]
+    images.insert(
+        0, (f"FBP, axis {geometry.center_offset:+.2f} px, no motion correction", fbp(geometry, sinogram).image)
+    )
+    fig = Figure(figsize=(4.2 * (1 + len(images)), 4.4), layout="constrained")
+    axes = fig.subplots(1, 1 + len(images), squeeze=False)[0]
+    deg = np.rad2deg(geometry.angles)
+    extent = (0, sinogram.shape[0], geometry.n_det - 0.5, -0.5)
+    im = axes[0].imshow(sinogram.T, cmap="gray", extent=extent, aspect="auto", interpolation="nearest")
+    axes[0].set_title(f"measured sinogram, {deg.min():.1f} to {deg.max():.1f} deg", fontsize=10)
+    axes[0].set_xlabel("view (acquisition order)")
+    axes[0].set_ylabel("detector pixel")
+    fig.colorbar(im, ax=axes[0], shrink=0.8)
+    for ax, (title, image) in zip(axes[1:], images):
+        low, high = np.percentile(image, [0.5, 99.5])
+        im = ax.imshow(image, cmap="gray", vmin=low, vmax=high, interpolation="nearest")
+        ax.set_title(title, fontsize=10)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    more = f"; {len(names) - SCAN_PANELS} more reconstructions not shown" if len(names) > SCAN_PANELS else ""
+    fig.suptitle(
+        f"{store.path.name}: measured slice {index} of {store.n}, K={geometry.n_angles}, L={geometry.n_det}, "
+        f"N={geometry.n} (no ground truth{more})"
+    )
     return _save(fig, out, dpi=100)
 
 
