@@ -42,9 +42,9 @@ AIR_STRIPS = ((slice(5, 130), slice(2, 28)), (slice(5, 130), slice(137, 158)))
 def neutron_sinogram(*, fill_dead: bool = False) -> np.ndarray:
     """The raw neutron sinogram as (459, 1, 503) float32 counts.
 
-    ``fill_dead``: the 214 zero counts (one dead detector pixel, column 314, from view 31 on)
-    replaced by the mean of the two neighbouring columns, so that a slice shows the rings of the
-    other pixels rather than the dead one's.
+    ``fill_dead``: the 214 zero counts (detector columns 314 and 346, views 31 to 202) replaced by
+    the mean of the two neighbouring columns, so that a slice shows the rings of the other pixels
+    rather than those of the zeros.
     """
     raw = tifffile.imread(DATA / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif").astype(np.float32)
     if fill_dead:

@@ -69,7 +69,10 @@ ANGLES_SELECT = typer.Option(
 )
 RADIANS = typer.Option(False, "--radians", help="The --angles text file is in radians (default degrees).")
 ANGLE_UNITS = typer.Option(
-    None, "--angles-units", help="deg | rad: the unit of the angles, overriding the file's units attribute."
+    None,
+    "--angles-units",
+    help="deg | rad: the unit of the angles, overriding the file's units attribute and the check that the values "
+    "look like that unit (--radians keeps the check): for scans that fail it, e.g. more than two turns in radians.",
 )
 DATA_PATH = typer.Option(None, "--data-path", help="HDF5: dataset of the frames (frames, rows, columns).")
 KEY_PATH = typer.Option(
@@ -622,7 +625,11 @@ def show(
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
     quiet: bool = QUIET_OUTPUT,
 ) -> None:
-    """Figure of one sample: phantom, motion, sinograms with and without motion, FBPs."""
+    """Figure of one sample: phantom, motion, sinograms with and without motion, FBPs.
+
+    A slice of an imported scan (no ground truth): its measured sinogram, its FBP with the stored
+    axis and up to three of its reconstructions in the store.
+    """
     from .evaluation.figures import show_sample
     from .io.store import DataStore
 
@@ -865,7 +872,9 @@ def import_(
         None, "--size", help="Image size N (default: detector columns after crop/binning; at most 4 times them)."
     ),
     tolerance: float = typer.Option(
-        1e-3, "--tolerance", help="Fraction of non-positive flat/dark-corrected values raised to a floor."
+        1e-3,
+        "--tolerance",
+        help="Largest fraction of non-positive flat/dark-corrected values (dead pixels), filled from their row.",
     ),
     entry: str | None = ENTRY,
     drop_bad_views: bool = typer.Option(
@@ -1183,7 +1192,9 @@ def _how_found(method: str | None) -> str:
 
 
 def _motion_lines(info: dict[str, Any]) -> list[str]:
-    """The summary's lines on the axis estimators, the vertical motion and the axis tilt."""
+    """The summary's lines on the axis estimators, the vertical motion, the axis tilt and the shifts."""
+    from .motion.axis import CENTROID_TOLERANCE
+
     lines = []
     axis = info.get("axis") or {}
     if axis.get("estimates"):
@@ -1199,6 +1210,13 @@ def _motion_lines(info: dict[str, Any]) -> list[str]:
     if "tilt_deg" in tilt:
         lines.append(f"  tilt     {tilt['tilt_deg']:+.3f} degrees of the axis on the detector")
     lines.append(f"  shifts   by {info.get('horizontal_method', 'an unrecorded method')}")
+    spread = info.get("mass_spread")
+    if info.get("horizontal_method") == "centroid" and spread is not None and spread > CENTROID_TOLERANCE:
+        lines.append(
+            f"  warning: the views' mass varies by {spread:.1%} (the axis trusts centroids up to "
+            f"{CENTROID_TOLERANCE:.0%}): the shifts may follow a changing beam or a detector defect as well as "
+            "motion; check them (nanoct export --out shifts.txt), or try --stripes or --outliers"
+        )
     return lines
 
 

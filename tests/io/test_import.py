@@ -198,6 +198,8 @@ def _bad(tmp_path, scan, case):
         return [str(src), "--binning", "2", "--center-offset", "50", *extra], "--center-offset 50: the rotation axis"
     if case == "size-absurd":
         return [str(src), "--size", "100000", *extra], "--size 100000 is more than 4 times"
+    if case == "binning-wider":
+        return [str(src), "--crop", "0,40", "--binning", "41", *extra], "--binning 41 must be between 1 and the 40"
     raise AssertionError(case)
 
 
@@ -213,6 +215,7 @@ def _bad(tmp_path, scan, case):
         "bad-crop",
         "axis-outside",
         "size-absurd",
+        "binning-wider",
     ],
 )
 def test_bad_input_gives_one_error_line_and_writes_nothing(tmp_path, scan, case, capsys):

@@ -56,11 +56,6 @@ def _write_dxchange(path, t):
     return path
 
 
-def _darks(tmp_path):
-    np.save(tmp_path / "d.npy", np.full((2, R, L), 10.0, np.float32))
-    return tmp_path / "d.npy"
-
-
 def _check(scan, t):
     np.testing.assert_allclose(scan.angles, np.deg2rad(t["deg"]), rtol=1e-12)
     np.testing.assert_allclose(line_integrals(scan), t["sino"], atol=2e-5)
@@ -108,16 +103,32 @@ def test_npy_sinogram_already_line_integrals(tmp_path, truth):
     _check(scan, {**truth, "sino": truth["sino"][:, 1:2]})
 
 
-def test_dead_pixels_within_tolerance_are_floored(truth):
+def test_dead_pixels_within_tolerance_are_filled_from_their_row(truth):
     from nanoct.io.scanio import RawScan
 
     proj = truth["proj"].copy()
-    proj[0, 0, 0] = 0.0  # below the dark: transmission < 0
+    proj[0, 0, 0] = proj[3, 1, 5] = proj[3, 1, 6] = 0.0  # below the dark: transmission < 0
     scan = RawScan(proj, np.deg2rad(truth["deg"]), flats=truth["flats"], darks=truth["darks"])
     out = line_integrals(scan, tolerance=0.01, floor=1e-6)
-    assert out[0, 0, 0] == pytest.approx(-np.log(1e-6), rel=1e-5)
+    good = line_integrals(RawScan(truth["proj"], scan.angles, flats=truth["flats"], darks=truth["darks"]))
+    assert out[0, 0, 0] == pytest.approx(good[0, 0, 1], rel=1e-6)  # the edge: its nearest neighbour
+    np.testing.assert_allclose(out[3, 1, 5:7], good[3, 1, 4] + (good[3, 1, 7] - good[3, 1, 4]) * np.array([1, 2]) / 3)
+    unchanged = np.ones(out.shape, bool)
+    unchanged[0, 0, 0] = unchanged[3, 1, 5] = unchanged[3, 1, 6] = False
+    np.testing.assert_array_equal(out[unchanged], good[unchanged])
     with pytest.raises(NanoctError, match="<= 0"):
         line_integrals(scan, tolerance=0.0)
+
+
+def test_raw_counts_without_flats_are_refused(truth):
+    from nanoct.io.scanio import MAX_TRANSMISSION, RawScan
+
+    counts = RawScan(truth["proj"], np.deg2rad(truth["deg"]))  # hundreds of counts, no flats
+    with pytest.raises(NanoctError, match="raw counts, whose -log is no line integral"):
+        line_integrals(counts)
+    assert np.median(line_integrals(counts, normalised_later=True)) < -np.log(MAX_TRANSMISSION)
+    transmissions = RawScan(truth["proj"] / truth["flats"].mean(axis=0), counts.angles)
+    assert np.isfinite(line_integrals(transmissions)).all()
 
 
 def test_sinograms_select_crop_and_bin(truth):
@@ -173,11 +184,11 @@ def test_bad_input(tmp_path, truth, case, message):
         if case == "bad-format":
             return read_scan(_write_dxchange(tmp_path / "s.h5", truth), fmt="edf")
         if case == "too-many-nonpositive":
-            proj = truth["proj"].copy()
-            proj[:, 0] = 0.0  # a third of the detector below the dark current
+            proj = truth["proj"] / truth["flats"].mean(axis=0)  # transmissions
+            proj[:, 0] = 0.0  # a third of the detector at zero
             np.save(tmp_path / "p.npy", proj)
             np.savetxt(tmp_path / "a.txt", truth["deg"])
-            return line_integrals(read_scan(tmp_path / "p.npy", angles_file=tmp_path / "a.txt", darks=_darks(tmp_path)))
+            return line_integrals(read_scan(tmp_path / "p.npy", angles_file=tmp_path / "a.txt"))
         if case == "flats-below-darks":
             path = tmp_path / "s.h5"
             with h5py.File(path, "w") as f:

@@ -59,6 +59,7 @@ __all__ = [
     "EXPORT_FORMATS",
     "FORMATS",
     "LEFT_OUT",
+    "MAX_TRANSMISSION",
     "SHIFTS_HEADER",
     "RawScan",
     "ReaderOptions",
@@ -66,6 +67,7 @@ __all__ = [
     "detect_format",
     "drop_bad_views",
     "drop_repeated_views",
+    "fill_along_rows",
     "import_scan",
     "line_integrals",
     "read_angles",
@@ -349,24 +351,41 @@ def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, fla
     )
 
 
+#: Without flats the projections are taken as transmissions; a median above this is raw counts
+#: (the neutron sinogram of the real test data reads about 47,000 in its air), whose ``-log`` is no
+#: line integral: refused unless a correction normalises each view by its air (``--open-beam``).
+MAX_TRANSMISSION = 2.0
+
+
 def line_integrals(
-    scan: RawScan, *, tolerance: float = 1e-3, floor: float = 1e-6, flat_tolerance: float | None = None
+    scan: RawScan,
+    *,
+    tolerance: float = 1e-3,
+    floor: float = 1e-6,
+    flat_tolerance: float | None = None,
+    normalised_later: bool = False,
 ) -> np.ndarray:
     """Flat/dark-corrected line integrals ``-log((p - d) / (f - d))`` of a scan, ``(K, R, L)``.
 
     Mean flat and dark fields are used; without flats the projections are taken as already
-    normalised transmissions, without darks the dark current is 0. Detector pixels whose flat is
-    not above the dark (at most a fraction ``tolerance`` of them) get line integral 0. Transmissions that are not
-    positive (dead pixels, a dark field above the signal) are raised to ``floor`` when they are
-    at most a fraction ``tolerance`` of all values; more than that is taken for a wrong flat,
-    dark or unit and refused. ``flat_tolerance`` (default ``tolerance``) is the fraction of
+    normalised transmissions (refused when their median exceeds :data:`MAX_TRANSMISSION`, raw
+    counts, unless ``normalised_later``: an open-beam correction follows), without darks the dark
+    current is 0. Detector pixels whose flat is not above the dark (at most a fraction
+    ``tolerance`` of them) get line integral 0. Transmissions that are not positive (a dead or
+    saturated pixel reading 0, a dark field above the signal) are filled from their neighbours in
+    the same view and row (:func:`fill_along_rows`; ``floor`` only where a whole row is such) when
+    they are at most a fraction ``tolerance`` of all values; more than that is taken for a wrong
+    flat, dark or unit and refused. Raised to ``floor`` instead, the neutron sinogram's 214 zero
+    counts (columns 314 and 346, inside the object) would read about 13.8 where their neighbours
+    read about 2.5, a jump the views' centroids follow. ``flat_tolerance`` (default ``tolerance``) is the fraction of
     detector pixels whose flat may lie at or below the dark: a reader of a few rows at a time
     sets it higher, since a detector's dead pixels gather in some rows.
 
     Raises
     ------
     NanoctError
-        For NaN input, a non-positive flat-minus-dark, or too many non-positive transmissions.
+        For NaN input, a non-positive flat-minus-dark, too many non-positive transmissions, or raw
+        counts without flats.
     """
     if not 0 <= tolerance < 1:
         raise NanoctError(f"--tolerance {tolerance} must lie in [0, 1)")
@@ -378,6 +397,14 @@ def line_integrals(
     flat = None if scan.flats is None else scan.flats.mean(axis=0)
     if flat is None:
         transmission = proj - dark
+        level = float(np.median(transmission))
+        if level > MAX_TRANSMISSION and not normalised_later:
+            raise NanoctError(
+                f"without flats the projections are taken as transmissions, but their median is {level:.4g}: raw "
+                "counts, whose -log is no line integral; give --flats (and --darks), or --open-beam to normalise "
+                "each view by its air (nanoct import, or nanoct stack with --store), or --line-integrals if the data "
+                "are already -log normalised"
+            )
     else:
         gain = flat - dark
         bad = ~(gain > 0)
@@ -394,7 +421,18 @@ def line_integrals(
             f"{nonpositive.mean():.2%} of the flat/dark-corrected values are <= 0 (tolerance {tolerance:.2%}); "
             "check the flat and dark fields, or pass --line-integrals if the data are already -log normalised"
         )
-    return -np.log(np.maximum(transmission, floor)).astype(np.float32)
+    return fill_along_rows(-np.log(np.maximum(transmission, floor)).astype(np.float32), nonpositive)
+
+
+def fill_along_rows(lines: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``lines`` (K, R, L) with the values under ``mask`` interpolated linearly between the nearest unmasked
+    columns of the same view and row (the nearest one beyond the last); a line with every value masked is
+    left as it is. Modifies ``lines`` in place and returns it."""
+    columns = np.arange(lines.shape[2])
+    for k, r in zip(*np.nonzero(mask.any(axis=2) & ~mask.all(axis=2))):
+        bad = mask[k, r]
+        lines[k, r, bad] = np.interp(columns[bad], columns[~bad], lines[k, r, ~bad])
+    return lines
 
 
 def sinograms(
@@ -551,7 +589,6 @@ def import_scan(
         Any problem with the file, the options or the output directory; nothing is written.
     """
     from ..core.geometry import Geometry
-    from .store import DataStore, create_scan
 
     # only the selected rows and columns are read, checked and corrected
     raw = read_scan(
@@ -559,6 +596,9 @@ def import_scan(
         is_line_integral=is_line_integral, entry=entry, rows=rows, crop=crop, options=options,
     )  # fmt: skip
     n_rows, n_cols = raw.source["detector_shape"]
+    kept_cols = (crop[1] - crop[0]) if crop is not None else n_cols
+    if not 1 <= binning <= kept_cols:
+        raise NanoctError(f"--binning {binning} must be between 1 and the {kept_cols} detector columns kept")
     kept, dropped = drop_bad_views(raw, drop=drop_bad)
     kept, repeated = drop_repeated_views(kept)
     left_out = np.setdiff1d(np.arange(raw.n_views), kept.views)
@@ -569,8 +609,8 @@ def import_scan(
         center_offset = float(shift + estimate.offset)
         axis_record = {**estimate.to_dict(), "offset_raw": center_offset}
     first, stop = crop if crop is not None else (0, n_cols)
-    n_det = (stop - first) // max(binning, 1)
-    offset = _axis_after(center_offset, n_cols, crop, max(binning, 1))
+    n_det = (stop - first) // binning
+    offset = _axis_after(center_offset, n_cols, crop, binning)
     _check_axis_and_size(center_offset, offset, n_det, size)
     try:
         geometry = Geometry.from_angles(
@@ -603,18 +643,25 @@ def import_scan(
         n_kept_rows = (rows.stop - rows.start) if rows is not None else n_rows
         x, y = raw.source["raw_pixel_size_m"]
         scan["pixel_size_m"] = [x * binning, y * (binning if n_kept_rows >= binning else 1)]
+    return _store_scan(out, geometry, sinograms(lines, binning=binning), scan)
+
+
+def _store_scan(out: str | os.PathLike[str], geometry: Any, stack: np.ndarray, scan: dict[str, Any]) -> Any:
+    """A new data set of the sinograms; the same import again writes only the slices an interrupted import
+    left or that were lost or damaged (:meth:`~nanoct.io.store.DataStore.complete_scan`)."""
+    from .store import DataStore, create_scan
+
     if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out)
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
-            # the same import again: only slices an interrupted import left or that were damaged are written
-            DataStore.open(out, mode="r+").complete_scan(sinograms(lines, binning=binning))
+            DataStore.open(out, mode="r+").complete_scan(stack)
             return store
-    return create_scan(out, geometry, sinograms(lines, binning=binning), scan)
+    return create_scan(out, geometry, stack, scan)
 
 
 def _corrected(scan: RawScan, tolerance: float, corrections: Any) -> tuple[np.ndarray, list[str]]:
     """Line integrals of the scan, with ``corrections`` applied (and what they noted)."""
-    lines = line_integrals(scan, tolerance=tolerance)
+    lines = line_integrals(scan, tolerance=tolerance, normalised_later=bool(getattr(corrections, "open_beam", False)))
     if corrections is None:
         return lines, []
     from ..preprocess import apply_corrections
