@@ -32,20 +32,20 @@ from .chunks import find_damaged, read_flags, read_samples, remove_partial_write
 
 __all__ = ["ReconstructionArrays", "check_name"]
 
-_NAME = re.compile(r"[\w.+@-]+")  # letters and digits (any script), _ . + @ -
+_NAME = re.compile(r"[\w.+@%-]+")  # letters and digits (any script), _ . + @ % - (nanoct.names' grammar)
 
 
 def check_name(name: str) -> str:
     """Return ``name`` if it can name a reconstruction, else raise :class:`NanoctError`.
 
     A name is one path component of the store that a shell passes as it is: letters, digits,
-    ``_``, ``-``, ``+``, ``@`` and ``.`` (no spaces, path separators or control characters), not
+    ``_``, ``-``, ``+``, ``@``, ``%`` and ``.`` (no spaces, path separators or control characters), not
     empty, no leading dot (hidden and ``..``), and not ending in ``_shifts`` (the suffix of the
     estimated-shift arrays).
     """
     if not isinstance(name, str) or not _NAME.fullmatch(name) or name.startswith("."):
         raise NanoctError(
-            f"--name {name!r} is not a valid reconstruction name: use letters, digits, '_', '-', '+', '@' or '.' "
+            f"--name {name!r} is not a valid reconstruction name: use letters, digits, '_', '-', '+', '@', '%' or '.' "
             "(no spaces or path separators, not empty, no leading dot)"
         )
     if name.endswith("_shifts"):
