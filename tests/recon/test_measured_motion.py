@@ -109,3 +109,13 @@ def test_dremel_refines_its_peak_on_measured_data_only(moved_scan) -> None:
     sim = get_preset("tiny-parallel")
     y = simulate_sample(sim, SimulationConfig(), 0, 1).sinogram
     assert dremel(sim, y, n_iter=2).image.tobytes() == dremel(sim, y, n_iter=2, subpixel=False).image.tobytes()
+
+
+def test_runaway_shifts_names_the_bound():
+    from nanoct.recon.dremel import MAX_SHIFT_FRACTION, runaway_shifts
+
+    g = get_preset("tiny-parallel")  # 91 detector pixels: the bound is 22.75 px
+    assert MAX_SHIFT_FRACTION * g.n_det == 22.75
+    assert runaway_shifts(np.full(g.n_angles, 22.7), g) is None and runaway_shifts(np.zeros(0), g) is None
+    reason = runaway_shifts(np.r_[np.zeros(g.n_angles - 1), -23.0], g)
+    assert reason is not None and "23.0 px" in reason and "91-pixel detector (22.8 px)" in reason

@@ -162,8 +162,13 @@ def _shared_shifts(
     shifts = store.recons.shared_shifts(name)
     if shifts is None:
         sinograms = store.read_array("sinograms", slices)
-        shifts, _ = joint_shifts(store.geometry, sinograms, solver_params, shifts0)
+        rejected: list[str] = []
+        shifts, _ = joint_shifts(store.geometry, sinograms, solver_params, shifts0, notes=rejected)
         store.recons.set_shared_shifts(name, shifts)
+        if rejected:
+            store.recons.set_note(
+                name, "shift_check", f"{len(rejected)} of {len(sinograms)} slices of the joint motion: {rejected[0]}"
+            )
     return shifts
 
 

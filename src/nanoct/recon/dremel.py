@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
 
@@ -95,7 +95,7 @@ from .rowaction import (
     view_order,
 )
 
-__all__ = ["DremelParams", "WEIGHTINGS", "dremel", "shift_cross_corr"]
+__all__ = ["MAX_SHIFT_FRACTION", "DremelParams", "WEIGHTINGS", "dremel", "runaway_shifts", "shift_cross_corr"]
 
 
 # ------------------------------------------------------------------ cross-correlation
@@ -659,6 +659,39 @@ class DremelParams(MethodParams):
         return resolve_relaxation(super().resolve(geometry), geometry)
 
 
+#: Measured data: an estimated shift that moved more than this fraction of the detector width from
+#: its start is a runaway estimate, not a motion (views with too little structure to correlate: on
+#: the noise-dominated 26-column Diamond K11 crop the shifts reached 45 px); the slice is then
+#: reconstructed with the shifts kept at their start (:func:`runaway_shifts`).
+MAX_SHIFT_FRACTION = 0.25
+
+
+def runaway_shifts(change: np.ndarray, geometry: Geometry) -> str | None:
+    """Why a shift estimate is rejected as a runaway (None: it is kept).
+
+    Parameters
+    ----------
+    change : ndarray of shape (K,)
+        The estimated object shifts less their start (object pixels).
+    geometry : Geometry
+        The scan geometry (its detector width sets the bound).
+
+    Returns
+    -------
+    str or None
+        The reason, where a shift moved more than :data:`MAX_SHIFT_FRACTION` of the detector width.
+    """
+    limit = MAX_SHIFT_FRACTION * geometry.n_det * geometry.det_spacing / geometry.magnification
+    largest = float(np.abs(change).max()) if change.size else 0.0
+    if largest <= limit:
+        return None
+    return (
+        f"Dremel's shift estimate rejected: it moved up to {largest:.1f} px, more than a quarter of the "
+        f"{geometry.n_det}-pixel detector ({limit:.1f} px), which means too little structure to correlate; "
+        "the shifts were kept at their start"
+    )
+
+
 def dremel(
     op: Geometry | RayTransform,
     sino: Any,
@@ -699,7 +732,9 @@ def dremel(
     -------
     ReconResult
         ``image``; ``residuals`` per iteration; ``stop_reason`` ``"max_iter"``,
-        ``"discrepancy"`` or ``"callback"``; for measured data ``params["measured_data"]``;
+        ``"discrepancy"`` or ``"callback"``; for measured data ``params["measured_data"]``, and
+        ``params["shift_check"]`` where the shift estimate ran away (:func:`runaway_shifts`: the
+        slice is then reconstructed with the shifts kept at ``shifts0``);
         ``motion``: the estimated object shift per view, shape (K,), float32, in pixels
         along ``e_u = (cos phi_k, sin phi_k)``, same sign as ``t_k . e_u`` of the true motion
         (see the module docstring).
@@ -722,7 +757,15 @@ def dremel(
         resolve_geometry(op), sino, p, x0=x0, callback=callback, matrix=matrix,
     )  # fmt: skip
     if measured is not None:
-        return measured
+        start = np.zeros(measured.motion.shape) if shifts0 is None else np.asarray(shifts0, dtype=np.float64)
+        reason = None if p["fix_shifts"] else runaway_shifts(measured.motion - start, resolve_geometry(op))
+        if reason is None:
+            return measured
+        kept = dremel(
+            op, sino, x0=x0, shifts0=shifts0, callback=callback, matrix=matrix, stop_residual=stop_residual,
+            **{**params, "fix_shifts": True},
+        )  # fmt: skip
+        return replace(kept, params={**kept.params, "shift_check": reason})
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
     n_views, n_det = geometry.sino_shape
     if shifts0 is None:

@@ -176,7 +176,7 @@ class SharedMotionParams(MethodParams):
 
 
 def joint_shifts(
-    geometry: Geometry, sinograms: Any, params: dict[str, Any], shifts0: Any = None
+    geometry: Geometry, sinograms: Any, params: dict[str, Any], shifts0: Any = None, notes: list[str] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """One per-view shift for several slices that share a motion.
 
@@ -190,6 +190,9 @@ def joint_shifts(
         Dremel parameters (checked, :func:`~nanoct.recon.dremel.check_params`).
     shifts0 : array_like of shape (K,), optional
         Starting shifts of every slice's estimate.
+    notes : list of str, optional
+        Gets the reason of every slice whose estimate was rejected as a runaway (``shift_check``,
+        :func:`~nanoct.recon.dremel.runaway_shifts`; that slice counts with its start).
 
     Returns
     -------
@@ -202,6 +205,8 @@ def joint_shifts(
     for sino in np.asarray(sinograms):
         result = dremel(geometry, sino, **{**params, "fix_shifts": False}, shifts0=shifts0)
         estimates.append(remove_translation(result.motion, geometry.angles))
+        if notes is not None and "shift_check" in result.params:
+            notes.append(result.params["shift_check"])
     per_slice = np.asarray(estimates, dtype=np.float32)
     return np.median(per_slice, axis=0).astype(np.float32), per_slice
 
