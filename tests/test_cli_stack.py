@@ -96,15 +96,3 @@ def test_an_interrupted_stack_is_resumed_or_rerun_with_other_options(scan, tmp_p
     # finished slices are work: other options then need --overwrite (or another --name)
     assert run(["stack", str(store), "--center-offset", "0", "-w", "0", "-q"]) == 2
     assert "other parameters" in capsys.readouterr().err
-
-
-def test_the_summary_warns_when_centroid_shifts_come_from_views_of_varying_mass():
-    from nanoct.cli import _motion_lines
-    from nanoct.motion.axis import CENTROID_TOLERANCE
-
-    def warned(**info):
-        return any("mass varies" in line for line in _motion_lines(info))
-
-    assert warned(horizontal_method="centroid", mass_spread=2.5 * CENTROID_TOLERANCE)
-    assert not warned(horizontal_method="centroid", mass_spread=0.5 * CENTROID_TOLERANCE)
-    assert not warned(horizontal_method="matching", mass_spread=0.2)  # matching does not use the centroids

@@ -1202,8 +1202,6 @@ def _how_found(method: str | None) -> str:
 
 def _motion_lines(info: dict[str, Any]) -> list[str]:
     """The summary's lines on the axis estimators, the vertical motion, the axis tilt and the shifts."""
-    from .motion.axis import CENTROID_TOLERANCE
-
     lines = []
     axis = info.get("axis") or {}
     if axis.get("estimates"):
@@ -1219,13 +1217,6 @@ def _motion_lines(info: dict[str, Any]) -> list[str]:
     if "tilt_deg" in tilt:
         lines.append(f"  tilt     {tilt['tilt_deg']:+.3f} degrees of the axis on the detector")
     lines.append(f"  shifts   by {info.get('horizontal_method', 'an unrecorded method')}")
-    spread = info.get("mass_spread")
-    if info.get("horizontal_method") == "centroid" and spread is not None and spread > CENTROID_TOLERANCE:
-        lines.append(
-            f"  warning: the views' mass varies by {spread:.1%} (the axis trusts centroids up to "
-            f"{CENTROID_TOLERANCE:.0%}): the shifts may follow a changing beam or a detector defect as well as "
-            "motion; check them (nanoct export --out shifts.txt), or try --stripes or --outliers"
-        )
     return lines
 
 
