@@ -38,6 +38,21 @@ def test_every_method_is_there_and_takes_its_parameters(data):
     assert isinstance(nanoct.make_geometry(y, angles=g.angles, center_offset=1.0), Geometry)
 
 
+def test_the_solvers_other_arguments_pass_through(data):
+    g, x, y = data
+    shifts = np.linspace(-1.0, 1.0, g.n_angles)
+    np.testing.assert_array_equal(nanoct.fbp(y, g, shifts=shifts).image, fbp_solver(g, y, shifts=shifts).image)
+    fixed = nanoct.dremel(y, g, n_iter=2, shifts0=shifts, fix_shifts=True)
+    np.testing.assert_array_equal(fixed.motion, shifts.astype(np.float32))
+    seen = []
+    nanoct.kaczmarz(y, g, n_iter=2, x0=x, callback=lambda it, image, extra: seen.append(it))
+    assert seen == [0, 1]
+    moved = nanoct.resesop(y, g, eta=np.zeros(g.n_angles), n_iter=2, shifts=shifts)
+    assert np.isfinite(moved.image).all()
+    with pytest.raises(nanoct.api.NanoctError, match="shifts_from: parameters of 'nanoct reconstruct'.*shifts0="):
+        nanoct.dremel(y, g, shifts_from="shifts.txt")
+
+
 def test_bad_calls(data):
     g, _, y = data
     with pytest.raises(ValueError, match="either geometry= or angles="):

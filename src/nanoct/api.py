@@ -33,6 +33,7 @@ True
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -96,12 +97,22 @@ size : int, optional
 degrees : bool
     ``angles`` are in degrees.
 **params
-    The method's parameters (see its solver).
+    The method's parameters (see its solver), and its other keyword arguments: ``x0``,
+    ``callback``, ``matrix``, ``stop_residual`` (iterative methods), ``shifts0`` (Dremel's
+    start), ``shifts`` (a known motion for FBP, gridrec and RESESOP).
 
 Returns
 -------
 ReconResult
 """
+
+
+def _solver_arguments(method: str) -> frozenset[str]:
+    """The keyword arguments of a method's solver that are not method parameters (``x0``, ``shifts0``, ...)."""
+    spec = method_spec(method)
+    named = inspect.signature(spec.solver()).parameters.values()
+    keywords = {p.name for p in named if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    return frozenset(keywords - set(spec.solver_parameter_names()))
 
 
 def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
@@ -120,8 +131,15 @@ def _array_method(method: str, summary: str) -> Callable[..., ReconResult]:
         **params: Any,
     ) -> ReconResult:
         spec.check_eta(eta)
+        batch = sorted(set(params) & set(spec.batch_parameter_names()))
+        if batch:
+            raise NanoctError(
+                f"{', '.join(batch)}: parameters of 'nanoct reconstruct' on a data set; on arrays pass a motion as "
+                "shifts0= (Dremel's start; fix_shifts=True holds it) or shifts= (FBP, gridrec, RESESOP)"
+            )
         g = make_geometry(sinogram, geometry, angles=angles, center_offset=center_offset, size=size, degrees=degrees)
-        spec.check(params, g)
+        extras = _solver_arguments(method)
+        spec.check({k: v for k, v in params.items() if k not in extras}, g)
         return spec.run(g, sinogram, eta, **params)
 
     run.__name__ = run.__qualname__ = method

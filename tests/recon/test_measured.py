@@ -129,6 +129,7 @@ def test_object_wider_than_the_field_of_view() -> None:
     extend = kaczmarz(g, cut, n_iter=20, measured="extend", pad=N // 2)
     assert extend.image.shape == (N, N) and extend.params["measured_data"]["pad"] == N // 2
     assert extend.params["measured_data"]["air_level_mean"] == 0.0
+    assert (extend.params["measured"], extend.params["pad"]) == ("extend", N // 2)  # as asked, not the inner "off"
     assert _score(extend.image, inner, mask) > _score(off, inner, mask) + 10.0
     # the default also removes the edge level as if it were air: the structure is kept, a constant is lost
     auto = kaczmarz(g, cut, n_iter=20).image

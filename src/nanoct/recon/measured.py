@@ -341,7 +341,8 @@ def solve_measured(
     Returns
     -------
     ReconResult or None
-        The result cropped to the requested grid, ``params["measured_data"]`` holding
+        The result cropped to the requested grid, its ``params`` with ``measured`` and ``pad`` as
+        requested (not the inner solver's ``"off"``) and ``params["measured_data"]`` holding
         :meth:`MeasuredData.summary`; None when ``params["measured"]`` does not apply
         (``"off"``, or ``"auto"`` with data that do not look measured or with a ``matrix``
         given: a caller that brings the system matrix brings its model).
@@ -368,4 +369,5 @@ def solve_measured(
         return callback(it, data.crop(x), extra)  # type: ignore[misc]
 
     result = solve(data, data.pad_image(x0), None if callback is None else cropped)
-    return replace(result, image=data.crop(result.image), params={**result.params, "measured_data": data.summary()})
+    outer = {"measured": params["measured"], "pad": params["pad"], "measured_data": data.summary()}
+    return replace(result, image=data.crop(result.image), params={**result.params, **outer})
