@@ -356,9 +356,10 @@ def reconstruct(
         progress=not quiet,
     )
     typer.echo(f"wrote reconstructions/{written}")
-    check = DataStore.open(directory).recons.note(written, "shift_check")
-    if check:
-        typer.echo(f"warning: {check}", err=True)
+    recons = DataStore.open(directory).recons
+    for key, label in (("shifts_axis", "note"), ("shift_check", "warning")):
+        if recons.note(written, key):
+            typer.echo(f"{label}: {recons.note(written, key)}", err=True)
 
 
 @app.command()

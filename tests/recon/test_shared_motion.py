@@ -128,6 +128,42 @@ def test_fixed_shifts_from_file_used_as_given(tmp_path, stack):
     np.testing.assert_allclose(store.read_reconstruction("dremel", [0])[0], direct.image, atol=1e-6)
 
 
+def test_an_axis_and_shifts_fit_another_axis_with_the_difference_added(stack):
+    """Reconstructing view k about axis a with shift e_k is reconstructing it about a - e_k: FBP with (a, e)
+    equals FBP with (c, e + c - a), up to the interpolation of the shifted views."""
+    from nanoct.core.geometry import Geometry
+    from nanoct.recon.fbp import fbp
+
+    g, sinos, true = stack
+    a, c = 1.3, -0.4
+    first = fbp(Geometry.from_angles(g.angles, g.n, g.n_det, center_offset=a), sinos[0], shifts=true).image
+    moved = fbp(Geometry.from_angles(g.angles, g.n, g.n_det, center_offset=c), sinos[0], shifts=true + (c - a)).image
+    wrong = fbp(Geometry.from_angles(g.angles, g.n, g.n_det, center_offset=c), sinos[0], shifts=true).image
+    assert np.abs(moved - first).max() < 0.05 * np.abs(first).max() < np.abs(wrong - first).max()
+
+
+def test_shifts_recorded_with_another_axis_are_brought_to_the_data_sets(tmp_path, stack):
+    from nanoct.io.shiftfile import shifts_axis
+    from nanoct.recon.shared import read_store_shifts
+
+    g, _, true = stack
+    store = _scan(tmp_path / "scan", stack)  # axis offset 0 (the preset's)
+    plain = write_shifts(tmp_path / "plain.txt", true)
+    assert shifts_axis(plain) is None
+    np.testing.assert_allclose(read_store_shifts(plain, store), true, atol=1e-6)
+    other = write_shifts(tmp_path / "other.txt", true, axis=1.5)
+    assert shifts_axis(other) == 1.5
+    notes: list[str] = []
+    np.testing.assert_allclose(read_store_shifts(other, store, notes), true - 1.5, atol=1e-6)
+    assert "go with the axis +1.500 raw px; brought to this data set's axis +0.000 raw px" in notes[0]
+    reconstruct_dataset(store.path, "dremel", params={"n_iter": 1}, workers=0, progress=False)
+    exported = write_store_shifts(store.path, "dremel", tmp_path / "exported.txt")
+    assert shifts_axis(exported) == 0.0  # the data set's own axis: read back unchanged
+    np.testing.assert_allclose(
+        read_store_shifts(exported, store), DataStore.open(store.path).read_shifts("dremel", [0])[0], atol=1e-5
+    )
+
+
 def test_shifts_file_as_start_motion(tiny_store, tmp_path):
     g = tiny_store.geometry
     test = tiny_store.indices("test")[:1]

@@ -70,10 +70,12 @@ __all__ = [
     "fill_along_rows",
     "import_scan",
     "line_integrals",
+    "raw_axis",
     "read_angles",
     "read_scan",
     "read_shifts",
     "sinograms",
+    "store_raw_axis",
     "write_images",
     "write_shifts",
 ]
@@ -493,6 +495,24 @@ def _axis_after(offset: float, n_cols: int, crop: tuple[int, int] | None, binnin
     first, stop = crop if crop is not None else (0, n_cols)
     width = (stop - first) // binning
     return ((axis - first + 0.5) / binning - 0.5) - (width - 1) / 2
+
+
+def raw_axis(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
+    """The rotation-axis offset of the raw detector (pixels from its centre, ``--center-offset``) of an
+    ``offset`` on the detector after cropping and binning: the inverse of the import's conversion."""
+    first, stop = crop if crop is not None else (0, n_cols)
+    width = (stop - first) // binning
+    return (offset + (width - 1) / 2 + 0.5) * binning - 0.5 + first - (n_cols - 1) / 2
+
+
+def store_raw_axis(store: Any, offset: float) -> float:
+    """:func:`raw_axis` of an ``offset`` on data set ``store``'s detector (a simulated data set: as it is)."""
+    scan = store.meta.get("scan") or {}
+    shape = scan.get("detector_shape")
+    if not shape:
+        return float(offset)
+    crop = scan.get("crop")
+    return raw_axis(float(offset), int(shape[1]), None if crop is None else tuple(crop), int(scan.get("binning") or 1))
 
 
 def _check_axis_and_size(raw_offset: float, offset: float, n_det: int, size: int | None) -> None:

@@ -9,6 +9,7 @@ position in its back projection). nanoct's own shifts (Dremel's ``t . e_u``,
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -17,10 +18,23 @@ import numpy as np
 from ..core.errors import NanoctError
 from .angles import load_table
 
-__all__ = ["LEFT_OUT", "SHIFTS_HEADER", "read_shifts", "write_shifts", "write_stack_shifts"]
+__all__ = [
+    "AXIS_COMMENT",
+    "LEFT_OUT",
+    "SHIFTS_HEADER",
+    "read_shifts",
+    "shifts_axis",
+    "write_shifts",
+    "write_stack_shifts",
+]
 
 SHIFTS_HEADER = "horizontal vertical"  # nabu's column order, the header line of a shifts file
 LEFT_OUT = "left out by the import"  # marks the rows of a shifts file for views a data set does not hold
+#: The comment that records the rotation axis the shifts go with (raw detector pixels from the centre):
+#: reconstructing view k about axis a with shift e_k is reconstructing it about a - e_k, so the shifts of
+#: one axis fit another only after adding the difference (:func:`nanoct.recon.shared.read_store_shifts`).
+AXIS_COMMENT = "axis"
+_AXIS_LINE = re.compile(rf"^#\s*{AXIS_COMMENT}\s+([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)\s+raw detector pixels", re.M)
 
 
 def write_shifts(
@@ -32,6 +46,7 @@ def write_shifts(
     notes: list[str] | None = None,
     left_out: Any = (),
     vertical: Any = None,
+    axis: float | None = None,
 ) -> Path:
     """Per-view shifts as nabu's ``translation_movements_file``, atomically.
 
@@ -63,6 +78,9 @@ def write_shifts(
         still has one row per projection of the scan, as nabu expects; these rows get the
         value interpolated from their neighbours in acquisition order, marked by a comment,
         and :func:`read_shifts` skips them.
+    axis : float, optional
+        The rotation axis the shifts go with, in raw detector pixels from the raw detector's
+        centre (``--center-offset``), written as a comment (:data:`AXIS_COMMENT`).
 
     Returns
     -------
@@ -96,6 +114,11 @@ def write_shifts(
         "# nanoct's object shift t.e_u (Dremel) is -horizontal; vertical likewise towards higher rows"
         + ("" if vertical is not None else " (not estimated: 0)"),
     ]
+    if axis is not None:
+        lines.append(
+            f"# {AXIS_COMMENT} {axis:+.6f} raw detector pixels from the detector centre (--center-offset): "
+            "the shifts go with this rotation axis"
+        )
     if pixel_size_m is not None:
         lines.append(f"# pixel size {pixel_size_m * 1e9:.6g} nm; the comment after each row: horizontal in nm")
     lines += [f"# {note}" for note in notes or []]
@@ -192,6 +215,13 @@ def read_shifts(
     return shifts + 0.0
 
 
+def shifts_axis(path: str | os.PathLike[str]) -> float | None:
+    """The rotation axis a shifts file records (:data:`AXIS_COMMENT`, raw detector pixels), or None."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        found = _AXIS_LINE.search(f.read())
+    return None if found is None else float(found.group(1))
+
+
 def _comment_text(path: str | os.PathLike[str]) -> str:
     """The ``#`` comments of a text file, joined (read after :func:`_load_table` succeeded)."""
     with open(path, encoding="utf-8", errors="replace") as f:
@@ -229,10 +259,14 @@ def write_stack_shifts(store: Any, name: str, out: str | os.PathLike[str]) -> Pa
     binning = int(scan.get("binning") or 1)
     kept = scan.get("rows") or [0, (scan.get("detector_shape") or [store.n])[0]]
     rows_binned = binning if kept[1] - kept[0] >= binning else 1  # the import bins rows where there are enough
-    vertical = store.recons.motion_info(name).get("vertical")
+    from .scanio import store_raw_axis
+
+    info = store.recons.motion_info(name)
+    vertical = info.get("vertical")
     return write_shifts(
         out,
         np.asarray(shifts, dtype=np.float64) * binning,
+        axis=store_raw_axis(store, info.get("center_offset", store.geometry.center_offset)),
         vertical=None if vertical is None else np.asarray(vertical, dtype=np.float64) * rows_binned,
         angles=store.geometry.angles,
         pixel_size_m=None if pixel is None else float(pixel[0]),

@@ -141,9 +141,13 @@ def _motion_slices(store: DataStore, value: str) -> np.ndarray:
     return chosen
 
 
-def _plan_motion(store: DataStore, checked: dict[str, Any]) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Start shifts (from ``shifts_from``) and the slices of a joint estimate, checked."""
-    shifts0 = None if checked["shifts_from"] is None else read_store_shifts(checked["shifts_from"], store)
+def _plan_motion(
+    store: DataStore, checked: dict[str, Any], notes: list[str]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Start shifts (from ``shifts_from``, brought to the data set's axis: ``notes``) and the slices of a joint
+    estimate, checked."""
+    path = checked["shifts_from"]
+    shifts0 = None if path is None else read_store_shifts(path, store, notes)
     if checked["fix_shifts"] and shifts0 is None:
         raise NanoctError("--param fix_shifts=true needs the motion to use: add --param shifts_from=FILE")
     if checked["fix_shifts"] and checked["motion_slices"] is not None:
@@ -235,13 +239,16 @@ def reconstruct_dataset(
     inputs = _Inputs(eta=plan_eta(store, checked["eta"], wanted)) if spec.needs_eta else _Inputs()
     if inputs.eta is not None and inputs.eta.first == name:
         raise NanoctError(f"--name {name} is the first reconstruction its eta is estimated from; choose another name")
-    shifts0, slices = _plan_motion(store, checked) if spec.estimates_motion else (None, None)
+    axis_notes: list[str] = []
+    shifts0, slices = _plan_motion(store, checked, axis_notes) if spec.estimates_motion else (None, None)
     image, shifts = int(np.prod(store.geometry.image_shape)), store.geometry.n_angles * spec.estimates_motion
     needed = 4 * (image + shifts) * len(wanted)  # float32, uncompressed: an upper bound
     with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"), disk_space_needed(store.path, needed):
         if overwrite:
             store.delete_reconstruction(name)
         store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
+        if axis_notes:
+            store.recons.set_note(name, "shifts_axis", axis_notes[0])
         if slices is not None:
             shifts0 = _shared_shifts(store, name, solver_params, slices, shifts0)
         if shifts0 is not None:
