@@ -692,6 +692,36 @@ def runaway_shifts(change: np.ndarray, geometry: Geometry) -> str | None:
     )
 
 
+def _start(shifts0: Any, n_views: int) -> np.ndarray:
+    """The start shifts as a float64 copy: ``shifts0`` checked against ``n_views`` views, or zeros."""
+    if shifts0 is None:
+        return np.zeros(n_views, dtype=np.float64)
+    return check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
+
+
+def _dremel_measured(
+    op: Geometry | RayTransform, sino: Any, p: dict[str, Any], params: dict[str, Any], args: dict[str, Any]
+) -> ReconResult | None:
+    """:func:`dremel` on the measured-data treatment (None where it does not apply), the shifts kept at their
+    start where the estimate runs away (:func:`runaway_shifts`; ``args``: dremel's other arguments)."""
+    inner = {"subpixel": True, **params, "measured": "off", "pad": None}  # measured data: the refined peak
+    stop = args["stop_residual"]
+    measured = solve_measured(
+        lambda d, x, cb: dremel(
+            d.geometry, d.sinogram, **inner,
+            **{**args, "x0": x, "callback": cb, "stop_residual": d.discrepancy() if stop is None else stop},
+        ),
+        resolve_geometry(op), sino, p, x0=args["x0"], callback=args["callback"], matrix=args["matrix"],
+    )  # fmt: skip
+    if measured is None or p["fix_shifts"]:
+        return measured
+    reason = runaway_shifts(measured.motion - _start(args["shifts0"], measured.motion.size), resolve_geometry(op))
+    if reason is None:
+        return measured
+    kept = dremel(op, sino, **args, **{**params, "fix_shifts": True})
+    return replace(kept, params={**kept.params, "shift_check": reason})
+
+
 def dremel(
     op: Geometry | RayTransform,
     sino: Any,
@@ -748,30 +778,13 @@ def dremel(
     so estimated shifts may differ from the true ones by such a term.
     """
     p = DremelParams.check(op, **params)
-    inner = {"subpixel": True, **params, "measured": "off", "pad": None}  # measured data: the refined peak
-    measured = solve_measured(
-        lambda d, x, cb: dremel(
-            d.geometry, d.sinogram, x0=x, shifts0=shifts0, callback=cb, matrix=matrix,
-            stop_residual=d.discrepancy() if stop_residual is None else stop_residual, **inner,
-        ),
-        resolve_geometry(op), sino, p, x0=x0, callback=callback, matrix=matrix,
-    )  # fmt: skip
+    args = {"x0": x0, "shifts0": shifts0, "callback": callback, "matrix": matrix, "stop_residual": stop_residual}
+    measured = _dremel_measured(op, sino, p, params, args)
     if measured is not None:
-        start = np.zeros(measured.motion.shape) if shifts0 is None else np.asarray(shifts0, dtype=np.float64)
-        reason = None if p["fix_shifts"] else runaway_shifts(measured.motion - start, resolve_geometry(op))
-        if reason is None:
-            return measured
-        kept = dremel(
-            op, sino, x0=x0, shifts0=shifts0, callback=callback, matrix=matrix, stop_residual=stop_residual,
-            **{**params, "fix_shifts": True},
-        )  # fmt: skip
-        return replace(kept, params={**kept.params, "shift_check": reason})
+        return measured
     geometry, y, mat, x = prepare_problem(op, sino, matrix, x0, p["projector"])
+    shifts = _start(shifts0, geometry.n_angles)
     n_views, n_det = geometry.sino_shape
-    if shifts0 is None:
-        shifts = np.zeros(n_views, dtype=np.float64)
-    else:
-        shifts = check_array(shifts0, "shifts0", shape=(n_views,), dtype=np.float64).copy()
     det_per_obj = geometry.magnification / geometry.det_spacing  # detector px per object px
     f_sr = p["f_sr"]
     ycorr, ymean = _measured_correlation(y, n_views, n_det, f_sr)
