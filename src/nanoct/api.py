@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,7 @@ ReconResult
 """
 
 
+@cache
 def _solver_arguments(method: str) -> frozenset[str]:
     """The keyword arguments of a method's solver that are not method parameters (``x0``, ``shifts0``, ...)."""
     spec = method_spec(method)

@@ -358,8 +358,9 @@ def reconstruct(
     typer.echo(f"wrote reconstructions/{written}")
     recons = DataStore.open(directory).recons
     for key, label in (("shifts_axis", "note"), ("shift_check", "warning")):
-        if recons.note(written, key):
-            typer.echo(f"{label}: {recons.note(written, key)}", err=True)
+        text = recons.note(written, key)
+        if text:
+            typer.echo(f"{label}: {text}", err=True)
 
 
 @app.command()
@@ -593,8 +594,8 @@ def info(
 def _damage_message(damaged: dict[str, list[int]], writer: str) -> str:
     parts = []
     for key, idx in damaged.items():
-        command = writer.split()[-1] if key == "samples" else "predict" if is_prediction(key) else "reconstruct"
-        parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun 'nanoct {command}' to rewrite them)")
+        command = writer if key == "samples" else "nanoct predict" if is_prediction(key) else "nanoct reconstruct"
+        parts.append(f"{key}: {len(idx)} damaged sample(s) {idx[:5]} (rerun '{command}' to rewrite them)")
     return (
         "damaged data found: " + "; ".join(parts) + "; a chunk file that exists but cannot be read must be deleted "
         "first (reading the sample names it)"

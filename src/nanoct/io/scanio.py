@@ -379,9 +379,10 @@ def line_integrals(
     they are at most a fraction ``tolerance`` of all values; more than that is taken for a wrong
     flat, dark or unit and refused. Raised to ``floor`` instead, the neutron sinogram's 214 zero
     counts (columns 314 and 346, inside the object) would read about 13.8 where their neighbours
-    read about 2.5, a jump the views' centroids follow. ``flat_tolerance`` (default ``tolerance``) is the fraction of
-    detector pixels whose flat may lie at or below the dark: a reader of a few rows at a time
-    sets it higher, since a detector's dead pixels gather in some rows.
+    read about 2.5, a jump the views' centroids follow. ``flat_tolerance`` (default
+    ``tolerance``) is the fraction of detector pixels whose flat may lie at or below the dark: a
+    reader of a few rows at a time sets it higher, since a detector's dead pixels gather in some
+    rows.
 
     Raises
     ------
@@ -492,17 +493,21 @@ def sinograms(
 def _axis_after(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
     """The rotation-axis offset (from the detector centre) after cropping and binning, in new pixels."""
     axis = (n_cols - 1) / 2 + offset  # raw column where the axis is seen
-    first, stop = crop if crop is not None else (0, n_cols)
-    width = (stop - first) // binning
+    first, width = _kept_columns(n_cols, crop, binning)
     return ((axis - first + 0.5) / binning - 0.5) - (width - 1) / 2
 
 
 def raw_axis(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
     """The rotation-axis offset of the raw detector (pixels from its centre, ``--center-offset``) of an
     ``offset`` on the detector after cropping and binning: the inverse of the import's conversion."""
-    first, stop = crop if crop is not None else (0, n_cols)
-    width = (stop - first) // binning
+    first, width = _kept_columns(n_cols, crop, binning)
     return (offset + (width - 1) / 2 + 0.5) * binning - 0.5 + first - (n_cols - 1) / 2
+
+
+def _kept_columns(n_cols: int, crop: tuple[int, int] | None, binning: int) -> tuple[int, int]:
+    """The first raw column kept and the number of binned columns after ``crop`` and ``binning``."""
+    first, stop = crop if crop is not None else (0, n_cols)
+    return first, (stop - first) // binning
 
 
 def store_raw_axis(store: Any, offset: float) -> float:
@@ -672,9 +677,9 @@ def _store_scan(out: str | os.PathLike[str], geometry: Any, stack: np.ndarray, s
     from .store import DataStore, create_scan
 
     if (Path(out) / "zarr.json").is_file():
-        store = DataStore.open(out)
+        store = DataStore.open(out, mode="r+")
         if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
-            DataStore.open(out, mode="r+").complete_scan(stack)
+            store.complete_scan(stack)
             return store
     return create_scan(out, geometry, stack, scan)
 
@@ -702,7 +707,7 @@ def _auto_center(lines: np.ndarray, angles: np.ndarray, n_cols: int, crop: tuple
 def _binning_notes(n_rows: int, n_cols: int, binning: int) -> list[str]:
     """What ``binning`` leaves out of ``n_rows`` x ``n_cols`` selected pixels (the remainder, last rows and columns)."""
     notes = []
-    if n_cols % max(binning, 1):
+    if n_cols % binning:
         notes.append(
             f"--binning {binning} keeps {n_cols // binning * binning} of the {n_cols} detector columns selected "
             f"(the last {n_cols % binning} are left out; --crop chooses which)"

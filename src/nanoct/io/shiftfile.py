@@ -251,17 +251,18 @@ def write_stack_shifts(store: Any, name: str, out: str | os.PathLike[str]) -> Pa
     Path or None
         The file written, or None when ``name`` holds no shared motion (not a stack result).
     """
-    shifts = store.recons.shared_shifts(name) if name in store.reconstruction_names() else None
-    if shifts is None or store.recons.motion_info(name) is None:
+    from .scanio import store_raw_axis
+
+    present = name in store.reconstruction_names()
+    shifts = store.recons.shared_shifts(name) if present else None
+    info = store.recons.motion_info(name) if present else None
+    if shifts is None or info is None:
         return None
     scan = store.meta.get("scan") or {}
     pixel = scan.get("raw_pixel_size_m")
     binning = int(scan.get("binning") or 1)
     kept = scan.get("rows") or [0, (scan.get("detector_shape") or [store.n])[0]]
     rows_binned = binning if kept[1] - kept[0] >= binning else 1  # the import bins rows where there are enough
-    from .scanio import store_raw_axis
-
-    info = store.recons.motion_info(name)
     vertical = info.get("vertical")
     return write_shifts(
         out,

@@ -119,7 +119,8 @@ class CiUNet(ConditionalFlow):
         cond_channels = check_int_list(cond_channels, "cond_channels", 1)
         if len(cond_channels) != n_scales:
             raise ValueError(f"cond_channels needs n_scales = {n_scales} positive entries, got {cond_channels}")
-        check_int(blocks_per_scale, "blocks_per_scale", 1), check_int(pre_blocks, "pre_blocks", 0)
+        check_int(blocks_per_scale, "blocks_per_scale", 1)
+        check_int(pre_blocks, "pre_blocks", 0)
         if check_int(kernel_size, "kernel_size", 1) not in (1, 3, 5):
             raise ValueError(f"kernel_size must be 1, 3 or 5, got {kernel_size}")
         coupling_block(str(coupling), float(clamp))  # checks the kind

@@ -24,7 +24,7 @@ from torch import nn
 from ..core.validation import check_bool, check_int, check_int_list
 from .base import VALUE_SCALES, PostProcessor, image_range
 
-__all__ = ["LOSS_SCALES", "UNet", "UNetPost", "padded_size"]
+__all__ = ["LOSS_SCALES", "UNet", "UNetPost", "check_skips", "padded_size"]
 
 PAPER_CHANNELS = (32, 32, 64, 64, 128)
 
@@ -65,6 +65,19 @@ class _UpBlock(nn.Module):
         return self.conv(torch.cat([x, s], dim=1))
 
 
+def check_skips(skip_channels: Any) -> int | list[int]:
+    """``skip_channels``: one count for every scale (an int) or one per scale (a list), each ``>= 0``.
+
+    Raises
+    ------
+    ValueError
+        For anything else; the message names it.
+    """
+    if isinstance(skip_channels, (int, np.integer)):
+        return check_int(skip_channels, "skip_channels", 0)
+    return check_int_list(skip_channels, "skip_channels", 0)
+
+
 class UNet(nn.Module):
     """Plain UNet mapping (B, in_ch, H, W) to (B, out_ch, H, W).
 
@@ -100,11 +113,8 @@ class UNet(nn.Module):
     ) -> None:
         super().__init__()
         channels = check_int_list(channels, "channels", 1)
-        skips = (
-            [check_int(skip_channels, "skip_channels", 0)] * len(channels)
-            if isinstance(skip_channels, (int, np.integer))
-            else check_int_list(skip_channels, "skip_channels", 0)
-        )
+        skips = check_skips(skip_channels)
+        skips = [skips] * len(channels) if isinstance(skips, int) else skips
         if len(skips) != len(channels):
             raise ValueError(f"skip_channels {skips} must have one entry per scale ({len(channels)})")
         if pad_mode not in ("reflect", "replicate", "constant"):
@@ -216,11 +226,7 @@ class UNetPost(PostProcessor):
                 "a residual UNet corrects its input with a linear output that starts at zero: "
                 "leave out use_sigmoid=true and out_bias"
             )
-        skips: Any = (
-            check_int(skip_channels, "skip_channels", 0)
-            if isinstance(skip_channels, (int, np.integer))
-            else check_int_list(skip_channels, "skip_channels", 0)
-        )
+        skips: Any = check_skips(skip_channels)
         super().__init__(
             channels=check_int_list(channels, "channels", 1),
             skip_channels=skips,
