@@ -21,7 +21,7 @@ command:
    --method dremel --split all`` on it, and ``nanoct train`` of a UNet, of a residual UNet (a correction
    of its input, ``--param residual=true``) and of CiUNetRes on
    (Dremel, phantom) with the tiny study's architectures and learning rates (``docs/learn.md``) and a small budget
-   (``--epochs-*``, bf16);
+   (``--epochs-*``, ``--precision``: bf16 where the CPU runs it natively, as measured, else fp32);
 3. the moved scan binned 2 x 2 into a data set of the matched set's geometry, ``nanoct
    reconstruct --method dremel`` (one joint motion for the stack) and ``nanoct predict`` of the three
    runs (CiUNetRes: 16 antithetic samples, intervals calibrated on the matched set's validation
@@ -189,11 +189,11 @@ def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, flo
     seed = ["--seed", args.train_seed]
     for key, extra in (("unet", UNET), ("unet-res", UNET_RES)):
         times[f"train {key}"] = cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs",
-                                     args.epochs_unet, "--precision", "bf16", "--out", runs[key], "-q", *seed,
+                                     args.epochs_unet, "--precision", args.precision, "--out", runs[key], "-q", *seed,
                                      *extra)  # fmt: skip
     times["train ciunet-res"] = cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
-                                     args.epochs_ciunet, "--precision", "bf16", "--out", runs["ciunet-res"], "-q",
-                                     *seed, *CIUNET)  # fmt: skip
+                                     args.epochs_ciunet, "--precision", args.precision, "--out", runs["ciunet-res"],
+                                     "-q", *seed, *CIUNET)  # fmt: skip
     g = DataStore.open(matched).geometry
     sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
     if not (real / "zarr.json").is_file():
@@ -447,6 +447,7 @@ def main() -> None:
     parser.add_argument("--epochs-ciunet", type=int, default=6)
     parser.add_argument("--n-pairs", type=int, default=300, help="measured pairs of the scan for the calibration")
     parser.add_argument("--train-seed", type=int, default=0, help="nanoct train --seed of both networks")
+    parser.add_argument("--precision", default="auto", help="nanoct train --precision (the documented runs: bf16)")
     parser.add_argument(
         "--mix", default="0.4,0.2,0.4", help="the matched set's --mix (a fourth number: measured pairs)"
     )

@@ -413,7 +413,8 @@ def train(
     precision: str = typer.Option(
         "fp32",
         "--precision",
-        help="fp32 | bf16 (bfloat16 autocast; up to 2x faster on CPUs with native bfloat16).",
+        help="fp32 | bf16 | auto (bf16: bfloat16 autocast, up to 2x faster on CPUs with native bfloat16, "
+        "5-9x slower on others; auto: bf16 where native, else fp32).",
     ),
     clip_grad: float | None = typer.Option(
         None, "--clip-grad", help="Gradient-norm clipping (default: the model's; 0 disables)."
@@ -705,6 +706,12 @@ def reproduce(
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the data set(s)."),
     seeds: int = typer.Option(1, "--seeds", help="Training seeds per network row (spread in the conclusion checks)."),
+    precision: str | None = typer.Option(
+        None,
+        "--precision",
+        help="Training precision fp32 | bf16 | auto (default: the study's; tiny: auto, i.e. bf16 where the CPU or "
+        "GPU runs it natively, else fp32; small, paper: fp32).",
+    ),
     plan: bool = typer.Option(False, "--plan", help="Print the stages, jobs, disk and time estimates; run nothing."),
     cores: int = typer.Option(2, "--cores", help="With --plan: CPU cores to plan for."),
     gpus: int = typer.Option(0, "--gpus", help="With --plan: GPUs for training and prediction."),
@@ -726,6 +733,7 @@ def reproduce(
     chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
     if scale is not None and (n is not None or no_motion):
         raise NanoctError("--n and --no-motion apply to one --preset; --scale runs the study's three settings")
+    study = _study_with_precision(scale, preset, precision)
     if plan:
         from .study.plan import format_plan, plan_study
 
@@ -737,6 +745,7 @@ def reproduce(
                     perturbed=not no_motion,
                     n=n,
                     models=chosen,
+                    study=study,
                     seeds=seeds,
                     cores=cores,
                     gpus=gpus,
@@ -745,13 +754,49 @@ def reproduce(
             )
         )
         return
-    run = dict(out=out, models=chosen, seed=seed, seeds=seeds, workers=workers, scheduler=scheduler, progress=not quiet)
+    run = dict(out=out, models=chosen, study=study, seed=seed, seeds=seeds, workers=workers, scheduler=scheduler)
+    run["progress"] = not quiet
+    _precision_note(study.precision)
     if scale is not None:
         report = reproduce_scale(scale, **run)
     else:
         report = reproduce_study(preset, n=n, perturbed=not no_motion, **run)
     typer.echo(report.read_text())
     typer.echo(f"report: {report} (and {report.with_suffix('.html').name})", err=True)
+
+
+def _study_with_precision(scale: str | None, preset: str, precision: str | None) -> Any:
+    """The study of ``reproduce --scale``/``--preset``, with ``--precision`` where given."""
+    from dataclasses import replace
+
+    from .study.config import preset_study, scale_study
+
+    study = scale_study(scale) if scale is not None else preset_study(preset)
+    if precision is None:
+        return study
+    from .learn.train import PRECISION_REQUESTS
+
+    if precision not in PRECISION_REQUESTS:
+        raise NanoctError(f"--precision {precision!r} is unknown; use one of {', '.join(PRECISION_REQUESTS)}")
+    return replace(study, precision=precision)
+
+
+def _precision_note(precision: str) -> None:
+    """Say which precision the training runs take here, and why where that is not bfloat16 natively."""
+    from .learn.train import native_bf16, resolve_device, resolve_precision
+
+    device = resolve_device()
+    taken, native = resolve_precision(precision, device), native_bf16(device)
+    why = ""
+    if taken == "bf16" and not native:
+        why = f" (emulated on this {device.type.upper()}: 5-9x slower than fp32; --precision auto takes fp32 here)"
+    elif precision == "auto" and taken == "fp32":
+        why = (
+            f" ({device.type.upper()} without native bfloat16, where bfloat16 steps are 5-9x slower); the tiny "
+            "study's tables in docs/results.md were trained in bf16, so this run's networks and tables differ from "
+            "them by training noise (docs/study.md)"
+        )
+    typer.echo(f"note: training precision {taken}{why}", err=True)
 
 
 @app.command("shift-test")

@@ -379,3 +379,35 @@ def test_run_recorded_before_precision_existed_resumes_as_fp32(store, tmp_path):
     assert [int(r["epoch"]) for r in _log(run)] == [1, 2]
     with pytest.raises(NanoctError, match="differs in: precision"):
         train(store, run, TrainConfig("unet", "fbp", epochs=3, precision="bf16", **FAST))
+
+
+def test_auto_precision_is_bf16_only_where_the_device_runs_it_natively(monkeypatch):
+    from nanoct.learn import train as train_module
+    from nanoct.learn.train import native_bf16, resolve_precision
+
+    for native, taken in ((True, "bf16"), (False, "fp32")):
+        monkeypatch.setattr(train_module, "native_bf16", lambda device, native=native: native)
+        assert resolve_precision("auto", "cpu") == taken
+        assert (resolve_precision("fp32", "cpu"), resolve_precision("bf16", "cpu")) == ("fp32", "bf16")
+    with pytest.raises(NanoctError, match="precision 'fp16' is unknown; use one of fp32, bf16, auto"):
+        resolve_precision("fp16", "cpu")
+    monkeypatch.undo()
+    # oneDNN has bfloat16 kernels on AVX512 (and AMX) CPUs, not on AVX2-only ones
+    capability = torch.backends.cpu.get_cpu_capability()
+    if capability in ("AVX2", "AVX512"):
+        assert native_bf16("cpu") == (capability == "AVX512")
+    assert native_bf16("meta") is False
+
+
+def test_auto_precision_run_records_what_it_took_and_resumes(store, tmp_path, monkeypatch):
+    from nanoct.learn import train as train_module
+
+    monkeypatch.setattr(train_module, "native_bf16", lambda device: False)
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=1, precision="auto", **FAST))
+    assert json.loads((run / "config.json").read_text())["precision"] == "fp32"
+    train(store, run, TrainConfig("unet", "fbp", epochs=2, precision="auto", **FAST))  # the same request
+    train(store, run, TrainConfig("unet", "fbp", epochs=3, **FAST))  # fp32 given: the same as taken
+    assert [int(r["epoch"]) for r in _log(run)] == [1, 2, 3]
+    monkeypatch.setattr(train_module, "native_bf16", lambda device: True)  # the run moved to a bf16 machine
+    with pytest.raises(NanoctError, match="differs in: precision"):
+        train(store, run, TrainConfig("unet", "fbp", epochs=4, precision="auto", **FAST))

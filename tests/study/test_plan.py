@@ -102,3 +102,56 @@ def test_prediction_cost_counts_one_calibration_per_invertible_run():
     assert pred.jobs == 25  # 5 inputs x 5 inputs
     per_image = _PREDICT[63]["inn"] * study.n_samples
     assert pred.seconds == pytest.approx(per_image * (25 * 20 + 5 * 20))
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_tiny_training_is_priced_in_the_precision_this_machine_takes(monkeypatch, native):
+    """The tiny study's 'auto' precision is bf16 on a CPU with native bfloat16, fp32 elsewhere; the
+    fp32 estimate is the bf16 figure times the measured fp32/bf16 step-time ratio."""
+    from nanoct.learn import train as train_module
+    from nanoct.study.plan import _FP32_OVER_BF16, _TRAIN
+
+    monkeypatch.setattr(train_module, "native_bf16", lambda device: native)
+    (training,) = [p for p in plan_study(None, preset="tiny-parallel", cores=1) if p.stage == "training"]
+    study = STUDIES["tiny"]
+    assert study.precision == "auto" and training.precision == ("bf16" if native else "fp32")
+    family = {m: "unet" if m == "unet" else "inn" for m in study.epochs}
+    per_model = {m: 5 * study.epochs[m] * 160 * _TRAIN[63][family[m]] for m in study.epochs}  # 5 inputs, 160 images
+    bf16 = sum(per_model.values())
+    fp32 = sum(v * _FP32_OVER_BF16[family[m]] for m, v in per_model.items())
+    assert training.seconds == pytest.approx(bf16 if native else fp32)
+    assert f"training ({training.precision})" in format_plan([training])
+    # on a GPU 'auto' is bf16; the small study's fp32 stays fp32
+    (gpu,) = [p for p in plan_study(None, preset="tiny-parallel", gpus=1, gpu_speedup=10) if p.stage == "training"]
+    assert gpu.precision == "bf16"
+    assert {p.precision for p in plan_study("small") if p.stage == "training"} == {"fp32"}
+
+
+def test_cli_precision_option_reaches_the_plan_and_unknown_ones_are_refused(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--plan", "--precision", "fp32")
+    assert code == 0, err
+    assert "training (fp32)" in out and "training (bf16)" not in out
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--scale", "small", "--plan", "--precision", "bf16")
+    assert code == 0 and out.count("training (bf16)") == 3, err
+    code, _, err = _cli(monkeypatch, capsys, "reproduce", "--plan", "--precision", "fp16")
+    assert code == 2 and "--precision 'fp16' is unknown; use one of fp32, bf16, auto" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("native", "precision", "said"),
+    [
+        (False, "auto", "fp32 (CPU without native bfloat16"),
+        (True, "auto", "bf16\n"),
+        (False, "bf16", "bf16 (emulated on this CPU"),
+    ],
+)
+def test_reproduce_says_which_precision_its_training_takes(monkeypatch, capsys, native, precision, said):
+    from nanoct.cli import _precision_note
+    from nanoct.learn import train as train_module
+
+    monkeypatch.setattr(train_module, "native_bf16", lambda device: native)
+    monkeypatch.setattr(train_module, "resolve_device", lambda *a: train_module.torch.device("cpu"))
+    _precision_note(precision)
+    assert capsys.readouterr().err.startswith(f"note: training precision {said}")

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
+from nanoct.learn.train import resolve_precision
 from nanoct.study.config import Study
 from nanoct.study.runner import reproduce_scale, reproduce_study
 
@@ -31,6 +32,7 @@ TOY = Study(
     mixing=("unet",),
     antithetic=True,
     scheduler={"cinn-res": "cosine"},
+    precision="auto",
 )
 
 
@@ -55,7 +57,9 @@ def test_reproduce_toy_study(tmp_path):
         assert r["guarantee"]["levels"]["0.9"]["multiplier"] == fit["levels"]["0.9"]["multiplier"]
         assert 0 <= r["edge_baseline"]["all"]["intervals"]["0.9"]["coverage"] <= 1
     # the study's schedule reaches the training run (the registry's for cinn-res is "plateau")
-    assert json.loads((out / "runs" / "cinn-res-fbp" / "config.json").read_text())["scheduler"] == "cosine"
+    config = json.loads((out / "runs" / "cinn-res-fbp" / "config.json").read_text())
+    assert config["scheduler"] == "cosine"
+    assert config["precision"] == resolve_precision("auto", "cpu")  # the study's "auto", as this CPU takes it
     cal = json.loads((out / "runs" / "cinn-res-fbp" / "calibration.json").read_text())["best"]
     assert cal["reconstruct"] == {"n_samples": 3, "antithetic": True}  # the study's sampling, also in calibration
     for png in (

@@ -51,7 +51,17 @@ from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
 from .data import ReconDataset
 from .models import build_model, model_class, model_spec
 
-__all__ = ["PRECISIONS", "TrainConfig", "cosine_lr", "model_arguments", "resolve_device", "seed_everything", "train"]
+__all__ = [
+    "PRECISIONS",
+    "TrainConfig",
+    "cosine_lr",
+    "model_arguments",
+    "native_bf16",
+    "resolve_device",
+    "resolve_precision",
+    "seed_everything",
+    "train",
+]
 
 SCHEDULERS = ("none", "plateau", "cosine")
 PLATEAU = {"factor": 0.5, "patience": 10, "min_lr": 1e-7}
@@ -74,6 +84,45 @@ MATCH_KEYS = (
 _MATCH_DEFAULTS = {"precision": "fp32"}
 #: Arithmetic of the training steps: "fp32", or "bf16" (forward pass under bfloat16 autocast).
 PRECISIONS = ("fp32", "bf16")
+#: What a request may name: a precision, or "auto" (:func:`resolve_precision`).
+PRECISION_REQUESTS = (*PRECISIONS, "auto")
+
+
+def native_bf16(device: str | torch.device) -> bool:
+    """Whether ``device`` runs bfloat16 convolutions natively.
+
+    A CUDA device that supports bfloat16, or a CPU on which oneDNN has bfloat16 kernels (AVX512 or
+    AMX on x86, BF16 on Arm). On other CPUs (e.g. AVX2 only) autocast emulates bfloat16 and a
+    training step is 5-9x slower than in float32 (measured on a 2-core AVX2 AMD EPYC,
+    ``benchmarks/bench_precision.py``).
+    """
+    device = torch.device(device)
+    if device.type == "cuda":
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    if device.type != "cpu":
+        return False
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a torch build without oneDNN
+        return False
+
+
+def resolve_precision(precision: str, device: str | torch.device) -> str:
+    """The precision a training run on ``device`` uses for the request ``precision``.
+
+    ``"auto"`` is ``"bf16"`` where :func:`native_bf16` holds and ``"fp32"`` elsewhere; ``"fp32"``
+    and ``"bf16"`` are taken as they are.
+
+    Raises
+    ------
+    NanoctError
+        If ``precision`` is none of :data:`PRECISION_REQUESTS`.
+    """
+    if precision not in PRECISION_REQUESTS:
+        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISION_REQUESTS)}")
+    if precision != "auto":
+        return precision
+    return "bf16" if native_bf16(device) else "fp32"
 
 
 def resolve_device(device: str | torch.device | None = None, local_rank: int = 0) -> torch.device:
@@ -185,12 +234,14 @@ class TrainConfig:
         Architecture keyword arguments (e.g. ``{"channels": [8, 8, 16, 16, 32]}``).
     clip_grad : float, optional
         Gradient-norm clipping (default: the model's; 0 disables).
-    precision : {"fp32", "bf16"}
+    precision : {"fp32", "bf16", "auto"}
         "bf16" runs the training steps' forward pass under ``torch.autocast`` with bfloat16
         (convolutions and what follows them in bfloat16, ``mse_loss`` and the ops autocast
         lists as float32 in float32; weights, optimiser state, gradients and validation stay
         float32). About twice the steps per second on a CPU with native
-        bfloat16 (AVX512-BF16 / AMX) or a recent GPU; slower where bfloat16 is emulated.
+        bfloat16 (AVX512-BF16 / AMX) or a recent GPU; 5-9x slower where bfloat16 is emulated
+        (an AVX2-only CPU). "auto": "bf16" where the device runs it natively, else "fp32"
+        (:func:`resolve_precision`); ``config.json`` records the precision taken.
     max_steps : int, optional
         Stop after this many optimizer steps in total (the epoch in progress is then
         validated and checkpointed as finished); for smoke tests and fixed-step budgets.
@@ -313,7 +364,7 @@ def train(
     lr = spec.lr if c.lr is None else float(c.lr)
     clip = spec.clip_grad if c.clip_grad is None else (float(c.clip_grad) or None)
     sched = (spec.scheduler or "none") if c.scheduler is None else str(c.scheduler)
-    _check_request(epochs, batch_size, lr, c.max_steps, sched, c.precision)
+    _check_request(epochs, batch_size, lr, c.max_steps, sched)
     if int(seed) < 0:
         raise NanoctError(f"--seed {seed} must be >= 0")
 
@@ -321,6 +372,7 @@ def train(
     world = int(os.environ.get("WORLD_SIZE", "1"))
     local_rank = int(os.environ.get("LOCAL_RANK", "0"))
     dev = resolve_device(c.device, local_rank)
+    precision = resolve_precision(c.precision, dev)
     own_group = False
     if world > 1 and not dist.is_initialized():
         if dev.type == "cuda":
@@ -346,7 +398,7 @@ def train(
         seed=int(seed),
         dev=dev,
         use_cl=use_cl,
-        precision=c.precision,
+        precision=precision,
         progress=progress and main_rank,
         max_steps=c.max_steps,
         n_train=c.n_train,
@@ -372,8 +424,8 @@ def train(
             dist.destroy_process_group()
 
 
-def _check_request(epochs: int, batch_size: int, lr: float, max_steps: int | None, sched: str, precision: str) -> None:
-    """NanoctError for a non-positive count or rate, an unknown schedule or precision."""
+def _check_request(epochs: int, batch_size: int, lr: float, max_steps: int | None, sched: str) -> None:
+    """NanoctError for a non-positive count or rate, or an unknown schedule."""
     if epochs < 1 or batch_size < 1 or not 0 < lr < math.inf or (max_steps is not None and max_steps < 1):
         raise NanoctError(
             f"epochs ({epochs}), batch size ({batch_size}), lr ({lr}) and max steps ({max_steps}) must be positive "
@@ -381,8 +433,6 @@ def _check_request(epochs: int, batch_size: int, lr: float, max_steps: int | Non
         )
     if sched not in SCHEDULERS:
         raise NanoctError(f"scheduler {sched!r} is unknown; use one of {', '.join(SCHEDULERS)}")
-    if precision not in PRECISIONS:
-        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISIONS)}")
 
 
 @dataclass(frozen=True)

@@ -63,8 +63,9 @@ class Study:
         Latent samples per image for the invertible networks (paper: 100).
     mixing : tuple of str
         Models also applied to every input they were not trained on (input-mixing tables).
-    precision : {"fp32", "bf16"}
-        Arithmetic of the training steps (:func:`nanoct.learn.train.train`).
+    precision : {"fp32", "bf16", "auto"}
+        Arithmetic of the training steps (:func:`nanoct.learn.train.train`); ``"auto"``: bfloat16
+        where the device runs it natively, else float32 (:func:`nanoct.learn.train.resolve_precision`).
     antithetic : bool
         Draw the invertible networks' latent samples in antithetic pairs (z, -z) (the paper:
         independent draws; ``reconstruct``'s ``antithetic``).
@@ -107,7 +108,7 @@ STUDIES: dict[str, Study] = {
         },
         n_samples=32,
         mixing=("unet",),
-        precision="bf16",
+        precision="auto",
         antithetic=True,
     ),
     "small": Study(n=2000, split_fractions=(0.9, 0.05, 0.05), epochs=dict.fromkeys(table_order(), 100)),

@@ -10,7 +10,7 @@ machine, not a promise: the measurements vary by up to 2x with the machine's loa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +48,11 @@ _TRAIN = {
     63: {"unet": 2 * 314 / 32000, "inn": 2 * 767 / 70400},
     255: {"unet": 2 / 5.5, "cinn": 3 * 0.0901, "ciunet": 3 * 0.3162},
 }
+#: The precision each :data:`_TRAIN` size was measured in (sizes scaled from 255: float32).
+_TRAIN_PRECISION = {63: "bf16", 255: "fp32"}
+#: Float32 over bfloat16 seconds per training step on a CPU with native bfloat16 (docs/learn.md: UNet
+#: 0.253 / 0.127 s at 2 threads; CiNNRes 0.202 / 0.147 and CiUNetRes 0.309 / 0.217 s at 1 thread).
+_FP32_OVER_BF16 = {"unet": 0.253 / 0.127, "inn": (0.202 / 0.147 + 0.309 / 0.217) / 2}
 #: Core-seconds per test image: UNet inference; invertible networks per latent sample (at N = 63
 #: the tiny run: 45 predictions in 83 s on 2 cores, 20 of them invertible on 20 test + 20
 #: validation (calibration) images x 32 antithetic samples; the UNet's share is negligible).
@@ -65,7 +70,9 @@ COST_SOURCES = (
     "benchmarks/README.md (5.5 images/s on 2 cores, float32) at N=255; invertible networks at N=63: the tiny run "
     "(20 runs of 12-32 epochs, 70,400 images, in 12 min 47 s, one at a time, bfloat16, the tiny study's light "
     "stacks); at N=255: 3 x the measured forward pass "
-    "(benchmarks/README.md sampling table; backward assumed 2 forward), the paper's architectures",
+    "(benchmarks/README.md sampling table; backward assumed 2 forward), the paper's architectures; training in "
+    "the other precision than the figure's (the tiny study's 'auto' takes fp32 on a CPU without native bfloat16): "
+    "scaled by the fp32/bf16 step-time ratio measured on a CPU with it (docs/learn.md: UNet 2.0, invertible 1.4)",
     "prediction: UNet inference (channels_last, batch 16, benchmarks/README.md) and the per-latent-sample cost of "
     "the invertible networks (N=63: the tiny run's 45 predictions in 83 s; N=255: benchmarks/README.md), "
     "times the study's latent samples, over the test and validation split "
@@ -89,6 +96,9 @@ class StagePlan:
         Disk the stage writes (float32 arrays; checkpoints and the report not counted).
     seconds : float or None
         Estimated wall time, None where no figure exists (GPU without a speed-up).
+    precision : str or None
+        Of the training stage: the precision its runs take on this machine
+        (:func:`nanoct.learn.train.resolve_precision`).
     """
 
     setting: str
@@ -96,6 +106,7 @@ class StagePlan:
     jobs: int
     disk_bytes: int
     seconds: float | None
+    precision: str | None = None
 
 
 def _family(model: str) -> str:
@@ -117,8 +128,23 @@ def _recon_costs(preset: str) -> dict[str, float]:
     return {k: v * ratio + (_OVERHEAD if g.n < 255 else 0.0) for k, v in base.items()}
 
 
+def _train_cost(n: int, model: str, precision: str) -> float:
+    """Core-seconds per training image at size ``n`` in ``precision`` (the measured figure, scaled by
+    :data:`_FP32_OVER_BF16` where it was measured in the other precision)."""
+    ratio = _FP32_OVER_BF16["unet" if model == "unet" else "inn"]
+    measured = _TRAIN_PRECISION.get(n, "fp32")
+    factor = 1.0 if measured == precision else ratio if precision == "fp32" else 1 / ratio
+    return _per_size(_TRAIN, n, model) * factor
+
+
 def _setting_plan(
-    setting: Setting, study: Study, models: tuple[str, ...], n: int | None, seeds: int, speed: dict[str, float | None]
+    setting: Setting,
+    study: Study,
+    models: tuple[str, ...],
+    n: int | None,
+    seeds: int,
+    speed: dict[str, float | None],
+    precision: str,
 ) -> list[StagePlan]:
     jobs = setting_jobs(setting, study, models, n, seeds)
     g = get_preset(setting.preset)
@@ -134,8 +160,8 @@ def _setting_plan(
             name, "reconstructions", len(jobs.recons) * jobs.samples, len(jobs.recons) * jobs.samples * image, core_s
         )
     )
-    core_s = sum(study.epochs[m] * n_train * _per_size(_TRAIN, g.n, m) for m, _, _ in jobs.train)
-    out.append(StagePlan(name, "training", len(jobs.train), 0, core_s))
+    core_s = sum(study.epochs[m] * n_train * _train_cost(g.n, m, precision) for m, _, _ in jobs.train)
+    out.append(StagePlan(name, "training", len(jobs.train), 0, core_s, precision))
     core_s = disk = 0.0
     for m, train_input, input_name, _ in jobs.predict:
         inn = model_class(m).has_uncertainty
@@ -145,12 +171,7 @@ def _setting_plan(
         disk += n_test * image * (2 if inn else 1)
     out.append(StagePlan(name, "prediction", len(jobs.predict), int(disk), core_s))
     out.append(StagePlan(name, "report", 1, 0, 0.0))
-    return [
-        StagePlan(
-            p.setting, p.stage, p.jobs, p.disk_bytes, None if speed[p.stage] is None else p.seconds / speed[p.stage]
-        )
-        for p in out
-    ]
+    return [replace(p, seconds=None if speed[p.stage] is None else p.seconds / speed[p.stage]) for p in out]
 
 
 def plan_study(
@@ -206,7 +227,21 @@ def plan_study(
         "prediction": learn,
         "report": 1.0,
     }
-    return [p for s in settings for p in _setting_plan(s, study, models, n if scale is None else None, seeds, speed)]
+    precision = _planned_precision(study.precision, gpus)
+    return [
+        p
+        for s in settings
+        for p in _setting_plan(s, study, models, n if scale is None else None, seeds, speed, precision)
+    ]
+
+
+def _planned_precision(precision: str, gpus: int) -> str:
+    """The precision the training runs take: on this machine's CPU, or on a GPU (``"auto"``: bf16)."""
+    if gpus:
+        return "bf16" if precision == "auto" else precision
+    from ..learn.train import resolve_precision  # imports torch
+
+    return resolve_precision(precision, "cpu")
 
 
 def _duration(seconds: float | None) -> str:
@@ -219,9 +254,8 @@ def format_plan(plan: list[StagePlan]) -> str:
     """The plan as a text table with totals, in seconds, and the sources of the figures."""
     lines = [f"{'setting':<14} {'stage':<16} {'jobs':>8} {'disk':>10}  estimated time", "-" * 72]
     for p in plan:
-        lines.append(
-            f"{p.setting:<14} {p.stage:<16} {p.jobs:>8,} {p.disk_bytes / 1e9:>8.2f} GB  {_duration(p.seconds)}"
-        )
+        stage = p.stage if p.precision is None else f"{p.stage} ({p.precision})"
+        lines.append(f"{p.setting:<14} {stage:<16} {p.jobs:>8,} {p.disk_bytes / 1e9:>8.2f} GB  {_duration(p.seconds)}")
     known = [p.seconds for p in plan if p.seconds is not None]
     total = None if len(known) < len(plan) else sum(known)
     disk = sum(p.disk_bytes for p in plan)

@@ -309,6 +309,8 @@ def measure_costs(study: ScalingStudy, samples: int = 4, steps: int = 3) -> dict
     """
     import torch
 
+    from ..learn.train import resolve_precision
+
     costs: dict[str, float] = {}
     geometry = get_preset(study.preset)
     with tempfile.TemporaryDirectory() as tmp:
@@ -333,6 +335,7 @@ def measure_costs(study: ScalingStudy, samples: int = 4, steps: int = 3) -> dict
             reconstruct_dataset(Path(tmp) / "d", method, **kwargs)
             costs[f"recon/{name}"] = (time.perf_counter() - t0) / samples
     n = geometry.n
+    bf16 = resolve_precision(study.base.precision, "cpu") == "bf16"
     for m in study.models:
         batch = model_spec(m).batch_size
         torch.manual_seed(0)
@@ -347,7 +350,7 @@ def measure_costs(study: ScalingStudy, samples: int = 4, steps: int = 3) -> dict
         for _ in range(steps + 1):  # the first step warms up
             t0 = time.perf_counter()
             opt.zero_grad(set_to_none=True)
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=study.base.precision == "bf16"):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
                 loss, _ = model.loss(x_tilde, x)
             loss.backward()
             opt.step()
