@@ -8,6 +8,7 @@ import pytest
 
 from nanoct.core.errors import NanoctError
 from nanoct.learn.data import ReconDataset
+from nanoct.learn.train import resolve_precision
 from nanoct.study import scaling as scaling_module
 from nanoct.study.config import STUDIES
 from nanoct.study.scaling import ScalingStudy, plan_scaling, run_scaling, scaling_units
@@ -114,7 +115,7 @@ def test_toy_study_runs_resumes_and_reports(tmp_path, monkeypatch):
     for unit in units:
         config = json.loads((out / "runs" / unit.run / "config.json").read_text())
         assert config["data"]["train"] == unit.n_train and config["max_steps"] == unit.steps
-        assert config["scheduler"] == "cosine" and config["precision"] == "bf16"
+        assert config["scheduler"] == "cosine" and config["precision"] == resolve_precision("auto", "cpu")
         log = (out / "runs" / unit.run / "log.csv").read_text().splitlines()
         assert log[-1].split(",")[0] == str(unit.epochs(16))  # every run ends at its step budget
     # nested training sets: the 4 images are the first 4 of the 8
