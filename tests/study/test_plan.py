@@ -24,13 +24,14 @@ def test_plan_every_scale_in_seconds(scale):
     t = time.perf_counter()
     plan = plan_study(scale, cores=16)
     assert time.perf_counter() - t < 10
-    n = STUDIES[scale].n
+    n, cal = STUDIES[scale].n, STUDIES[scale].n_calibration  # the calibration set is simulated alike
+    train_inputs = {"parallel": 5, "fan": 3, "unperturbed": 1}
     assert [(p.setting, p.stage) for p in plan] == [(s, st) for s in EXPECTED for st in STAGES]
     for p in plan:
         if p.stage == "data":
-            assert p.jobs == n and p.disk_bytes > 0 and p.seconds > 0
+            assert p.jobs == n + cal and p.disk_bytes > 0 and p.seconds > 0
         elif p.stage == "reconstructions":
-            assert p.jobs == EXPECTED[p.setting]["reconstructions"] * n
+            assert p.jobs == EXPECTED[p.setting]["reconstructions"] * n + train_inputs[p.setting] * cal
         elif p.stage in ("training", "prediction"):
             assert p.jobs == EXPECTED[p.setting][p.stage] and p.seconds > 0
     text = format_plan(plan)
@@ -155,3 +156,18 @@ def test_reproduce_says_which_precision_its_training_takes(monkeypatch, capsys, 
     monkeypatch.setattr(train_module, "resolve_device", lambda *a: train_module.torch.device("cpu"))
     _precision_note(precision)
     assert capsys.readouterr().err.startswith(f"note: training precision {said}")
+
+
+def test_a_calibration_set_is_simulated_reconstructed_and_sampled_in_the_plan():
+    """The tiny study's calibration set: simulated and reconstructed by every training input, and the
+    invertible runs calibrate on it instead of the validation split; without an invertible network, none."""
+    from nanoct.study.config import Study
+    from nanoct.study.plan import _PREDICT
+
+    study = Study(n=200, split_fractions=(0.8, 0.1, 0.1), n_samples=10, mixing=(), n_calibration=50)
+    plan = {p.stage: p for p in plan_study(None, preset="tiny-parallel", models=("cinn-res",), study=study, cores=1)}
+    assert plan["data"].jobs == 250 and plan["reconstructions"].jobs == 5 * 250
+    assert plan["prediction"].seconds == pytest.approx(_PREDICT[63]["inn"] * 10 * (5 * 20 + 5 * 50))
+    plain = {p.stage: p for p in plan_study(None, preset="tiny-parallel", models=("unet",), study=study, cores=1)}
+    assert plain["data"].jobs == 200 and plain["reconstructions"].jobs == 5 * 200
+    assert STUDIES["tiny"].n_calibration == 100

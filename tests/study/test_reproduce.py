@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
+from nanoct.io.store import DataStore
 from nanoct.learn.train import resolve_precision
-from nanoct.study.config import Study
+from nanoct.study.config import Study, calibration_seed
 from nanoct.study.runner import reproduce_scale, reproduce_study
 
 TOY = Study(
@@ -33,6 +34,7 @@ TOY = Study(
     antithetic=True,
     scheduler={"cinn-res": "cosine"},
     precision="auto",
+    n_calibration=4,
 )
 
 
@@ -51,17 +53,23 @@ def test_reproduce_toy_study(tmp_path):
     assert "fbp+unet@resesop" in results and "fbp+cinn-res@resesop" not in results  # mixing for unet only
     assert "rows = trained on" in text and "| fbp+cinn-res | support |" in text
     assert "learning-rate schedule cinn-res cosine (others: their model's default)" in text
-    for i in inputs:  # predict calibrated each invertible run on its validation split
+    # the calibration set: its own seed, all validation, reconstructed by every input the networks train on
+    cal = DataStore.open(out / "calibration")
+    assert cal.seed == calibration_seed(0) and cal.indices("val").size == 4 and cal.n == 4
+    assert sorted(cal.reconstruction_names()) == sorted(inputs)
+    for i in inputs:  # predict calibrated each invertible run on the calibration set, not the validation split
         r = results[f"{i}+cinn-res"]
-        fit = json.loads((out / "runs" / f"cinn-res-{i}" / "calibration.json").read_text())["best"]
-        assert r["guarantee"]["levels"]["0.9"]["multiplier"] == fit["levels"]["0.9"]["multiplier"]
+        fits = json.loads((out / "runs" / f"cinn-res-{i}" / "calibration.json").read_text())
+        (key,) = fits
+        assert key == f"best@{(out / 'calibration').resolve()}"
+        assert r["guarantee"]["levels"]["0.9"]["multiplier"] == fits[key]["levels"]["0.9"]["multiplier"]
         assert 0 <= r["edge_baseline"]["all"]["intervals"]["0.9"]["coverage"] <= 1
     # the study's schedule reaches the training run (the registry's for cinn-res is "plateau")
     config = json.loads((out / "runs" / "cinn-res-fbp" / "config.json").read_text())
     assert config["scheduler"] == "cosine"
     assert config["precision"] == resolve_precision("auto", "cpu")  # the study's "auto", as this CPU takes it
-    cal = json.loads((out / "runs" / "cinn-res-fbp" / "calibration.json").read_text())["best"]
-    assert cal["reconstruct"] == {"n_samples": 3, "antithetic": True}  # the study's sampling, also in calibration
+    fit = json.loads((out / "runs" / "cinn-res-fbp" / "calibration.json").read_text())[key]
+    assert fit["reconstruct"] == {"n_samples": 3, "antithetic": True}  # the study's sampling, also in calibration
     for png in (
         "reconstructions.png",
         "reconstructions_unet.png",

@@ -266,7 +266,7 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
             )
     lines += [
         "",
-        "| reconstruction | pixels | level | coverage [%] | guaranteed (val.) [%] | mean half-width | width/error corr "
+        "| reconstruction | pixels | level | coverage [%] | guaranteed (cal.) [%] | mean half-width | width/error corr "
         "| width quintiles: min / max coverage [%] | per image: min / max [%] (std) "
         f"| edge at {level}: coverage [%] | edge: quintiles min / max [%] |",
         "|---" * 11 + "|",
@@ -293,9 +293,10 @@ def format_uncertainty_table(results: dict[str, dict[str, Any]], title: str = ""
         "All scores are computed on the stored std (`uncertainty/<name>`) and the intervals mean +- multiplier x "
         "g(stored std), g the level's quantile of |error| given the std (strictly increasing, one per region: "
         "background, object) and one multiplier per level and group (the background and the five std fifths of "
-        "the object's support found from the std) by split conformal prediction, fitted on the validation split. "
+        "the object's support found from the std) by split conformal prediction, fitted on the validation split of the "
+        "data set or of a calibration set apart from it (`predict --calibrate-on`; the study's at tiny scale). "
         f"Guaranteed: the per-image coverage that holds with probability {1 - (delta or 0.1):.0%} "
-        "(Hoeffding-Bentkus bound over the validation images). Partial corr.: Pearson correlation of the std "
+        "(Hoeffding-Bentkus bound over the calibration images). Partial corr.: Pearson correlation of the std "
         "with |error| given the edge baseline. AUSE: area between the sparsification curve (mean absolute "
         "error of the pixels left after removing those of largest std) and the oracle's, normalised by the MAE "
         "of all pixels; random = the area of removing pixels in random order. Edge: Gaussian(sigma = "

@@ -16,11 +16,12 @@ from typing import Any
 
 from ..core.errors import NanoctError
 from ..core.geometry import get_preset, preset_names
-from ..learn.models import table_order
+from ..learn.models import model_class, table_order
 from ..names import reconstruction_name, setting_key
 from ..recon.registry import method_spec
 
 __all__ = [
+    "CALIBRATION_SEED_OFFSET",
     "CONCLUSION_K",
     "DEFAULT_SEED",
     "SCALE_STUDIES",
@@ -28,6 +29,7 @@ __all__ = [
     "Jobs",
     "Setting",
     "Study",
+    "calibration_seed",
     "check_models",
     "preset_setting",
     "preset_study",
@@ -40,6 +42,14 @@ __all__ = [
 DEFAULT_SEED = 0
 #: Standard errors a paired difference must exceed for a conclusion check to hold.
 CONCLUSION_K = 2.0
+#: The calibration set of a study with data-set seed ``s`` is simulated under seed ``s`` + this.
+CALIBRATION_SEED_OFFSET = 1_000_000
+
+
+def calibration_seed(seed: int) -> int:
+    """Data-set seed of the calibration set of a study whose data set has ``seed``: another stream of
+    samples (sample i depends only on (seed, i)), never one the study trains, validates or tests on."""
+    return int(seed) + CALIBRATION_SEED_OFFSET
 
 
 @dataclass(frozen=True)
@@ -69,6 +79,11 @@ class Study:
     antithetic : bool
         Draw the invertible networks' latent samples in antithetic pairs (z, -z) (the paper:
         independent draws; ``reconstruct``'s ``antithetic``).
+    n_calibration : int
+        Images of a calibration set apart from the data set (simulated alike under
+        :func:`calibration_seed`, all in its validation split, reconstructed by the networks' inputs)
+        on which the invertible networks' intervals are fitted (``predict --calibrate-on``); 0: on
+        the data set's validation split, which also chose each network's checkpoint.
     """
 
     n: int
@@ -81,6 +96,7 @@ class Study:
     mixing: tuple[str, ...] = table_order()
     precision: str = "fp32"
     antithetic: bool = False
+    n_calibration: int = 0
 
 
 def _flow_kwargs(model: str, form: str, location_weight: float = 0.0) -> dict[str, Any]:
@@ -110,6 +126,7 @@ STUDIES: dict[str, Study] = {
         mixing=("unet",),
         precision="auto",
         antithetic=True,
+        n_calibration=100,
     ),
     "small": Study(n=2000, split_fractions=(0.9, 0.05, 0.05), epochs=dict.fromkeys(table_order(), 100)),
     "paper": Study(n=32095, split_fractions=(0.95, 0.04, 0.01)),
@@ -199,6 +216,11 @@ class Setting:
     mixing: tuple[str, ...]
     paper: str | None
 
+    @property
+    def calibration(self) -> Path:
+        """Directory of the setting's calibration set (:attr:`Study.n_calibration`)."""
+        return self.out / "calibration"
+
 
 def preset_study(preset: str) -> Study:
     """The :data:`STUDIES` entry of a geometry preset (its size prefix).
@@ -268,12 +290,16 @@ class Jobs:
         Training runs.
     predict : list of (model, train_input, input, seed)
         Predictions on the test split.
+    calibration : int
+        Samples of the calibration set (:attr:`Study.n_calibration` where an invertible network is
+        trained, else 0).
     """
 
     samples: int
     recons: list[str]
     train: list[tuple[str, str, int]]
     predict: list[tuple[str, str, str, int]]
+    calibration: int = 0
 
 
 def setting_jobs(setting: Setting, study: Study, models: tuple[str, ...], n: int | None, seeds: int = 1) -> Jobs:
@@ -288,4 +314,5 @@ def setting_jobs(setting: Setting, study: Study, models: tuple[str, ...], n: int
     predict = [(m, i, i, s) for m, i, s in train]
     mixed = [m for m in models if m in setting.mixing]
     predict += [(m, t, i, 0) for m in mixed for t in setting.train_inputs for i in setting.train_inputs if i != t]
-    return Jobs(study.n if n is None else n, list(setting.recons), train, predict)
+    calibration = study.n_calibration if any(model_class(m).has_uncertainty for m in models) else 0
+    return Jobs(study.n if n is None else n, list(setting.recons), train, predict, calibration)

@@ -75,8 +75,8 @@ COST_SOURCES = (
     "scaled by the fp32/bf16 step-time ratio measured on a CPU with it (docs/learn.md: UNet 2.0, invertible 1.4)",
     "prediction: UNet inference (channels_last, batch 16, benchmarks/README.md) and the per-latent-sample cost of "
     "the invertible networks (N=63: the tiny run's 45 predictions in 83 s; N=255: benchmarks/README.md), "
-    "times the study's latent samples, over the test and validation split "
-    "(calibration); sizes between 63 and 255 scaled by pixel count from 255",
+    "times the study's latent samples, over the test split and the calibration images (the calibration set, "
+    "else the validation split); sizes between 63 and 255 scaled by pixel count from 255",
     "no GPU figure was measured: with --gpus, training and prediction use --gpu-speedup (one GPU relative to "
     "one CPU core) and stay unestimated without it",
 )
@@ -152,14 +152,12 @@ def _setting_plan(
     n_train, n_val, n_test = (int((labels == k).sum()) for k in (0, 1, 2))
     image, costs = 4 * g.n * g.n, _recon_costs(setting.preset)
     name = setting.out.name
-    core_s = jobs.samples * costs["generate"]
-    out = [StagePlan(name, "data", jobs.samples, jobs.samples * 4 * (g.n**2 + 2 * g.n_angles * g.n_det), core_s)]
-    core_s = sum(jobs.samples * costs[method] for method, _ in setting.recons.values())
-    out.append(
-        StagePlan(
-            name, "reconstructions", len(jobs.recons) * jobs.samples, len(jobs.recons) * jobs.samples * image, core_s
-        )
-    )
+    samples = jobs.samples + jobs.calibration  # the calibration set is simulated alike
+    core_s = samples * costs["generate"]
+    out = [StagePlan(name, "data", samples, samples * 4 * (g.n**2 + 2 * g.n_angles * g.n_det), core_s)]
+    per_recon = {k: jobs.samples + (jobs.calibration if k in setting.train_inputs else 0) for k in setting.recons}
+    core_s = sum(per_recon[k] * costs[method] for k, (method, _) in setting.recons.items())
+    out.append(StagePlan(name, "reconstructions", sum(per_recon.values()), sum(per_recon.values()) * image, core_s))
     core_s = sum(study.epochs[m] * n_train * _train_cost(g.n, m, precision) for m, _, _ in jobs.train)
     out.append(StagePlan(name, "training", len(jobs.train), 0, core_s, precision))
     core_s = disk = 0.0
@@ -167,7 +165,7 @@ def _setting_plan(
         inn = model_class(m).has_uncertainty
         per_image = _per_size(_PREDICT, g.n, m) * (study.n_samples if inn else 1)
         calibrates = inn and input_name == train_input  # once per run; mixing predictions reuse the fit
-        core_s += per_image * (n_test + (n_val if calibrates else 0))
+        core_s += per_image * (n_test + ((jobs.calibration or n_val) if calibrates else 0))
         disk += n_test * image * (2 if inn else 1)
     out.append(StagePlan(name, "prediction", len(jobs.predict), int(disk), core_s))
     out.append(StagePlan(name, "report", 1, 0, 0.0))

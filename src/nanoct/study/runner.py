@@ -54,7 +54,7 @@ def run_setting(
     seconds: dict[str, float] = {}
     stages: dict[str, Callable[[], object]] = {
         "data": partial(data_stage, setting, study, jobs, seed, fan),
-        "reconstructions": partial(reconstruction_stage, setting, fan),
+        "reconstructions": partial(reconstruction_stage, setting, jobs, fan),
         "training": partial(training_stage, setting, study, jobs, fan),
         "prediction": partial(prediction_stage, setting, study, jobs, fan),
     }

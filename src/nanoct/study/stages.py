@@ -22,7 +22,7 @@ from ..names import prediction_name, seed_name
 from ..recon.batch import reconstruct_dataset
 from ..sim.generate import generate_dataset
 from ..sim.simulate import SimulationConfig
-from .config import Jobs, Setting, Study
+from .config import Jobs, Setting, Study, calibration_seed
 
 __all__ = ["data_stage", "prediction_stage", "reconstruction_stage", "training_stage"]
 
@@ -73,7 +73,9 @@ def _predict_job(
     from ..learn.predict import predict
 
     model, train_input, input_name, seed = jobs[index]
-    kwargs = _sampling(study) if model_class(model).has_uncertainty else None
+    sampling = model_class(model).has_uncertainty
+    kwargs = _sampling(study) if sampling else None
+    calibration = Path(data).parent / "calibration"  # Setting.calibration
     name = seed_name(prediction_name(input_name, model, train_input), seed) if seed else None
     run = partial(
         predict,
@@ -84,15 +86,26 @@ def _predict_job(
         progress=False,
         name=name,
         reconstruct_kwargs=kwargs,
+        calibrate_on=calibration if sampling and study.n_calibration else None,
     )
     _with_threads(threads, run)
     return index
 
 
 def data_stage(setting: Setting, study: Study, jobs: Jobs, seed: int, fan: dict[str, Any]) -> DataStore:
-    """Simulate the setting's data set (resumable) and return its store."""
+    """Simulate the setting's data set and, where it has one, its calibration set (resumable); return the data set."""
     geometry = get_preset(setting.preset)
     config = SimulationConfig.for_geometry(geometry, perturbed=setting.perturbed)
+    if jobs.calibration:
+        generate_dataset(
+            setting.calibration,
+            geometry,
+            jobs.calibration,
+            seed=calibration_seed(seed),
+            config=config,
+            split_fractions=(0.0, 1.0, 0.0),
+            **fan,
+        )
     return generate_dataset(
         setting.out / "data",
         geometry,
@@ -104,10 +117,13 @@ def data_stage(setting: Setting, study: Study, jobs: Jobs, seed: int, fan: dict[
     )
 
 
-def reconstruction_stage(setting: Setting, fan: dict[str, Any]) -> None:
-    """Every first reconstruction of the setting over every sample (resumable)."""
+def reconstruction_stage(setting: Setting, jobs: Jobs, fan: dict[str, Any]) -> None:
+    """Every first reconstruction of the setting over every sample, and over the calibration set those the
+    networks are trained on (resumable)."""
     for name, (method, params) in setting.recons.items():
         reconstruct_dataset(setting.out / "data", method, params=params, name=name, **fan)
+        if jobs.calibration and name in setting.train_inputs:
+            reconstruct_dataset(setting.calibration, method, params=params, name=name, **fan)
 
 
 def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
