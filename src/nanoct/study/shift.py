@@ -7,8 +7,8 @@ simulated with the study's simulation changed in one respect: the motion amplitu
 another phantom family (:func:`nanoct.sim.phantoms.random_ellipse_phantom`). The
 study's first reconstructions that the networks take as input are made with the study's
 parameters, each sampling network predicts with its own run and its calibration from the
-study's validation split (a data set without a validation split reuses it; the study's own test
-split is predicted again where that calibration has changed), and the
+study's calibration set, else its validation split (a data set without a validation split reuses
+it; the study's own test split is predicted again where that calibration has changed), and the
 uncertainty scores of :func:`nanoct.evaluation.evaluate.evaluate_store` are taken, including the
 share of images that predict flagged as out of distribution. The in-distribution row is the
 study's own test split. Everything is cached in ``<study>/shift``; a rerun only redoes what is
@@ -155,8 +155,12 @@ def shift_study(
         shift_config(s, SimulationConfig(), 1.0)  # rejects an unknown shift before any work
     names = [prediction_name(i, m) for m, i in runs]
     sampling = {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
+    # the intervals of the study's predictions: fitted on its calibration set where it has one
+    sampling_args = {"reconstruct_kwargs": sampling, "progress": progress}
+    if study.n_calibration and (setting.calibration / "zarr.json").is_file():
+        sampling_args["calibrate_on"] = setting.calibration
     for m, i in runs:  # the study's test split, checked for being out of distribution as the shifted sets are
-        predict(data.path, root / "runs" / f"{m}-{i}", i, progress=progress, reconstruct_kwargs=sampling)
+        predict(data.path, root / "runs" / f"{m}-{i}", i, **sampling_args)
     data = DataStore.open(root / "data")
     test = data.indices("test")
     out = {"in_distribution": _scores(evaluate_store(data, "test", names), names, level)}
@@ -178,7 +182,7 @@ def shift_study(
             method, params = setting.recons[i]
             reconstruct_dataset(path, method, params=params, name=i, **fan)
         for m, i in runs:
-            predict(path, root / "runs" / f"{m}-{i}", i, progress=progress, reconstruct_kwargs=sampling)
+            predict(path, root / "runs" / f"{m}-{i}", i, **sampling_args)
         out[s] = _scores(evaluate_store(store, "test", names), names, level)
     payload = {"level": level, "n": n, "seed": SHIFT_SEED, "shifts": {k: SHIFTS[k] for k in shifts}, "results": out}
     (root / "shift").mkdir(exist_ok=True)
