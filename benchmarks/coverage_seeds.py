@@ -10,9 +10,10 @@ the row's network is trained again there by ``nanoct train`` with every argument
 (``runs/<model>-<input>/config.json``: epochs, batch size, learning rate and schedule, precision,
 architecture), except the seed: ``--seed S`` (data order, training noise, initialisation) and, for a
 model with an initialisation seed of its own (CiNN), ``--param seed=S``. Seed 0 is the study's own
-run, copied. Each network predicts the test split with the study's sampling and calibrates on the
-validation split (``nanoct predict --name <row>-sS``), and ``nanoct evaluate``'s scores are printed:
-PSNR, 90 % coverage of all pixels and of the object's support, and of the support's five half-width
+run, copied. Each network predicts the test split with the study's sampling and calibrates where the
+study did: on its calibration set (``<study>/calibration``, read only) where it has one, else on the
+validation split (``nanoct predict --name <row>-sS [--calibrate-on]``), and ``nanoct evaluate``'s scores
+are printed: PSNR, 90 % coverage of all pixels and of the object's support, and of the support's five half-width
 fifths (narrowest first). Seed 0 must give the study's own numbers. ``DIR`` keeps everything: run
 the command again to resume.
 """
@@ -64,6 +65,9 @@ def main() -> None:
     data = work / "data"
     if not (data / "zarr.json").is_file():
         shutil.copytree(study / "data", data)
+    calibration = study / "calibration"
+    calibrate = ["--calibrate-on", calibration] if (calibration / "zarr.json").is_file() else []
+    flags = ["--samples", sampling["n_samples"], *calibrate] + (["--antithetic"] if sampling.get("antithetic") else [])
     start = time.perf_counter()
     names = []
     for seed in range(args.seeds):
@@ -75,8 +79,7 @@ def main() -> None:
             seeded = ["--seed", seed] + (["--param", f"seed={seed}"] if "seed" in config["hparams"] else [])
             cli("train", data, *train_arguments(config), "--out", run_dir, *seeded, "-q")
         name = f"{args.row}-s{seed}"
-        flags = ["--antithetic"] if sampling.get("antithetic") else []
-        cli("predict", data, "--run", run_dir, "--samples", sampling["n_samples"], *flags, "--name", name, "-q")
+        cli("predict", data, "--run", run_dir, *flags, "--name", name, "-q")
         names.append(name)
     scores = evaluate_store(DataStore.open(data), "test", names)
     rows = []

@@ -774,11 +774,9 @@ def _study_with_precision(scale: str | None, preset: str, precision: str | None)
     study = scale_study(scale) if scale is not None else preset_study(preset)
     if precision is None:
         return study
-    from .learn.train import PRECISION_REQUESTS
+    from .learn.train import check_precision
 
-    if precision not in PRECISION_REQUESTS:
-        raise NanoctError(f"--precision {precision!r} is unknown; use one of {', '.join(PRECISION_REQUESTS)}")
-    return replace(study, precision=precision)
+    return replace(study, precision=check_precision(precision, "--precision"))
 
 
 def _precision_note(precision: str) -> None:

@@ -383,7 +383,7 @@ def test_run_recorded_before_precision_existed_resumes_as_fp32(store, tmp_path):
 
 def test_auto_precision_is_bf16_only_where_the_device_runs_it_natively(monkeypatch):
     from nanoct.learn import train as train_module
-    from nanoct.learn.train import native_bf16, resolve_precision
+    from nanoct.learn.train import check_precision, native_bf16, resolve_precision
 
     for native, taken in ((True, "bf16"), (False, "fp32")):
         monkeypatch.setattr(train_module, "native_bf16", lambda device, native=native: native)
@@ -391,6 +391,9 @@ def test_auto_precision_is_bf16_only_where_the_device_runs_it_natively(monkeypat
         assert (resolve_precision("fp32", "cpu"), resolve_precision("bf16", "cpu")) == ("fp32", "bf16")
     with pytest.raises(NanoctError, match="precision 'fp16' is unknown; use one of fp32, bf16, auto"):
         resolve_precision("fp16", "cpu")
+    with pytest.raises(NanoctError, match="^--precision 'half' is unknown"):  # the message names the flag given
+        check_precision("half", "--precision")
+    assert [check_precision(p) for p in ("fp32", "bf16", "auto")] == ["fp32", "bf16", "auto"]
     monkeypatch.undo()
     # oneDNN has bfloat16 kernels on AVX512 (and AMX) CPUs, not on AVX2-only ones
     capability = torch.backends.cpu.get_cpu_capability()

@@ -177,6 +177,11 @@ def test_reproduce_toy_scale_matches_plan(tmp_path):
     assert "img" in [t for t, _ in parse((out / "parallel" / "report" / "report.html").read_text()).tags]
 
 
+def test_study_sampling_arguments_are_its_samples_and_antithetic_draws():
+    assert TOY.sampling == {"n_samples": 3, "antithetic": True}
+    assert Study(n=4, split_fractions=(0.5, 0.25, 0.25)).sampling == {"n_samples": 100}  # the paper's draws
+
+
 def test_scale_study_differs_from_the_one_setting_study_only_where_declared():
     from dataclasses import replace
 

@@ -54,6 +54,7 @@ from .models import build_model, model_class, model_spec
 __all__ = [
     "PRECISIONS",
     "TrainConfig",
+    "check_precision",
     "cosine_lr",
     "model_arguments",
     "native_bf16",
@@ -107,6 +108,19 @@ def native_bf16(device: str | torch.device) -> bool:
         return False
 
 
+def check_precision(precision: str, name: str = "precision") -> str:
+    """``precision`` if it is one of :data:`PRECISION_REQUESTS`.
+
+    Raises
+    ------
+    NanoctError
+        Naming ``name`` (the argument or flag that gave the value) and the known requests.
+    """
+    if precision not in PRECISION_REQUESTS:
+        raise NanoctError(f"{name} {precision!r} is unknown; use one of {', '.join(PRECISION_REQUESTS)}")
+    return precision
+
+
 def resolve_precision(precision: str, device: str | torch.device) -> str:
     """The precision a training run on ``device`` uses for the request ``precision``.
 
@@ -118,8 +132,7 @@ def resolve_precision(precision: str, device: str | torch.device) -> str:
     NanoctError
         If ``precision`` is none of :data:`PRECISION_REQUESTS`.
     """
-    if precision not in PRECISION_REQUESTS:
-        raise NanoctError(f"precision {precision!r} is unknown; use one of {', '.join(PRECISION_REQUESTS)}")
+    check_precision(precision)
     if precision != "auto":
         return precision
     return "bf16" if native_bf16(device) else "fp32"

@@ -98,6 +98,11 @@ class Study:
     antithetic: bool = False
     n_calibration: int = 0
 
+    @property
+    def sampling(self) -> dict[str, Any]:
+        """``reconstruct`` arguments of the invertible networks (:attr:`n_samples`, :attr:`antithetic`)."""
+        return {"n_samples": self.n_samples} | ({"antithetic": True} if self.antithetic else {})
+
 
 def _flow_kwargs(model: str, form: str, location_weight: float = 0.0) -> dict[str, Any]:
     """The tiny study's architecture arguments of an invertible network with conditional-scale

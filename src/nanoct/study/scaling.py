@@ -193,7 +193,6 @@ def _run_unit(store_path: Path, runs: Path, study: ScalingStudy, unit: ScalingUn
     )
     train(store_path, runs / unit.run, config, progress=progress)
     sampling = model_class(unit.model).has_uncertainty
-    kwargs = {"n_samples": base.n_samples} | ({"antithetic": True} if base.antithetic else {})
     predict(
         store_path,
         runs / unit.run,
@@ -201,7 +200,7 @@ def _run_unit(store_path: Path, runs: Path, study: ScalingStudy, unit: ScalingUn
         split="test",
         progress=False,
         name=unit.name,
-        reconstruct_kwargs=kwargs if sampling else None,
+        reconstruct_kwargs=base.sampling if sampling else None,
     )
 
 

@@ -154,9 +154,8 @@ def shift_study(
     for s in shifts:
         shift_config(s, SimulationConfig(), 1.0)  # rejects an unknown shift before any work
     names = [prediction_name(i, m) for m, i in runs]
-    sampling = {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
     # the intervals of the study's predictions: fitted on its calibration set where it has one
-    sampling_args = {"reconstruct_kwargs": sampling, "progress": progress}
+    sampling_args = {"reconstruct_kwargs": study.sampling, "progress": progress}
     if study.n_calibration and (setting.calibration / "zarr.json").is_file():
         sampling_args["calibrate_on"] = setting.calibration
     for m, i in runs:  # the study's test split, checked for being out of distribution as the shifted sets are

@@ -62,20 +62,22 @@ def _train_job(data: str, runs: str, study: Study, jobs: list[tuple[str, str, in
     return index
 
 
-def _sampling(study: Study) -> dict[str, Any]:
-    """``reconstruct`` arguments of the invertible networks in ``study``."""
-    return {"n_samples": study.n_samples} | ({"antithetic": True} if study.antithetic else {})
-
-
 def _predict_job(
-    data: str, runs: str, study: Study, jobs: list[tuple[str, str, str, int]], threads: int, index: int
+    data: str,
+    runs: str,
+    study: Study,
+    jobs: list[tuple[str, str, str, int]],
+    threads: int,
+    index: int,
+    *,
+    calibration: str | None,
 ) -> int:
+    """Predict job ``index`` of ``jobs``; the sampling networks' intervals fitted on ``calibration``
+    (a calibration set) where given, else on the data set's validation split."""
     from ..learn.predict import predict
 
     model, train_input, input_name, seed = jobs[index]
     sampling = model_class(model).has_uncertainty
-    kwargs = _sampling(study) if sampling else None
-    calibration = Path(data).parent / "calibration"  # Setting.calibration
     name = seed_name(prediction_name(input_name, model, train_input), seed) if seed else None
     run = partial(
         predict,
@@ -85,8 +87,8 @@ def _predict_job(
         split="test",
         progress=False,
         name=name,
-        reconstruct_kwargs=kwargs,
-        calibrate_on=calibration if sampling and study.n_calibration else None,
+        reconstruct_kwargs=study.sampling if sampling else None,
+        calibrate_on=calibration if sampling else None,
     )
     _with_threads(threads, run)
     return index
@@ -164,4 +166,5 @@ def training_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, An
 
 def prediction_stage(setting: Setting, study: Study, jobs: Jobs, fan: dict[str, Any]) -> None:
     """Every prediction on the test split (done ones are skipped by :func:`nanoct.learn.predict.predict`)."""
-    _torch_stage(_predict_job, jobs.predict, "predict", setting, study, fan)
+    calibration = str(setting.calibration) if jobs.calibration else None
+    _torch_stage(partial(_predict_job, calibration=calibration), jobs.predict, "predict", setting, study, fan)
