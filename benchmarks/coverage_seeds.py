@@ -14,8 +14,10 @@ run, copied. Each network predicts the test split with the study's sampling and 
 study did: on its calibration set (``<study>/calibration``, read only) where it has one, else on the
 validation split (``nanoct predict --name <row>-sS [--calibrate-on]``), and ``nanoct evaluate``'s scores
 are printed: PSNR, 90 % coverage of all pixels and of the object's support, and of the support's five half-width
-fifths (narrowest first). Seed 0 must give the study's own numbers. ``DIR`` keeps everything: run
-the command again to resume.
+fifths (narrowest first). Seed 0 must give the study's own numbers. With ``--fresh N`` the same
+networks and intervals are also scored on N fresh test images (``--fresh-seed``, in ``DIR/fresh``),
+which separates the networks from the draw of the study's 20 test images. ``DIR`` keeps everything:
+run the command again to resume.
 """
 
 from __future__ import annotations
@@ -32,6 +34,10 @@ from cli_run import cli
 from nanoct.evaluation.evaluate import evaluate_store
 from nanoct.io.store import DataStore
 from nanoct.names import parse_name
+from nanoct.recon.batch import reconstruct_dataset
+from nanoct.sim.generate import generate_dataset
+from nanoct.sim.simulate import SimulationConfig
+from nanoct.study.config import calibration_seed
 
 BAND = (0.87, 0.93)
 
@@ -47,6 +53,38 @@ def train_arguments(config: dict) -> list[str]:
     return [str(a) for a in args]
 
 
+def fresh_test_set(data: DataStore, work: Path, n: int, seed: int, source: str) -> DataStore:
+    """``n`` test-only samples of the study's geometry and simulation under ``seed``, reconstructed by ``source``
+    with the study's parameters (resumable)."""
+    if seed in (data.seed, calibration_seed(data.seed)):
+        raise SystemExit(f"--fresh-seed {seed} is the study's data-set or calibration-set seed; choose another")
+    config = SimulationConfig.from_dict(data.meta["simulation"])
+    generate_dataset(work, data.geometry, n, seed=seed, config=config, split_fractions=(0.0, 0.0, 1.0), workers=0)
+    params = dict(data.reconstruction_params(source))
+    reconstruct_dataset(work, params.pop("method"), params=params, name=source, workers=0)
+    return DataStore.open(work)
+
+
+def report(store: DataStore, names: list[str], level: str, title: str) -> None:
+    """Print each seed's PSNR and coverage on the test split of ``store``, and the spread over the seeds."""
+    scores = evaluate_store(store, "test", names)
+    rows = []
+    print(f"{title}, {float(level):.0%} intervals (support: object fifths, narrowest first)")
+    for name in names:
+        r = scores[name]["uncertainty"]
+        sup, every = r["support"]["intervals"][level], r["all"]["intervals"][level]
+        rows.append(sup["coverage_by_width"])
+        print(f"  {name}: PSNR {scores[name]['psnr_mean']:.2f}, all {every['coverage']:.3f}, support "
+              f"{sup['coverage']:.3f}, fifths " + " / ".join(f"{c:.3f}" for c in sup["coverage_by_width"]))  # fmt: skip
+    cells = np.asarray(rows)
+    inside = (cells >= BAND[0]) & (cells <= BAND[1])
+    spread = zip(cells.min(axis=0), cells.mean(axis=0), cells.max(axis=0))
+    per_fifth = "; ".join(f"{a:.3f} / {m:.3f} / {b:.3f}" for a, m, b in spread)
+    print(f"  per fifth over the seeds, min / mean / max: {per_fifth}")
+    print(f"  cells in {BAND[0]:.0%}-{BAND[1]:.0%}: {int(inside.sum())} of {inside.size}; seeds with all five in it: "
+          f"{int(inside.all(axis=1).sum())} of {len(rows)}")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("study", help="a finished 'nanoct reproduce --preset ...' folder (data, runs)")
@@ -54,6 +92,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--level", default="0.9")
     parser.add_argument("--work", required=True)
+    parser.add_argument("--fresh", type=int, default=0, help="also score on this many fresh test images")
+    parser.add_argument("--fresh-seed", type=int, default=2_000_000, help="their data-set seed")
     args = parser.parse_args()
     study, work = Path(args.study), Path(args.work)
     source, model, _ = parse_name(args.row)
@@ -61,12 +101,13 @@ def main() -> None:
         raise SystemExit(f"--row {args.row!r} must name a prediction, <input>+<model>")
     study_run = study / "runs" / f"{model}-{source}"
     config = json.loads((study_run / "config.json").read_text())
-    sampling = json.loads((study_run / "calibration.json").read_text())["best"]["reconstruct"]
+    calibration = study / "calibration"
+    calibrate = ["--calibrate-on", calibration] if (calibration / "zarr.json").is_file() else []
+    fit = "best@" + str(calibration.resolve()) if calibrate else "best"  # the key of the study's fit
+    sampling = json.loads((study_run / "calibration.json").read_text())[fit]["reconstruct"]
     data = work / "data"
     if not (data / "zarr.json").is_file():
         shutil.copytree(study / "data", data)
-    calibration = study / "calibration"
-    calibrate = ["--calibrate-on", calibration] if (calibration / "zarr.json").is_file() else []
     flags = ["--samples", sampling["n_samples"], *calibrate] + (["--antithetic"] if sampling.get("antithetic") else [])
     start = time.perf_counter()
     names = []
@@ -81,22 +122,12 @@ def main() -> None:
         name = f"{args.row}-s{seed}"
         cli("predict", data, "--run", run_dir, *flags, "--name", name, "-q")
         names.append(name)
-    scores = evaluate_store(DataStore.open(data), "test", names)
-    rows = []
-    print(f"{args.row}, test split, {float(args.level):.0%} intervals (support: object fifths, narrowest first)")
-    for name in names:
-        r = scores[name]["uncertainty"]
-        sup, every = r["support"]["intervals"][args.level], r["all"]["intervals"][args.level]
-        rows.append(sup["coverage_by_width"])
-        print(f"  {name}: PSNR {scores[name]['psnr_mean']:.2f}, all {every['coverage']:.3f}, support "
-              f"{sup['coverage']:.3f}, fifths " + " / ".join(f"{c:.3f}" for c in sup["coverage_by_width"]))  # fmt: skip
-    cells = np.asarray(rows)
-    inside = (cells >= BAND[0]) & (cells <= BAND[1])
-    spread = zip(cells.min(axis=0), cells.mean(axis=0), cells.max(axis=0))
-    per_fifth = "; ".join(f"{a:.3f} / {m:.3f} / {b:.3f}" for a, m, b in spread)
-    print(f"  per fifth over the seeds, min / mean / max: {per_fifth}")
-    print(f"  cells in {BAND[0]:.0%}-{BAND[1]:.0%}: {int(inside.sum())} of {inside.size}; seeds with all five in it: "
-          f"{int(inside.all(axis=1).sum())} of {len(rows)}")  # fmt: skip
+    report(DataStore.open(data), names, args.level, f"{args.row}, test split")
+    if args.fresh:
+        fresh = fresh_test_set(DataStore.open(data), work / "fresh", args.fresh, args.fresh_seed, source)
+        for seed, name in enumerate(names):
+            cli("predict", fresh.path, "--run", work / f"run{seed}", *flags, "--name", name, "-q")
+        report(fresh, names, args.level, f"{args.row}, {fresh.n} fresh test images (data-set seed {args.fresh_seed})")
     print(f"total {time.perf_counter() - start:.0f} s")
 
 
