@@ -40,12 +40,20 @@ from nanoct.sim.generate import generate_dataset
 from nanoct.sim.simulate import SimulationConfig
 
 
-def fresh_set(study: DataStore, work: Path, n: int, seed: int, inputs: dict[str, tuple[str, dict]]) -> DataStore:
-    """``n`` validation-only samples of the study's geometry and simulation under ``seed``, reconstructed."""
+def fresh_set(
+    study: DataStore,
+    work: Path,
+    n: int,
+    seed: int,
+    inputs: dict[str, tuple[str, dict]],
+    split_fractions: tuple[float, float, float] = (0.0, 1.0, 0.0),
+) -> DataStore:
+    """``n`` samples of the study's geometry and simulation under ``seed`` (validation-only unless
+    ``split_fractions`` says otherwise), reconstructed by ``inputs`` (name: method, parameters); resumable."""
     if seed == study.seed:
         raise SystemExit(f"--seed {seed} is the study's own data-set seed; choose another")
     config = SimulationConfig.from_dict(study.meta["simulation"])
-    generate_dataset(work, study.geometry, n, seed=seed, config=config, split_fractions=(0.0, 1.0, 0.0), workers=0)
+    generate_dataset(work, study.geometry, n, seed=seed, config=config, split_fractions=split_fractions, workers=0)
     for name, (method, params) in inputs.items():
         reconstruct_dataset(work, method, params=params, name=name, workers=0)
     return DataStore.open(work)

@@ -31,15 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from cli_run import cli
+from coverage_calibration_set import fresh_set
+from coverage_resplit import BAND
 from nanoct.evaluation.evaluate import evaluate_store
 from nanoct.io.store import DataStore
 from nanoct.names import parse_name
-from nanoct.recon.batch import reconstruct_dataset
-from nanoct.sim.generate import generate_dataset
-from nanoct.sim.simulate import SimulationConfig
 from nanoct.study.config import calibration_seed
-
-BAND = (0.87, 0.93)
 
 
 def train_arguments(config: dict) -> list[str]:
@@ -51,18 +48,6 @@ def train_arguments(config: dict) -> list[str]:
         if key != "seed":
             args += ["--param", f"{key}={json.dumps(value)}"]
     return [str(a) for a in args]
-
-
-def fresh_test_set(data: DataStore, work: Path, n: int, seed: int, source: str) -> DataStore:
-    """``n`` test-only samples of the study's geometry and simulation under ``seed``, reconstructed by ``source``
-    with the study's parameters (resumable)."""
-    if seed in (data.seed, calibration_seed(data.seed)):
-        raise SystemExit(f"--fresh-seed {seed} is the study's data-set or calibration-set seed; choose another")
-    config = SimulationConfig.from_dict(data.meta["simulation"])
-    generate_dataset(work, data.geometry, n, seed=seed, config=config, split_fractions=(0.0, 0.0, 1.0), workers=0)
-    params = dict(data.reconstruction_params(source))
-    reconstruct_dataset(work, params.pop("method"), params=params, name=source, workers=0)
-    return DataStore.open(work)
 
 
 def report(store: DataStore, names: list[str], level: str, title: str) -> None:
@@ -101,10 +86,9 @@ def main() -> None:
         raise SystemExit(f"--row {args.row!r} must name a prediction, <input>+<model>")
     study_run = study / "runs" / f"{model}-{source}"
     config = json.loads((study_run / "config.json").read_text())
+    sampling = DataStore.open(study / "data").reconstruction_params(args.row)["reconstruct"]  # the study's draws
     calibration = study / "calibration"
     calibrate = ["--calibrate-on", calibration] if (calibration / "zarr.json").is_file() else []
-    fit = "best@" + str(calibration.resolve()) if calibrate else "best"  # the key of the study's fit
-    sampling = json.loads((study_run / "calibration.json").read_text())[fit]["reconstruct"]
     data = work / "data"
     if not (data / "zarr.json").is_file():
         shutil.copytree(study / "data", data)
@@ -124,7 +108,12 @@ def main() -> None:
         names.append(name)
     report(DataStore.open(data), names, args.level, f"{args.row}, test split")
     if args.fresh:
-        fresh = fresh_test_set(DataStore.open(data), work / "fresh", args.fresh, args.fresh_seed, source)
+        store = DataStore.open(data)
+        if args.fresh_seed == calibration_seed(store.seed):
+            raise SystemExit(f"--fresh-seed {args.fresh_seed} is the study's calibration-set seed; choose another")
+        params = dict(store.reconstruction_params(source))
+        inputs = {source: (params.pop("method"), params)}
+        fresh = fresh_set(store, work / "fresh", args.fresh, args.fresh_seed, inputs, split_fractions=(0.0, 0.0, 1.0))
         for seed, name in enumerate(names):
             cli("predict", fresh.path, "--run", work / f"run{seed}", *flags, "--name", name, "-q")
         report(fresh, names, args.level, f"{args.row}, {fresh.n} fresh test images (data-set seed {args.fresh_seed})")
