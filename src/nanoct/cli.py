@@ -1369,8 +1369,8 @@ def export(
     if interval is not None:
         from .learn.calibration import half_width
 
-        std = store.read_uncertainty(name, idx)
-        images = half_width(store.reconstruction_params(name), std, interval, guaranteed).astype("float32")
+        std, mean = store.read_uncertainty(name, idx), store.read_reconstruction(name, idx)
+        images = half_width(store.reconstruction_params(name), std, interval, guaranteed, mean=mean).astype("float32")
         content = f"half-width of the {interval:g} interval"
     elif std:
         images, content = store.read_uncertainty(name, idx), "std"

@@ -21,12 +21,13 @@ from nanoct.evaluation.conformal import (
     group_labels,
     support_of,
 )
-from nanoct.evaluation.metrics import truth_support
+from nanoct.evaluation.metrics import interval_scores, support_mask, truth_support
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
     CALIBRATION_FORMAT,
     calibrate,
+    fit_intervals,
     half_width,
     load_calibration,
 )
@@ -90,21 +91,21 @@ def _order_statistic(scores: np.ndarray, key: str) -> float:
     return float(ratio[int(np.ceil((ratio.size + 1) * float(key))) - 1])
 
 
-def _check_groups(entry, err, std, gts):
-    """The support rule and the object's std fifths, recomputed by hand; returns the pixels' groups."""
+def _check_groups(entry, err, std, mean, gts):
+    """The support rule (on the mean) and the object's std fifths, recomputed by hand; returns the pixels' groups."""
     from scipy import ndimage
 
     rule, cuts = entry["support"], entry["cuts"]
-    assert rule["source"] == "std" and rule["radius"] == 2 and rule["fill"] is True
+    assert rule["source"] == "mean" and rule["radius"] == 2 and rule["fill"] is True
     disk = np.add.outer(np.arange(-2, 3) ** 2, np.arange(-2, 3) ** 2) <= 4
 
     def support_at(t):
-        return np.stack([ndimage.binary_dilation(ndimage.binary_fill_holes(s > t), structure=disk) for s in std])
+        return np.stack([ndimage.binary_dilation(ndimage.binary_fill_holes(m > t), structure=disk) for m in mean])
 
     support = support_at(rule["threshold"])
     truth = np.stack([ndimage.binary_dilation(g > 0, structure=disk) for g in gts])
     iou = (support & truth).sum() / (support | truth).sum()
-    for t in np.quantile(std, np.linspace(0.5, 0.995, 64)):  # the threshold of the best match
+    for t in np.quantile(mean, np.linspace(0.5, 0.995, 64)):  # the threshold of the best match
         other = support_at(t)
         assert (other & truth).sum() / (other | truth).sum() <= iou + 1e-12
     np.testing.assert_allclose(cuts, np.quantile(std[support], [0.2, 0.4, 0.6, 0.8]), rtol=1e-5)
@@ -120,20 +121,21 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 11 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 12 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
     model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
-    errs, stds = [], []
+    means, stds = [], []
     for i in val:
         x = torch.from_numpy(store.read_reconstruction("fbp", [i]))[:, None]
         mean, std = model.reconstruct(x, n_samples=4, seed=int(i))
-        errs.append(np.abs(mean[0, 0].numpy().astype(np.float64) - store.read_phantoms([i])[0]))
+        means.append(mean[0, 0].numpy().astype(np.float64))
         stds.append(std[0, 0].numpy().astype(np.float64))
-    err, std = np.stack(errs), np.stack(stds)
+    mean, std = np.stack(means), np.stack(stds)
+    err = np.abs(mean - store.read_phantoms(val))
     assert list(entry["levels"]) == ["0.68", "0.9", "0.95"]
-    labels = _check_groups(entry, err, std, store.read_phantoms(val))
+    labels = _check_groups(entry, err, std, mean, store.read_phantoms(val))
     for key, fit in entry["levels"].items():
         pooled = fit["pooled"]  # the one-multiplier calibration, kept for comparison
         ref = fit_width_map(err, std, float(key))
@@ -222,8 +224,9 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
     np.testing.assert_array_equal(stored, raw)
     np.testing.assert_array_equal(store.read_reconstruction(name, test), store.read_reconstruction("raw", test))
     groups = params["calibration"]["levels"]["0.9"]["groups"]
-    for one_raw, one_stored in zip(raw, stored):  # within each group the delivered map ranks as the raw std
-        half, labels = half_width(params, one_stored, 0.9), group_labels(one_stored, groups)
+    means = store.read_reconstruction(name, test)
+    for one_raw, one_stored, one_mean in zip(raw, stored, means):  # within each group the map ranks as the raw std
+        half, labels = half_width(params, one_stored, 0.9, mean=one_mean), group_labels(one_stored, groups, one_mean)
         for g in np.unique(labels):
             if (labels == g).sum() > 2:
                 rho = spearmanr(one_raw[labels == g], half[labels == g]).statistic
@@ -233,7 +236,7 @@ def test_predict_stores_the_raw_std_and_the_calibration(setup, tmp_path):
 
     out = str(tmp_path / "hw.npy")
     assert cli(["export", str(path), "--name", name, "--out", out, "--split", "test", "--interval", "0.9"]) == 0
-    np.testing.assert_allclose(np.load(tmp_path / "hw.npy"), half_width(params, stored, 0.9), rtol=1e-6)
+    np.testing.assert_allclose(np.load(tmp_path / "hw.npy"), half_width(params, stored, 0.9, mean=means), rtol=1e-6)
     assert cli(["export", str(path), "--name", "raw", "--out", str(tmp_path / "x.npy"), "--interval", "0.9"]) == 2
     ood = store.reconstruction_note(name, "ood")
     assert set(ood["p_values"]) == {str(int(i)) for i in test} and store.reconstruction_note("raw", "ood") is None
@@ -352,6 +355,40 @@ def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):
     with pytest.raises(NanoctError, match="--no-calibrate switches off"):
         predict(path, run, progress=False, reconstruct_kwargs=M, calibrate_on=no_val, calibrate=False)
     assert not any(n.startswith("fbp+") for n in DataStore.open(path).reconstruction_names())
+
+
+def _confident_objects(rng: np.random.Generator, n: int, size: int = 32):
+    """Means, stds and truths of images with a bright disc and a faint one that the network is as sure of
+    as of the background (its std is the background's), with errors of the std's size on the objects and
+    a tenth of it on the background."""
+    yy, xx = np.mgrid[:size, :size]
+    means, stds, gts = [], [], []
+    for _ in range(n):
+        cy, cx = rng.uniform(10, 22, 2)
+        r = np.hypot(yy - cy, xx - cx)
+        big, faint = r <= 7, np.hypot(yy - (cy + 14) % size, xx - (cx + 14) % size) <= 3.5
+        gt = np.where(big, 1.0, np.where(faint, 0.3, 0.0))
+        std = np.where(big, 0.02 + 0.03 * (r > 5), 0.002)
+        means.append(gt + np.where(big | faint, std, 0.1 * std) * rng.standard_normal(gt.shape))
+        stds.append(std)
+        gts.append(gt)
+    return np.array(means), np.array(stds), np.array(gts)
+
+
+def test_the_default_support_on_the_mean_keeps_a_confident_object_out_of_the_background():
+    """A faint object with the background's std is background to a support on the std, and its pixels fill
+    the object's narrow width fifths uncovered; on the mean (the default) every fifth holds its level."""
+    rng = np.random.default_rng(0)
+    cal, (mean, std, gt) = _confident_objects(rng, 60), _confident_objects(rng, 60)
+    fifths = {}
+    for source in ("std", None):
+        chosen = {} if source is None else {"support_source": source}
+        fit = fit_intervals(*cal, levels=(0.9,), **chosen)
+        half = half_width({"calibration": fit}, std, 0.9, mean=mean)
+        fifths[source] = interval_scores(mean - gt, half, support_mask(gt))["coverage_by_width"]
+    assert fit["support"]["source"] == "mean"
+    assert all(0.87 <= c <= 0.93 for c in fifths[None]), fifths[None]
+    assert min(fifths["std"]) < 0.8, fifths["std"]
 
 
 def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_view(tmp_path, tiny_store):

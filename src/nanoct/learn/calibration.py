@@ -4,8 +4,8 @@ The std of a conditional invertible network (over M latent samples) ranks the pi
 uncertain they are, but its scale is rarely right. Per run and checkpoint, on the validation
 split of the data set and input the network was trained on (the test split is never read), the
 pixels are put in groups computable at prediction time (the background, and the five std fifths
-of the object's support, the support being the std above a threshold with its holes filled,
-dilated by 2 px), and per interval level a strictly increasing width map of the std per region
+of the object's support, the support being the network's mean above a threshold with its holes
+filled, dilated by 2 px), and per interval level a strictly increasing width map of the std per region
 and a split-conformal multiplier per group are fitted (:func:`fit_intervals`,
 :func:`nanoct.evaluation.conformal.fit_group_intervals`): the interval of level ``p`` at a pixel
 of group G is ``mean +- q_{p,G} * g_{p,R}(std)``, with the guarantee stated per group (coverage
@@ -97,10 +97,12 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 11
+CALIBRATION_FORMAT = 12
 #: What the prediction-time support of the group-conditional calibration is computed from.
 SUPPORT_SOURCES = ("std", "mean", "relative")
-DEFAULT_SUPPORT_SOURCE = "std"
+#: The mean: a network sure of an object (small std inside it) still shows it in its mean, so the
+#: object's pixels are not left in the background group (``docs/uncertainty.md``).
+DEFAULT_SUPPORT_SOURCE = "mean"
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
 
@@ -281,9 +283,10 @@ def fit_intervals(
     The delivered intervals are group-conditional (Mondrian) split-conformal intervals
     (:func:`nanoct.evaluation.conformal.fit_group_intervals`): the groups are the background and
     the five equal-count std bins (fifths) of the object's support, the support as seen at
-    prediction time (``support_source``: the std or the mean above a threshold, dilated by 2 px;
-    the threshold is the one whose support best matches the validation images' true support), the
-    fifths' std cut points those of the validation support. Per level and group: a width map per
+    prediction time (``support_source``: the mean (default) or the std above a threshold, its holes
+    filled with ``fill_holes``, dilated by 2 px; the threshold is the one whose support best
+    matches the validation images' true support), the fifths' std cut points those of the
+    validation support. Per level and group: a width map per
     region and a split-conformal multiplier, with each group's guarantee (its coverage at least
     the level for exchangeable pixels of the group; the per-image coverage of its pixels that holds
     with probability ``1 - delta``). Next to them, for comparison, the pooled calibration of
