@@ -106,9 +106,9 @@ def main() -> None:
         name = f"{args.row}-s{seed}"
         cli("predict", data, "--run", run_dir, *flags, "--name", name, "-q")
         names.append(name)
-    report(DataStore.open(data), names, args.level, f"{args.row}, test split")
+    store = DataStore.open(data)
+    report(store, names, args.level, f"{args.row}, test split")
     if args.fresh:
-        store = DataStore.open(data)
         if args.fresh_seed == calibration_seed(store.seed):
             raise SystemExit(f"--fresh-seed {args.fresh_seed} is the study's calibration-set seed; choose another")
         params = dict(store.reconstruction_params(source))

@@ -5,8 +5,8 @@ uncertain they are, but its scale is rarely right. Per run and checkpoint, on th
 split of the data set and input the network was trained on (the test split is never read), the
 pixels are put in groups computable at prediction time (the background, and the five std fifths
 of the object's support, the support being the network's mean above a threshold with its holes
-filled, dilated by 2 px), and per interval level a strictly increasing width map of the std per region
-and a split-conformal multiplier per group are fitted (:func:`fit_intervals`,
+filled, dilated by 2 px), and per interval level a strictly increasing width map of the std per
+region and a split-conformal multiplier per group are fitted (:func:`fit_intervals`,
 :func:`nanoct.evaluation.conformal.fit_group_intervals`): the interval of level ``p`` at a pixel
 of group G is ``mean +- q_{p,G} * g_{p,R}(std)``, with the guarantee stated per group (coverage
 at least ``p`` for exchangeable pixels of the group; the per-image coverage that holds with
@@ -286,8 +286,8 @@ def fit_intervals(
     prediction time (``support_source``: the mean (default) or the std above a threshold, its holes
     filled with ``fill_holes``, dilated by 2 px; the threshold is the one whose support best
     matches the validation images' true support), the fifths' std cut points those of the
-    validation support. Per level and group: a width map per
-    region and a split-conformal multiplier, with each group's guarantee (its coverage at least
+    validation support. Per level and group: a width map per region and a split-conformal
+    multiplier, with each group's guarantee (its coverage at least
     the level for exchangeable pixels of the group; the per-image coverage of its pixels that holds
     with probability ``1 - delta``). Next to them, for comparison, the pooled calibration of
     earlier versions (``pooled``: one width map and one multiplier for all pixels). Also the edge
