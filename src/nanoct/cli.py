@@ -514,7 +514,8 @@ def predict(
     applied to another input than it was trained on (the paper's input-mixing tables). The
     stored std of invertible nets is the network's own; intervals mean +- multiplier x g(std),
     one multiplier per level and group (background, and the five std fifths of the object's
-    support; for measured references the background split at the sample's footprint), are fitted
+    support as the network's mean shows it; for measured references the background split at the
+    sample's footprint), are fitted
     once on the validation split of the data it was trained on (group-conditional split
     conformal, with the coverage guaranteed with probability 90 %) and stored with the result
     (export them with 'nanoct export --interval'); --calibrate-on fits them on another data
