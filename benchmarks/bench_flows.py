@@ -36,8 +36,11 @@ def _old(name: str) -> dict[str, Any]:
     return dict(OLD[name.removesuffix("-res")])
 
 
-def bench_train(name: str, kwargs: dict[str, Any], size: int, batch: int, repeat: int, bf16: bool = False) -> float:
-    """Median seconds of one training step (``bf16``: the forward pass under bfloat16 autocast)."""
+def bench_train(
+    name: str, kwargs: dict[str, Any], size: int, batch: int, repeat: int, bf16: bool = False, compile: bool = False
+) -> float:
+    """Median seconds of one training step (``bf16``: the forward pass under bfloat16 autocast; ``compile``: the
+    loss through ``torch.compile``, compiled in the warm-up step)."""
     torch.manual_seed(0)
     model = build_model(name, **kwargs).to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
@@ -47,11 +50,12 @@ def bench_train(name: str, kwargs: dict[str, Any], size: int, batch: int, repeat
     model.train()
     if hasattr(model, "data_init"):  # the flows' data-dependent ActNorm start
         model.data_init(x_tilde, x)
+    loss_fn = torch.compile(model.loss) if compile else model.loss
 
     def step() -> None:
         opt.zero_grad(set_to_none=True)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            loss, _ = model.loss(x_tilde, x)
+            loss, _ = loss_fn(x_tilde, x)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
