@@ -177,35 +177,55 @@ def coverage(
     return out
 
 
+def matched_set(work: Path, n: int, mix: str, hold: list[str], times: dict[str, float]) -> Path:
+    """``nanoct stack`` of the moved scan, ``nanoct generate --like`` it (``n`` samples, ``--mix``, ``hold``: the
+    ``--hold-out`` arguments or none) and Dremel on every split of that matched set; the set's path."""
+    moved, matched = work / "moved", work / "matched"
+    times["stack"] = cli("stack", moved, "-w", 2, "-q")
+    times["generate"] = cli("generate", "--like", moved, "--bin", BIN, "--n", n, "--out", matched,
+                             "--split-fractions", "0.85,0.14,0.01", "--mix", mix, *hold, "-q")  # fmt: skip
+    times["dremel (matched set)"] = cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
+    return matched
+
+
+def train_ciunet(matched: Path, run: Path, epochs: int, precision: str, seed: int) -> float:
+    """``nanoct train`` of CiUNetRes on (Dremel, phantom) of the matched set with the tiny study's settings; seconds."""
+    return cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs", epochs, "--precision",
+               precision, "--out", run, "-q", "--seed", seed, *CIUNET)  # fmt: skip
+
+
+def binned_scan(work: Path, times: dict[str, float]) -> Path:
+    """The moved scan binned into a data set of the matched set's geometry (made once), and its Dremel; its path."""
+    real = work / "moved_bin2"
+    if not (real / "zarr.json").is_file():
+        g = DataStore.open(work / "matched").geometry
+        sinos = bin_sinograms(DataStore.open(work / "moved").read_array("sinograms", range(135)), BIN)
+        create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
+    times["dremel (scan)"] = cli("reconstruct", real, "--method", "dremel", "-q")
+    return real
+
+
 def train_and_predict(work: Path, args: argparse.Namespace, times: dict[str, float]) -> dict[str, str]:
     """Generate the matched set, train both networks, predict the binned moved scan; the result names."""
-    moved, real, matched = work / "moved", work / "moved_bin2", work / "matched"
-    times["stack"] = cli("stack", moved, "-w", 2, "-q")
     hold = ["--hold-out", held_out_rows(args.slices)] if args.hold_out else []
-    times["generate"] = cli("generate", "--like", moved, "--bin", BIN, "--n", args.n, "--out", matched,
-                             "--split-fractions", "0.85,0.14,0.01", "--mix", args.mix, *hold, "-q")  # fmt: skip
-    times["dremel (matched set)"] = cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
+    matched = matched_set(work, args.n, args.mix, hold, times)
     runs = {"unet": work / "run_unet", "unet-res": work / "run_unet_res", "ciunet-res": work / "run_ciunet"}
     seed = ["--seed", args.train_seed]
     for key, extra in (("unet", UNET), ("unet-res", UNET_RES)):
         times[f"train {key}"] = cli("train", matched, "--model", "unet", "--input", "dremel", "--epochs",
                                      args.epochs_unet, "--precision", args.precision, "--out", runs[key], "-q", *seed,
                                      *extra)  # fmt: skip
-    times["train ciunet-res"] = cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs",
-                                     args.epochs_ciunet, "--precision", args.precision, "--out", runs["ciunet-res"],
-                                     "-q", *seed, *CIUNET)  # fmt: skip
-    g = DataStore.open(matched).geometry
-    sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), BIN)
-    if not (real / "zarr.json").is_file():
-        create_scan(real, g, sinos, {"file": "I13 24737 with added motion, binned 2", "format": "npy"})
-    times["dremel (scan)"] = cli("reconstruct", real, "--method", "dremel", "-q")
+    times["train ciunet-res"] = train_ciunet(matched, runs["ciunet-res"], args.epochs_ciunet, args.precision,
+                                             args.train_seed)  # fmt: skip
+    real = binned_scan(work, times)
     times["predict unet"] = cli("predict", real, "--run", runs["unet"], "-q")
     times["predict unet-res"] = cli("predict", real, "--run", runs["unet-res"], "--name", "dremel+unet-res", "-q")
     # the scan's own measured pairs (its views, the stack's motion undone, a drawn motion added; its FBP as
     # reference): a second calibration of the same predictions, on the scan itself
     pairs = work / "pairs"
-    times["generate pairs"] = cli("generate", "--like", moved, "--bin", BIN, "--mix", "0,0,0,1", "--n", args.n_pairs,
-                                   "--split-fractions", "0,1,0", "--seed", 1, "--out", pairs, "-q")  # fmt: skip
+    times["generate pairs"] = cli("generate", "--like", work / "moved", "--bin", BIN, "--mix", "0,0,0,1", "--n",
+                                   args.n_pairs, "--split-fractions", "0,1,0", "--seed", 1, "--out", pairs,
+                                   "-q")  # fmt: skip
     times["dremel (pairs)"] = cli("reconstruct", pairs, "--method", "dremel", "--split", "all", "-q")
     times["predict pairs"] = cli("predict", pairs, "--run", runs["ciunet-res"], "--split", "val", "--samples", 16,
                                   "--antithetic", "-q")  # fmt: skip

@@ -26,33 +26,20 @@ import numpy as np
 
 import semireal_networks as sr
 from cli_run import cli
-from nanoct.io.store import DataStore, create_scan
+from nanoct.io.store import DataStore
 from nanoct.learn.calibration import fit_intervals, half_width
-from nanoct.sim.scan_stats import bin_sinograms
 
 NAME = "dremel+ciunet-res"
 
 
 def prepare(work: Path, args: argparse.Namespace, proj: np.ndarray, angles: np.ndarray) -> dict[str, float]:
-    """The stores, the network and its predictions (each step a CLI command); their seconds."""
-    moved_p = sr.move(proj, *sr.known_motion(proj.shape[0]))
-    sr.build_stores(work, proj, moved_p, angles)
-    moved, real, matched, run = work / "moved", work / "moved_bin2", work / "matched", work / "run_ciunet"
-    t = {"stack": cli("stack", moved, "-w", 2, "-q")}
-    t["generate"] = cli("generate", "--like", moved, "--bin", sr.BIN, "--n", args.n, "--out", matched,
-                        "--split-fractions", "0.85,0.14,0.01", "--mix", "0.4,0.2,0.4", "-q")  # fmt: skip
-    t["dremel (matched set)"] = cli("reconstruct", matched, "--method", "dremel", "--split", "all", "-q")
-    t["train"] = cli("train", matched, "--model", "ciunet-res", "--input", "dremel", "--epochs", args.epochs,
-                     "--precision", "auto", "--out", run, "-q", "--seed", args.seed, *sr.CIUNET)  # fmt: skip
-    if not (real / "zarr.json").is_file():
-        sinos = bin_sinograms(DataStore.open(moved).read_array("sinograms", range(135)), sr.BIN)
-        create_scan(
-            real,
-            DataStore.open(matched).geometry,
-            sinos,
-            {"file": "I13 24737 with added motion, binned 2", "format": "npy"},
-        )
-    t["dremel (scan)"] = cli("reconstruct", real, "--method", "dremel", "-q")
+    """The stores, the network and its predictions (each step a CLI command, as ``semireal_networks.py`` runs it);
+    their seconds."""
+    sr.build_stores(work, proj, sr.move(proj, *sr.known_motion(proj.shape[0])), angles)
+    t: dict[str, float] = {}
+    matched, run = sr.matched_set(work, args.n, "0.4,0.2,0.4", [], t), work / "run_ciunet"
+    t["train"] = sr.train_ciunet(matched, run, args.epochs, "auto", args.seed)
+    real = sr.binned_scan(work, t)
     sampling = ("--samples", 16, "--antithetic", "-q")
     t["calibrate"] = cli("predict", matched, "--run", run, "--split", "val", *sampling)
     t["predict"] = cli("predict", real, "--run", run, *sampling)
@@ -68,7 +55,8 @@ def scored(work: Path, proj: np.ndarray, angles: np.ndarray, slices: list[int]) 
     mean, std = store.read_reconstruction(NAME, slices), store.read_uncertainty(NAME, slices)
     refs, g_ref = sr.reference(proj, angles, matched.geometry)
     noise, disc = sr.reference_noise(proj, g_ref), sr.fov(g_ref)
-    shifts = [sr.score(mean[i], refs[s], disc)["shift"] for i, s in enumerate(slices)]
+    scores = [sr.score(mean[i], refs[s], disc) for i, s in enumerate(slices)]
+    objs = [sr.object_mask(refs[s], disc) for s in slices]
     out = {}
     for source in ("std", "mean"):
         hw = half_width({"calibration": fit_intervals(vm, vs, gts, levels=(0.9,), support_source=source)}, std, 0.9,
@@ -77,8 +65,7 @@ def scored(work: Path, proj: np.ndarray, angles: np.ndarray, slices: list[int]) 
             hw, half_width(store.reconstruction_params(NAME), std, 0.9, mean=mean)
         ):
             raise SystemExit("the delivered intervals differ from the mean's refit")
-        cov = [sr.coverage(mean[i], hw[i], refs[s], disc, shifts[i], noise[s]) for i, s in enumerate(slices)]
-        objs = [sr.object_mask(refs[s], disc) for s in slices]
+        cov = [sr.coverage(mean[i], hw[i], refs[s], disc, scores[i]["shift"], noise[s]) for i, s in enumerate(slices)]
         out[source] = {
             "object": float(np.mean([c["object_reg"] for c in cov])),
             "background": float(np.mean([c["background_reg"] for c in cov])),
@@ -87,8 +74,7 @@ def scored(work: Path, proj: np.ndarray, angles: np.ndarray, slices: list[int]) 
             "object_per_slice": [round(c["object_reg"], 3) for c in cov],
         }
     dremel = store.read_reconstruction("dremel", slices)
-    gain = [sr.score(mean[i], refs[s], disc)["psnr_reg"] - sr.score(dremel[i], refs[s], disc)["psnr_reg"]
-            for i, s in enumerate(slices)]  # fmt: skip
+    gain = [scores[i]["psnr_reg"] - sr.score(dremel[i], refs[s], disc)["psnr_reg"] for i, s in enumerate(slices)]
     out["psnr_gain_registered"] = {"mean": float(np.mean(gain)), "worst": min(gain), "best": max(gain)}
     return out
 
