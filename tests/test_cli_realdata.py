@@ -93,6 +93,34 @@ def test_dremel_keeps_its_start_where_the_shift_estimate_runs_away(tmp_path, cap
     assert run(["reconstruct", str(tmp_path / "k"), "--method", "dremel", "-w", "0", "-q"]) == 0
     err = capsys.readouterr().err
     assert "3 of 3 slices of the joint motion: Dremel's shift estimate rejected" in err and "(6.5 px)" in err
+    assert "warning: 3 sample(s) of dremel (0-2) kept their start shifts; sample " in err  # each slice's refinement
     store = DataStore.open(tmp_path / "k")
     np.testing.assert_array_equal(store.read_shifts("dremel", range(store.n)), 0.0)
     assert np.isfinite(store.read_reconstruction("dremel")).all()
+
+
+def test_a_rejected_slice_stays_pending_until_it_is_noted(tmp_path, capsys, monkeypatch):
+    """A run stopped after a slice was written but before its rejection was noted redoes that slice: the note
+    counts every rejected slice once, over the stopped run and the resumed one."""
+    import nanoct.recon.batch as batch
+
+    nxs = REAL / "k11-18014-nexus" / "k11-18014.nxs"
+    assert run(["import", str(nxs), "--rows", "8:11", "--out", str(tmp_path / "k"), "-q"]) == 0
+    noted = batch.record_shift_check
+
+    def stop_at_the_second(store, name, outcome):
+        if outcome[0] == 1:
+            raise KeyboardInterrupt
+        noted(store, name, outcome)
+
+    monkeypatch.setattr(batch, "record_shift_check", stop_at_the_second)
+    argv = ["reconstruct", str(tmp_path / "k"), "--method", "dremel", "-w", "0", "-q"]
+    assert run(argv) == 130  # interrupted
+    store = DataStore.open(tmp_path / "k")
+    assert store.reconstruction_done("dremel").tolist() == [True, False, False]
+    assert store.reconstruction_note("dremel", "sample_shift_check")["samples"] == [0]
+    monkeypatch.setattr(batch, "record_shift_check", noted)
+    capsys.readouterr()
+    assert run(argv) == 0
+    assert "warning: 3 sample(s) of dremel (0-2) kept their start shifts" in capsys.readouterr().err
+    assert DataStore.open(tmp_path / "k").reconstruction_note("dremel", "sample_shift_check")["samples"] == [0, 1, 2]

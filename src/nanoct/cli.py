@@ -329,11 +329,11 @@ def reconstruct(
     """Reconstruct every sample of a split into reconstructions/<name> (resumable).
 
     Dremel on measured data keeps a slice's shifts at their start where its estimate runs away
-    (a shift of more than a quarter of the detector); a joint motion with such slices is
-    reported as a warning.
+    (a shift of more than a quarter of the detector); a joint motion with such slices, and the
+    samples so kept (counted over resumed runs), are reported as warnings.
     """
     from .io.store import DataStore
-    from .recon.batch import reconstruct_dataset
+    from .recon.batch import reconstruct_dataset, shift_check_warning
 
     params = _parse_params(param)
     if method_spec(method).needs_eta:
@@ -356,11 +356,14 @@ def reconstruct(
         progress=not quiet,
     )
     typer.echo(f"wrote reconstructions/{written}")
-    recons = DataStore.open(directory).recons
+    store = DataStore.open(directory)
     for key, label in (("shifts_axis", "note"), ("shift_check", "warning")):
-        text = recons.note(written, key)
+        text = store.recons.note(written, key)
         if text:
             typer.echo(f"{label}: {text}", err=True)
+    text = shift_check_warning(store, written)
+    if text:
+        typer.echo(f"warning: {text}", err=True)
 
 
 @app.command()
@@ -1122,8 +1125,8 @@ def stack(
     block, resumable by block; docs/commands.md). Given a scan file and --store, imports it first
     with the reading and correction options of 'nanoct import' (--format, --angles, --data-path,
     --open-beam, --stripes ...; the axis is then estimated here, not at import).
-    Ends with a summary: the axis and how it was found, the range of the motion, and where the
-    slices are.
+    Ends with a summary: the axis and how it was found, the range of the motion, where the
+    slices are, and the slices whose Dremel refinement ran away (they keep the stack's motion).
     """
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
@@ -1290,6 +1293,11 @@ def _stack_summary(store: Any, name: str) -> str:
         f"  slices   {done} of {store.n} in {store.path}/reconstructions/{name}; "
         f"nanoct export {store.path} --name {name} --out slices.tif"
     )
+    from .recon.batch import shift_check_warning
+
+    kept = shift_check_warning(store, name, unit="slice")
+    if kept:
+        lines.append(f"  warning  {kept}")
     return "\n".join(lines)
 
 

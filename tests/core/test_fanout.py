@@ -30,3 +30,17 @@ def test_worker_processes_get_their_share_of_numba_threads(tmp_path):
     expected = worker_threads(2)
     for i in (0, 1):
         assert (tmp_path / str(i)).read_text() == f"{expected} {expected}"
+
+
+def test_on_result_gets_every_return_value_in_this_process():
+    got: list[int] = []
+    assert run_tasks(lambda i: i * i, [3, 1, 2], workers=0, progress=False, on_result=got.append) == 3
+    assert got == [9, 1, 4]
+    assert run_tasks(lambda i: i, [], workers=0, progress=False, on_result=got.append) == 0 and got == [9, 1, 4]
+
+
+@pytest.mark.slow
+def test_on_result_gets_the_dask_workers_return_values():
+    got: list[int] = []
+    assert run_tasks(abs, [-3, 1, -2], workers=2, progress=False, on_result=got.append) == 3
+    assert sorted(got) == [1, 2, 3]

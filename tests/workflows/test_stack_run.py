@@ -148,3 +148,26 @@ def test_stack_gridrec_matches_the_back_projection_and_records_its_engine(store,
     with pytest.raises(NanoctError, match="pip install finufft"):
         reconstruct_stack(store, method="gridrec", name="nothing", workers=0, progress=False)
     assert "nothing" not in DataStore.open(store).recons.names()  # nothing written
+
+
+def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, monkeypatch):
+    """A slice whose shift estimate Dremel rejected is noted and marked done after it; the summary names it."""
+    from dataclasses import replace
+
+    from nanoct.recon.batch import shift_check_warning
+
+    real, seen = stack_batch._dremel_slice, []
+
+    def rejected_on_the_second(geometry, sino, shifts):
+        result = real(geometry, sino, shifts)
+        seen.append(len(seen))
+        return replace(result, params={**result.params, "shift_check": "ran away"}) if len(seen) == 2 else result
+
+    monkeypatch.setattr(stack_batch, "_dremel_slice", rejected_on_the_second)
+    name = reconstruct_stack(store, method="dremel", motion_slices="0,2", binning=4, workers=0, progress=False)
+    data = DataStore.open(store)
+    assert data.reconstruction_done(name).all()
+    assert data.reconstruction_note(name, "sample_shift_check") == {"samples": [1], "reason": "ran away", "first": 1}
+    assert shift_check_warning(data, name, unit="slice") == (
+        f"1 slice(s) of {name} (1) kept their start shifts; slice 1: ran away"
+    )

@@ -13,6 +13,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 from tqdm.auto import tqdm
 
@@ -119,6 +120,7 @@ def run_tasks(
     desc: str = "samples",
     progress: bool = True,
     unit: str = "sample",
+    on_result: Callable[[Any], None] | None = None,
 ) -> int:
     """Run ``task(i)`` for every index, on Dask or (``workers == 0``) in this process.
 
@@ -138,6 +140,8 @@ def run_tasks(
         Show a progress bar.
     unit : str
         What one task is, for the progress bar.
+    on_result : callable, optional
+        Called in this process with each task's return value, as the tasks finish.
 
     Returns
     -------
@@ -159,7 +163,9 @@ def run_tasks(
     try:
         if workers == 0 and not scheduler:
             for i in indices:
-                task(i)
+                result = task(i)
+                if on_result is not None:
+                    on_result(result)
                 bar.update()
             return len(indices)
         from dask.distributed import as_completed
@@ -168,7 +174,9 @@ def run_tasks(
             futures = client.map(task, indices, pure=False)
             try:
                 for future in as_completed(futures):
-                    future.result()
+                    result = future.result()
+                    if on_result is not None:
+                        on_result(result)
                     bar.update()
             except BaseException:
                 client.cancel(futures)

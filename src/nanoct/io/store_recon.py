@@ -184,21 +184,33 @@ class ReconstructionArrays:
         return read_flags(self._group, f"progress/{name}", idx)
 
     def write(
-        self, name: str, index: int, image: np.ndarray, shifts: np.ndarray | None = None, std: np.ndarray | None = None
+        self,
+        name: str,
+        index: int,
+        image: np.ndarray,
+        shifts: np.ndarray | None = None,
+        std: np.ndarray | None = None,
+        done: bool = True,
     ) -> None:
-        """Write one reconstruction (with estimated shifts or std); the progress flag is set last."""
+        """Write one reconstruction (with estimated shifts or std); the progress flag is set last (``done=False``:
+        left to :meth:`mark_done`, for a caller that records something about the sample first)."""
         try:
             self._array(f"reconstructions/{name}")[index] = image
             if shifts is not None:
                 self._array(f"reconstructions/{name}_shifts")[index] = shifts
             if std is not None:
                 self._array(f"uncertainty/{name}")[index] = std
-            self._array(f"progress/{name}")[index] = True
+            if done:
+                self._array(f"progress/{name}")[index] = True
         except KeyError as exc:
             raise StoreError(
                 f"reconstructions/{name} in {self.path} was deleted while this run was writing it (by another "
                 "run with --overwrite?); run the command again when that run has finished"
             ) from exc
+
+    def mark_done(self, name: str, index: int) -> None:
+        """Set the progress flag of one sample of ``name`` written with ``done=False``."""
+        self._array(f"progress/{name}")[index] = True
 
     def _read(self, key: str, name: str, indices: Iterable[int] | None, repair: str) -> np.ndarray:
         if f"reconstructions/{name}" not in self._group:

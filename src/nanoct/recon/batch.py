@@ -15,7 +15,9 @@ Dremel (``eta="estimate:residual"`` unless given; so does a set of a scan's meas
 carrying that motion and eta the residual left after it
 (:class:`~nanoct.recon.eta_source.EtaPlan`); Dremel starts each slice from a joint motion of
 the stack and refines it (a simulation holds the joint motion fixed and RESESOP keeps the
-unperturbed model).
+unperturbed model). Where Dremel rejects a sample's shift estimate as a runaway (it keeps the
+shifts at their start: :func:`~nanoct.recon.dremel.runaway_shifts`), the sample is recorded in the
+reconstruction's note ``sample_shift_check`` (:func:`shift_check_warning` words it).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from .registry import check_method_params, method_spec
 from .result import ReconResult
 from .shared import joint_shifts, read_store_shifts
 
-__all__ = ["reconstruct_dataset", "reconstruct_sample"]
+__all__ = ["reconstruct_dataset", "reconstruct_sample", "record_shift_check", "shift_check_warning"]
 
 
 def reconstruct_sample(
@@ -84,15 +86,75 @@ def _sample_inputs(
     return params, eta
 
 
-def _reconstruct_into(path: str, method: str, name: str, params: dict[str, Any], inputs: _Inputs, index: int) -> int:
+def _reconstruct_into(
+    path: str, method: str, name: str, params: dict[str, Any], inputs: _Inputs, index: int
+) -> tuple[int, str | None]:
+    """Reconstruct and write one sample; its index, and why its shift estimate was rejected (None: it was not).
+
+    A sample with a rejected estimate is written without its progress flag: :func:`record_shift_check`
+    notes it and sets the flag, so that an interrupted run redoes it rather than lose the note.
+    """
     store = open_cached(path)
     sample = store.read_sample(index)
     params, eta = _sample_inputs(store, index, sample, params, inputs)
     result = reconstruct_sample(method, store.geometry, sample, params, eta=eta)
     if not np.isfinite(result.image).all():
         raise NanoctError(f"{method} produced non-finite values on sample {index}; check the parameters {params}")
-    store.write_reconstruction(name, index, result.image, result.motion)
-    return index
+    reason = result.params.get("shift_check")
+    store.recons.write(name, index, result.image, result.motion, done=reason is None)
+    return index, reason
+
+
+def record_shift_check(store: DataStore, name: str, outcome: tuple[int, str | None]) -> None:
+    """Add a sample whose shift estimate was rejected to the note ``sample_shift_check`` of ``name``, then set its
+    progress flag.
+
+    Parameters
+    ----------
+    store : DataStore
+        The data set, opened for writing (only the calling process writes the note).
+    name : str
+        The reconstruction.
+    outcome : (int, str or None)
+        A sample task's index and the reason its estimate was rejected (None: nothing to record).
+    """
+    index, reason = outcome
+    if reason is None:
+        return
+    note = store.recons.note(name, "sample_shift_check") or {"samples": [], "reason": reason, "first": index}
+    note["samples"] = sorted({*note["samples"], index})
+    store.recons.set_note(name, "sample_shift_check", note)
+    store.recons.mark_done(name, index)
+
+
+def shift_check_warning(store: DataStore, name: str, unit: str = "sample") -> str | None:
+    """The warning for the samples of reconstruction ``name`` whose shift estimate was rejected (None: none were).
+
+    Parameters
+    ----------
+    store : DataStore
+        The data set.
+    name : str
+        A reconstruction of it.
+    unit : str
+        What a sample is called in the text (``"slice"`` for a stack).
+
+    Returns
+    -------
+    str or None
+        How many samples and which (runs of neighbours as ranges, the first 10), and the first one's reason.
+    """
+    note = store.recons.note(name, "sample_shift_check")
+    if not note:
+        return None
+    samples = np.asarray(note["samples"], dtype=int)
+    runs = np.split(samples, np.flatnonzero(np.diff(samples) != 1) + 1)
+    listed = ", ".join(f"{r[0]}-{r[-1]}" if r.size > 1 else f"{r[0]}" for r in runs[:10])
+    listed += ", ..." if len(runs) > 10 else ""
+    return (
+        f"{samples.size} {unit}(s) of {name} ({listed}) kept their start shifts; {unit} {note['first']}: "
+        + note["reason"]
+    )
 
 
 def _measured_only(store: DataStore) -> bool:
@@ -259,5 +321,6 @@ def reconstruct_dataset(
             inputs = _Inputs(shifts0=shifts0, fixed=fixed, refine_measured=refine)
         pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
         task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
-        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress)
+        record = partial(record_shift_check, store, name)
+        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, on_result=record)
     return name

@@ -133,9 +133,11 @@ def _torch_fan(fan: dict[str, Any]) -> tuple[dict[str, Any], int]:
 
     With a scheduler (a cluster) the jobs go to its workers, one torch thread each. On the local
     machine they run one after another in this process with all its cores as torch threads:
-    two torch jobs side by side in separate processes were much slower than one after another
-    on the 2-core machine the tiny study is timed on (``benchmarks/bench_concurrency.py``,
-    benchmarks/README.md).
+    two torch jobs side by side in separate processes were 2.1x slower than one after another on
+    the 2-core AVX512-BF16 machine (``benchmarks/bench_concurrency.py``); on a 2-core AVX2-only
+    machine two float32 training jobs side by side, one thread each, were 1.06-1.81x faster
+    (``benchmarks/bench_cpu_training.py``), but a run's bits depend on its thread count, so the
+    study keeps one order everywhere (benchmarks/README.md).
     """
     if fan.get("scheduler") is not None:
         return fan, 1

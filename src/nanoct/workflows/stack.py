@@ -46,6 +46,7 @@ from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
+from ..recon.batch import record_shift_check
 from ..recon.measured import read_moved
 from ..recon.stack import corrected_fbp, reproject, with_center
 
@@ -412,8 +413,10 @@ def _reconstruct_slice(
     shifts: np.ndarray,
     vertical: np.ndarray,
     index: int,
-) -> int:
-    """Reconstruct slice ``index`` and write it with the motion it used (detector pixels).
+) -> tuple[int, str | None]:
+    """Reconstruct slice ``index`` and write it with the motion it used (detector pixels); its index, and why
+    Dremel rejected its refinement (None: it did not; the flag is then set by
+    :func:`~nanoct.recon.batch.record_shift_check`).
 
     The shifts row written is the stack's motion (``shifts``), except on measured data with
     Dremel, or RESESOP with ``"auto"`` eta, where it is Dremel's refinement of it for this slice
@@ -423,7 +426,7 @@ def _reconstruct_slice(
     store = open_cached(path)
     geometry = with_center(store.geometry, slice_center(info, index, store.n))
     sino = read_straight(store, [index], vertical)[0]
-    motion = shifts
+    motion, reason = shifts, None
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
     elif method == "resesop":
@@ -435,8 +438,9 @@ def _reconstruct_slice(
         image = result.image
         if looks_measured(sino):  # refined per slice: Dremel's motion, object -> detector pixels
             motion = result.motion.astype(np.float64) * geometry.magnification / geometry.det_spacing
-    store.write_reconstruction(name, index, image, motion.astype(np.float32))
-    return index
+        reason = result.params.get("shift_check")
+    store.recons.write(name, index, image, motion.astype(np.float32), done=reason is None)
+    return index, reason
 
 
 def fbp_engine(choice: str = "auto") -> str:
@@ -623,5 +627,7 @@ def reconstruct_stack(
     if method == "fbp":
         _record_engine(store, name, "backprojection")
     task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
-    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice")
+    record = partial(record_shift_check, store, name)
+    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice",
+              on_result=record)  # fmt: skip
     return name
