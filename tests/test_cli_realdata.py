@@ -118,9 +118,21 @@ def test_a_rejected_slice_stays_pending_until_it_is_noted(tmp_path, capsys, monk
     assert run(argv) == 130  # interrupted
     store = DataStore.open(tmp_path / "k")
     assert store.reconstruction_done("dremel").tolist() == [True, False, False]
-    assert store.reconstruction_note("dremel", "sample_shift_check")["samples"] == [0]
+    assert list(store.reconstruction_note("dremel", "sample_shift_check")) == ["0"]
     monkeypatch.setattr(batch, "record_shift_check", noted)
     capsys.readouterr()
     assert run(argv) == 0
     assert "warning: 3 sample(s) of dremel (0-2) kept their start shifts" in capsys.readouterr().err
-    assert DataStore.open(tmp_path / "k").reconstruction_note("dremel", "sample_shift_check")["samples"] == [0, 1, 2]
+    assert sorted(DataStore.open(tmp_path / "k").reconstruction_note("dremel", "sample_shift_check")) == ["0", "1", "2"]
+
+
+def test_the_axis_warning_of_a_binned_import_says_its_pixels(tmp_path, capsys):
+    """The estimators run on the unbinned columns read; the headline offset is in binned pixels."""
+    neutron = REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"
+    argv = ["import", str(neutron), "--angles", "0:360", "--open-beam", "--center-offset", "auto"]
+    assert run([*argv, "--binning", "2", "--out", str(tmp_path / "b")]) == 0
+    out, err = capsys.readouterr()
+    assert "251 detector pixels" in out and "axis offset -2.58 px" in out
+    assert "(mirror -6.08, vo -5.25); motion or a wrong axis; values in unbinned detector pixels" in err
+    assert run([*argv, "--out", str(tmp_path / "u")]) == 0
+    assert "(mirror -6.08, vo -5.25); motion or a wrong axis\n" in capsys.readouterr().err

@@ -1039,9 +1039,11 @@ def _echo_import(store: Any) -> None:
     )
     for note in scan.get("notes", []):
         typer.echo(f"note: {note}", err=True)
+    binned = (scan.get("binning") or 1) > 1 or scan.get("crop")
+    raw = "; values in unbinned detector pixels from the centre of the columns read" if binned else ""
     for note in (scan.get("axis") or {}).get("notes", []):  # --center-offset auto: estimators that disagree
         if note.startswith("warning"):
-            typer.echo(note, err=True)
+            typer.echo(note + raw, err=True)
 
 
 def _parse_center(text: str) -> float | str:

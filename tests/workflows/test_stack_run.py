@@ -154,7 +154,7 @@ def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, mon
     """A slice whose shift estimate Dremel rejected is noted and marked done after it; the summary names it."""
     from dataclasses import replace
 
-    from nanoct.recon.batch import shift_check_warning
+    from nanoct.recon.batch import record_shift_check, shift_check_warning
 
     real, seen = stack_batch._dremel_slice, []
 
@@ -167,7 +167,18 @@ def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, mon
     name = reconstruct_stack(store, method="dremel", motion_slices="0,2", binning=4, workers=0, progress=False)
     data = DataStore.open(store)
     assert data.reconstruction_done(name).all()
-    assert data.reconstruction_note(name, "sample_shift_check") == {"samples": [1], "reason": "ran away", "first": 1}
+    assert data.reconstruction_note(name, "sample_shift_check") == {"1": "ran away"}
     assert shift_check_warning(data, name, unit="slice") == (
         f"1 slice(s) of {name} (1) kept their start shifts; slice 1: ran away"
     )
+    data = DataStore.open(store, mode="r+")
+    for index, reason in [(2, "far"), (0, "further"), (1, "again")]:
+        record_shift_check(data, name, (index, reason))
+    assert shift_check_warning(data, name, unit="slice") == (
+        f"3 slice(s) of {name} (0-2) kept their start shifts; slice 0: further"
+    )
+    record_shift_check(data, name, (1, None))
+    assert shift_check_warning(data, name).startswith(f"2 sample(s) of {name} (0, 2) kept")
+    for index in (0, 2):  # redone without a rejection: no longer counted
+        record_shift_check(data, name, (index, None))
+    assert shift_check_warning(data, name) is None

@@ -43,9 +43,10 @@ def test_dremel_slice_holds_the_motion_of_a_simulation_and_refines_a_measured_on
 def test_resesop_slice_carries_the_motion_on_measured_data() -> None:
     g, x, moved, d = _scan()
     measured = moved + np.float32(0.3)
-    auto, auto_motion = _resesop_slice(g, measured, d, "auto")
-    level, level_motion = _resesop_slice(g, measured, d, 0.01)
-    sim, sim_motion = _resesop_slice(g, moved, d, 0.01)
+    auto, auto_motion, auto_check = _resesop_slice(g, measured, d, "auto")
+    level, level_motion, level_check = _resesop_slice(g, measured, d, 0.01)
+    sim, sim_motion, sim_check = _resesop_slice(g, moved, d, 0.01)
+    assert auto_check is None and level_check is None and sim_check is None  # nothing ran away here
     for image in (auto, level, sim):
         assert image.shape == (N, N) and np.isfinite(image).all()
     assert min(_psnr(level, x), _psnr(auto, x), _psnr(sim, x)) > 30.0  # about 35 dB; 18-20 dB without the motion

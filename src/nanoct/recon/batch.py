@@ -106,8 +106,8 @@ def _reconstruct_into(
 
 
 def record_shift_check(store: DataStore, name: str, outcome: tuple[int, str | None]) -> None:
-    """Add a sample whose shift estimate was rejected to the note ``sample_shift_check`` of ``name``, then set its
-    progress flag.
+    """Add a sample whose shift estimate was rejected to the note ``sample_shift_check`` of ``name`` (sample index
+    -> reason), then set its progress flag; drop a sample redone without a rejection from it.
 
     Parameters
     ----------
@@ -116,15 +116,19 @@ def record_shift_check(store: DataStore, name: str, outcome: tuple[int, str | No
     name : str
         The reconstruction.
     outcome : (int, str or None)
-        A sample task's index and the reason its estimate was rejected (None: nothing to record).
+        A sample task's index and the reason its estimate was rejected (None: not rejected).
     """
     index, reason = outcome
-    if reason is None:
+    reasons = dict(store.recons.note(name, "sample_shift_check") or {})
+    if reason is None and str(index) not in reasons:
         return
-    note = store.recons.note(name, "sample_shift_check") or {"samples": [], "reason": reason, "first": index}
-    note["samples"] = sorted({*note["samples"], index})
-    store.recons.set_note(name, "sample_shift_check", note)
-    store.recons.mark_done(name, index)
+    if reason is None:  # redone without a rejection (repaired, or on other threads): no longer counted
+        reasons.pop(str(index))
+    else:
+        reasons[str(index)] = reason
+    store.recons.set_note(name, "sample_shift_check", reasons or None)
+    if reason is not None:
+        store.recons.mark_done(name, index)
 
 
 def shift_check_warning(store: DataStore, name: str, unit: str = "sample") -> str | None:
@@ -144,16 +148,16 @@ def shift_check_warning(store: DataStore, name: str, unit: str = "sample") -> st
     str or None
         How many samples and which (runs of neighbours as ranges, the first 10), and the first one's reason.
     """
-    note = store.recons.note(name, "sample_shift_check")
-    if not note:
+    reasons = store.recons.note(name, "sample_shift_check")
+    if not reasons:
         return None
-    samples = np.asarray(note["samples"], dtype=int)
+    samples = np.array(sorted(int(i) for i in reasons))
     runs = np.split(samples, np.flatnonzero(np.diff(samples) != 1) + 1)
     listed = ", ".join(f"{r[0]}-{r[-1]}" if r.size > 1 else f"{r[0]}" for r in runs[:10])
     listed += ", ..." if len(runs) > 10 else ""
+    first = int(samples[0])
     return (
-        f"{samples.size} {unit}(s) of {name} ({listed}) kept their start shifts; {unit} {note['first']}: "
-        + note["reason"]
+        f"{samples.size} {unit}(s) of {name} ({listed}) kept their start shifts; {unit} {first}: " + reasons[str(first)]
     )
 
 

@@ -136,7 +136,7 @@ def _dremel_slice(geometry: Any, sino: np.ndarray, shifts: np.ndarray) -> Any:
 
 def _resesop_slice(
     geometry: Any, sino: np.ndarray, shifts: np.ndarray, eta: str | float | list[float]
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, str | None]:
     """RESESOP-Kaczmarz with the stack's motion; ``"auto"`` eta: half the largest residual per view after it.
 
     Measured data (:func:`~nanoct.recon.measured.looks_measured`): the model carries the motion
@@ -152,6 +152,8 @@ def _resesop_slice(
     motion : ndarray of shape (K,)
         The motion the slice was reconstructed with, in detector pixels: Dremel's refinement on
         measured data with ``"auto"`` eta, else the stack's ``shifts``.
+    shift_check : str or None
+        Why Dremel rejected that refinement (it kept the stack's motion); None where it did not, or did not run.
     """
     from ..recon.eta import eta_from_residual
     from ..recon.measured import looks_measured
@@ -161,20 +163,21 @@ def _resesop_slice(
     if looks_measured(sino):
         if eta == "auto":
             start = _dremel_slice(geometry, sino, shifts)
+            reason = start.params.get("shift_check")
             motion = start.motion.astype(np.float64)
             levels = eta_from_residual(geometry, sino, start.image, scale=AUTO_ETA_FRACTION, shifts=motion)
         else:
-            motion = shifts * to_obj
+            motion, reason = shifts * to_obj, None
             levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
         image = resesop(geometry, sino, levels, shifts=motion, projector="auto").image
-        return image, (motion / to_obj if eta == "auto" else shifts)
+        return image, (motion / to_obj if eta == "auto" else shifts), reason
     corrected = shift_corrected(sino.astype(np.float64), shifts)
     if eta == "auto":
         start = corrected_fbp(geometry, corrected)
         levels = AUTO_ETA_FRACTION * np.abs(corrected - reproject(geometry, start)).max(axis=1)
     else:
         levels = np.broadcast_to(np.asarray(eta, dtype=np.float64), (geometry.sino_shape[0],))
-    return resesop(geometry, corrected, levels, projector="auto").image, shifts
+    return resesop(geometry, corrected, levels, projector="auto").image, shifts, None
 
 
 def _motion_slices(store: DataStore, value: str | None) -> list[int]:
@@ -415,8 +418,8 @@ def _reconstruct_slice(
     index: int,
 ) -> tuple[int, str | None]:
     """Reconstruct slice ``index`` and write it with the motion it used (detector pixels); its index, and why
-    Dremel rejected its refinement (None: it did not; the flag is then set by
-    :func:`~nanoct.recon.batch.record_shift_check`).
+    Dremel (of ``method="dremel"``, or of RESESOP's ``"auto"`` eta) rejected its refinement: None where it did
+    not (the progress flag is set here), else :func:`~nanoct.recon.batch.record_shift_check` sets it.
 
     The shifts row written is the stack's motion (``shifts``), except on measured data with
     Dremel, or RESESOP with ``"auto"`` eta, where it is Dremel's refinement of it for this slice
@@ -430,7 +433,7 @@ def _reconstruct_slice(
     if method == "fbp":
         image = corrected_fbp(geometry, sino, shifts)
     elif method == "resesop":
-        image, motion = _resesop_slice(geometry, sino, shifts, eta)
+        image, motion, reason = _resesop_slice(geometry, sino, shifts, eta)
     else:
         from ..recon.measured import looks_measured
 
