@@ -426,6 +426,12 @@ def train(
         None, "--max-steps", help="Stop after this many optimizer steps in total (smoke tests)."
     ),
     num_workers: int = typer.Option(0, "--num-workers", help="DataLoader worker processes."),
+    patch: int | None = typer.Option(
+        None,
+        "--patch",
+        help="Train on PxP patches (a random one per image and epoch; validation and intervals on a grid of "
+        "patches covering each image); the network then predicts in tiles of P (predict --tile 0).",
+    ),
     quiet: bool = QUIET,
 ) -> None:
     """Train a post-processing network on reconstructions/<input> -> phantoms.
@@ -458,6 +464,7 @@ def train(
         max_steps=max_steps,
         device=device,
         num_workers=num_workers,
+        patch=patch,
     )
     path = train_model(directory, run, config, progress=not quiet)
     typer.echo(f"run: {path}")

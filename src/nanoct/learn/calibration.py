@@ -91,6 +91,7 @@ __all__ = [
     "image_statistic",
     "load_calibration",
     "ood_p_values",
+    "patch_outputs",
     "reference_rule",
     "sample_outputs",
 ]
@@ -191,6 +192,49 @@ def sample_outputs(
             raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
         means[j], stds[j] = mean[0], std[0]
     return means, stds
+
+
+def patch_outputs(
+    model: PostProcessor,
+    store: DataStore,
+    input_name: str,
+    indices: np.ndarray,
+    patch: int,
+    reconstruct_kwargs: dict[str, Any] | None = None,
+    device: str | torch.device | None = None,
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, raw std and ground truth of a sampling network on the patches of a grid covering each image.
+
+    The grid is :class:`~nanoct.learn.data.PatchDataset`'s (``grid=True``); the patches of image ``i``
+    go to the network 16 at a time, the k-th call seeded as a tiled prediction's k-th batch of tiles
+    (:func:`~nanoct.learn.tiling.batch_seed`).
+
+    Returns
+    -------
+    (means, stds, gts) : float32 arrays (n patches, patch, patch)
+    """
+    from tqdm.auto import tqdm
+
+    from .data import grid_starts
+    from .tiling import batch_seed
+
+    infer = Inference(model, dict(reconstruct_kwargs or {}), True, device)
+    starts = grid_starts(store.geometry.n, patch)
+    windows = [(slice(r, r + patch), slice(c, c + patch)) for r in starts for c in starts]
+    means, stds, gts = [], [], []
+    for i in tqdm(indices, desc="calibrate", unit="img", disable=not progress):
+        x_tilde = store.read_reconstruction(input_name, [int(i)])[0]
+        gt = store.read_phantoms([int(i)])[0]
+        for k, first in enumerate(range(0, len(windows), 16)):
+            chunk = windows[first : first + 16]
+            mean, std = infer(np.stack([x_tilde[w] for w in chunk]), batch_seed(int(i), k))
+            if std is None:
+                raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
+            means.append(mean)
+            stds.append(std)
+            gts.append(np.stack([gt[w] for w in chunk]).astype(np.float32))
+    return np.concatenate(means), np.concatenate(stds), np.concatenate(gts)
 
 
 def image_statistic(stds: np.ndarray) -> np.ndarray:
@@ -510,9 +554,12 @@ def calibrate(
     ):
         return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
     ckpt = load_checkpoint(ckpt_path)
-    own = _runs_own(store, run, entries.get(checkpoint), key, int(ckpt["image_size"]))  # raises on another size
-    if own is not None:
-        return own
+    patch = (ckpt.get("config") or {}).get("patch")  # train --patch: fitted on the patches of a validation grid
+    if not (patch and store.indices("val").size and store.geometry.n != patch):
+        patch = None
+        own = _runs_own(store, run, entries.get(checkpoint), key, int(ckpt["image_size"]))  # raises on another size
+        if own is not None:
+            return own
     if not model_class(str(ckpt["model"])).has_uncertainty:
         raise NanoctError(f"the run at {run} holds a '{ckpt['model']}' network, which gives no std to calibrate")
     kwargs = key["reconstruct"]
@@ -530,10 +577,14 @@ def calibrate(
         )
     check_input(store, key["input"], val, "val")
     model = model_from_checkpoint(ckpt, ckpt_path)
-    means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
-    gts = store.read_phantoms(val)
+    if patch:
+        means, stds, gts = patch_outputs(model, store, key["input"], val, patch, kwargs, device, progress)
+        key["patch"] = int(patch)
+    else:
+        means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
+        gts = store.read_phantoms(val)
     rule = reference_rule(store, gts)
-    entry = key | {"n_images": int(val.size)} | fit_intervals(means, stds, gts, tuple(levels), delta, **rule)
+    entry = key | {"n_images": len(means)} | fit_intervals(means, stds, gts, tuple(levels), delta, **rule)
     if rule:
         entry["references"] = "measured: support relative to each image, field of view only"
     reference = scan_reference(store)

@@ -24,7 +24,7 @@ from ..core.errors import NanoctError, StoreError
 from ..io.store import SPLITS, DataStore
 from ..names import predict_command
 
-__all__ = ["ReconDataset", "check_input"]
+__all__ = ["PatchDataset", "ReconDataset", "check_input", "grid_starts"]
 
 
 def _memory_limit_bytes() -> float:
@@ -148,3 +148,66 @@ class ReconDataset(Dataset):
         state = dict(self.__dict__)
         state["_store"] = None  # reopened in the worker
         return state
+
+
+def grid_starts(n: int, patch: int) -> np.ndarray:
+    """The first pixels of the fewest ``patch``-wide windows, evenly spread, that cover ``n`` pixels.
+
+    ``ceil(n / patch)`` windows from 0 to ``n - patch`` (rounded): neighbours overlap, none leaves a gap.
+    """
+    k = -(-n // patch)
+    return np.unique(np.round(np.linspace(0, n - patch, k)).astype(int))
+
+
+class PatchDataset(Dataset):
+    """Square patches of the pairs of a :class:`ReconDataset` (``train --patch``): a network of any image size.
+
+    Parameters
+    ----------
+    base : ReconDataset
+        The pairs, (1, N, N) each.
+    patch : int
+        Patch side P, at most N.
+    seed : int
+        With ``grid=False``: the seed of the patch positions.
+    grid : bool
+        ``False`` (training): one patch per pair, at a position drawn from ``(seed, epoch, item)``
+        (:meth:`set_epoch`), so every epoch sees other parts of every image and a resumed run the
+        same. ``True`` (validation, calibration): the patches of a fixed grid that covers each
+        image (:func:`grid_starts` in both directions), the same in every epoch.
+
+    Raises
+    ------
+    NanoctError
+        If ``patch`` is not a whole number between 8 and the image size.
+    """
+
+    def __init__(self, base: ReconDataset, patch: int, seed: int = 0, grid: bool = False) -> None:
+        n = base.image_size
+        if isinstance(patch, bool) or not isinstance(patch, int) or not 8 <= patch <= n:
+            raise NanoctError(f"--patch {patch!r} must be a whole number from 8 to the image size {n}")
+        self.base, self.patch, self.seed, self.grid, self.epoch = base, patch, int(seed), grid, 0
+        self.image_size = patch
+        starts = grid_starts(n, patch)
+        self._grid = [(item, r, c) for item in range(len(base)) for r in starts for c in starts] if grid else None
+
+    def set_epoch(self, epoch: int) -> None:
+        """Draw the training patches of ``epoch`` (set before the epoch's loader is iterated)."""
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self._grid) if self._grid is not None else len(self.base)
+
+    def position(self, index: int) -> tuple[int, int, int]:
+        """The pair (item of ``base``) and first row and column of patch ``index``."""
+        if self._grid is not None:
+            return self._grid[index]
+        rng = np.random.default_rng([self.seed, self.epoch, index])
+        r, c = rng.integers(0, self.base.image_size - self.patch + 1, size=2)
+        return index, int(r), int(c)
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        item, r, c = self.position(index)
+        window = (slice(None), slice(r, r + self.patch), slice(c, c + self.patch))
+        x_tilde, x = self.base[item]
+        return x_tilde[window].contiguous(), x[window].contiguous()

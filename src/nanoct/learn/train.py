@@ -48,7 +48,7 @@ from ..io.provenance import environment_info
 from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, save_checkpoint, set_rng_state
-from .data import ReconDataset
+from .data import PatchDataset, ReconDataset
 from .models import build_model, model_class, model_spec
 
 __all__ = [
@@ -270,6 +270,12 @@ class TrainConfig:
         See :class:`~nanoct.learn.data.ReconDataset`.
     channels_last : bool, optional
         Default: True on CPU (faster convolutions there), False on CUDA.
+    patch : int, optional
+        Train on ``patch`` x ``patch`` patches of the images, one per image and epoch at a position
+        drawn from (seed, epoch, image), and validate on the patches of a grid that covers every
+        validation image (:class:`~nanoct.learn.data.PatchDataset`): the network's trained size is
+        then ``patch``, it predicts larger images in tiles of that size (``predict --tile 0``) and
+        its intervals are fitted on the validation grid's patches. Recorded in ``config.json``.
     """
 
     model: str = "unet"
@@ -288,6 +294,7 @@ class TrainConfig:
     num_workers: int = 0
     in_memory: bool | None = None
     channels_last: bool | None = None
+    patch: int | None = None
 
 
 #: Architecture arguments that a network on a set matched to a measured scan takes as ``"range"`` unless
@@ -420,6 +427,7 @@ def train(
         sched=sched,
         num_workers=c.num_workers,
         in_memory=c.in_memory,
+        patch=c.patch,
         rank=rank,
         world=world,
         distributed=distributed,
@@ -472,6 +480,7 @@ class _Settings:
     sched: str
     num_workers: int
     in_memory: bool | None
+    patch: int | None
     rank: int
     world: int
     distributed: bool
@@ -521,6 +530,7 @@ def _config(s: _Settings, model: PostProcessor, train_ds: ReconDataset, val_ds: 
             "val": len(val_ds),
         },
         "image_size": train_ds.image_size,
+        **({"patch": s.patch} if s.patch is not None else {}),
         "batch_size": s.batch_size,
         "lr": s.lr,
         "seed": s.seed,
@@ -552,9 +562,7 @@ def _previous(s: _Settings, config: dict[str, Any]) -> dict[str, Any] | None:
     last_path = s.path("last.pt")
     if not last_path.exists():  # a config.json without last.pt holds no training state (a diverged run): redo
         return None
-    ckpt = load_checkpoint(
-        last_path, model_name=s.model_name, image_size=config["image_size"], hparams=config["hparams"]
-    )
+    ckpt = load_checkpoint(last_path, model_name=s.model_name, hparams=config["hparams"])  # image size: in the diff
     differs = _diff(config, ckpt.get("config") or {})
     if differs:
         raise NanoctError(
@@ -748,8 +756,10 @@ def _run(s: _Settings) -> Path:
     """Train from the start or from the last checkpoint to ``s.epochs`` (or ``s.max_steps``)."""
     from tqdm.auto import tqdm
 
-    train_ds = ReconDataset(s.store_path, s.input_name, "train", in_memory=s.in_memory, limit=s.n_train)
-    val_ds = ReconDataset(s.store_path, s.input_name, "val", in_memory=s.in_memory)
+    train_ds: Any = ReconDataset(s.store_path, s.input_name, "train", in_memory=s.in_memory, limit=s.n_train)
+    val_ds: Any = ReconDataset(s.store_path, s.input_name, "val", in_memory=s.in_memory)
+    if s.patch is not None:
+        train_ds, val_ds = PatchDataset(train_ds, s.patch, s.seed), PatchDataset(val_ds, s.patch, grid=True)
     state, resumed = _start(s, train_ds, val_ds)
     if state.done(s):
         if s.progress:
@@ -781,6 +791,8 @@ def _run(s: _Settings) -> Path:
                 group["lr"] = cosine_lr(s.lr, epoch, s.epochs)
         seed_everything(s.seed, epoch, s.rank)
         loaders.sampler.set_epoch(epoch)
+        if s.patch is not None:
+            train_ds.set_epoch(epoch)
         loaders.generator.manual_seed(s.seed * 1_000_003 + epoch)
         train_stats = _train_epoch(s, state, loaders, step_model, epoch)
         improved = _record(
