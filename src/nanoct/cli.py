@@ -186,7 +186,9 @@ def generate(
         "for predict --calibrate-on].",
     ),
     motion_from: str | None = typer.Option(
-        None, "--motion-from", help="With --like: the 'nanoct stack' result whose motion to match (default: any)."
+        None,
+        "--motion-from",
+        help="With --like: the 'nanoct stack' (or Dremel) result whose motion to match (default: any).",
     ),
     hold_out: str | None = typer.Option(
         None,
@@ -213,9 +215,9 @@ def generate(
 
     With --like STORE (a measured scan imported with 'nanoct import'), the set is matched to the
     scan: its views, binned detector and axis, the noise measured in its air, the motion 'nanoct
-    stack' estimated for it (else the paper's), and its own slices among the phantoms (see
-    docs/data.md). Resumable: running the same command again completes an interrupted run and is
-    a no-op when the data set is complete.
+    stack' (or Dremel's joint motion) estimated for it (else the paper's), and its own slices
+    among the phantoms (see docs/data.md). Resumable: running the same command again completes an
+    interrupted run and is a no-op when the data set is complete.
     """
     fractions = _parse_fractions(split_fractions)
     if like is not None:
