@@ -106,20 +106,25 @@ def test_a_rejected_slice_stays_pending_until_it_is_noted(tmp_path, capsys, monk
 
     nxs = REAL / "k11-18014-nexus" / "k11-18014.nxs"
     assert run(["import", str(nxs), "--rows", "8:11", "--out", str(tmp_path / "k"), "-q"]) == 0
-    noted = batch.record_shift_check
+    noted = batch.shift_check_recorder
 
-    def stop_at_the_second(store, name, outcome):
-        if outcome[0] == 1:
-            raise KeyboardInterrupt
-        noted(store, name, outcome)
+    def stop_at_the_second(store, name):
+        record = noted(store, name)
 
-    monkeypatch.setattr(batch, "record_shift_check", stop_at_the_second)
+        def stop(outcome):
+            if outcome[0] == 1:
+                raise KeyboardInterrupt
+            record(outcome)
+
+        return stop
+
+    monkeypatch.setattr(batch, "shift_check_recorder", stop_at_the_second)
     argv = ["reconstruct", str(tmp_path / "k"), "--method", "dremel", "-w", "0", "-q"]
     assert run(argv) == 130  # interrupted
     store = DataStore.open(tmp_path / "k")
     assert store.reconstruction_done("dremel").tolist() == [True, False, False]
     assert list(store.reconstruction_note("dremel", "sample_shift_check")) == ["0"]
-    monkeypatch.setattr(batch, "record_shift_check", noted)
+    monkeypatch.setattr(batch, "shift_check_recorder", noted)
     capsys.readouterr()
     assert run(argv) == 0
     assert "warning: 3 sample(s) of dremel (0-2) kept their start shifts" in capsys.readouterr().err

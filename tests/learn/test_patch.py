@@ -12,7 +12,7 @@ from nanoct.core.geometry import get_preset
 from nanoct.io.store import DataStore
 from nanoct.learn.calibration import load_calibration
 from nanoct.learn.checkpoint import load_checkpoint
-from nanoct.learn.data import PatchDataset, ReconDataset, grid_starts
+from nanoct.learn.data import PatchDataset, ReconDataset, grid_starts, grid_windows
 from nanoct.learn.predict import predict
 from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
@@ -44,6 +44,10 @@ def test_the_grid_covers_the_image_with_the_fewest_patches(n, patch):
         covered[s : s + patch] = True
     assert covered.all() and starts[0] == 0 and starts[-1] == n - patch
     assert len(starts) == -(-n // patch)
+    hits = np.zeros((n, n), int)
+    for rows, cols in grid_windows(n, patch):
+        hits[rows, cols] += 1
+    assert hits.min() >= 1 and len(grid_windows(n, patch)) == len(starts) ** 2
 
 
 def test_patches_are_the_images_pixels_drawn_per_epoch(store):

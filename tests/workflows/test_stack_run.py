@@ -154,7 +154,7 @@ def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, mon
     """A slice whose shift estimate Dremel rejected is noted and marked done after it; the summary names it."""
     from dataclasses import replace
 
-    from nanoct.recon.batch import record_shift_check, shift_check_warning
+    from nanoct.recon.batch import shift_check_recorder, shift_check_warning
 
     real, seen = stack_batch._dremel_slice, []
 
@@ -172,13 +172,14 @@ def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, mon
         f"1 slice(s) of {name} (1) kept their start shifts; slice 1: ran away"
     )
     data = DataStore.open(store, mode="r+")
+    record = shift_check_recorder(data, name)
     for index, reason in [(2, "far"), (0, "further"), (1, "again")]:
-        record_shift_check(data, name, (index, reason))
+        record((index, reason))
     assert shift_check_warning(data, name, unit="slice") == (
         f"3 slice(s) of {name} (0-2) kept their start shifts; slice 0: further"
     )
-    record_shift_check(data, name, (1, None))
+    record((1, None))
     assert shift_check_warning(data, name).startswith(f"2 sample(s) of {name} (0, 2) kept")
     for index in (0, 2):  # redone without a rejection: no longer counted
-        record_shift_check(data, name, (index, None))
+        record((index, None))
     assert shift_check_warning(data, name) is None

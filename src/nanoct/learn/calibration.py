@@ -216,12 +216,11 @@ def patch_outputs(
     """
     from tqdm.auto import tqdm
 
-    from .data import grid_starts
+    from .data import grid_windows
     from .tiling import batch_seed
 
     infer = Inference(model, dict(reconstruct_kwargs or {}), True, device)
-    starts = grid_starts(store.geometry.n, patch)
-    windows = [(slice(r, r + patch), slice(c, c + patch)) for r in starts for c in starts]
+    windows = grid_windows(store.geometry.n, patch)
     means, stds, gts = [], [], []
     for i in tqdm(indices, desc="calibrate", unit="img", disable=not progress):
         x_tilde = store.read_reconstruction(input_name, [int(i)])[0]

@@ -24,7 +24,7 @@ from ..core.errors import NanoctError, StoreError
 from ..io.store import SPLITS, DataStore
 from ..names import predict_command
 
-__all__ = ["PatchDataset", "ReconDataset", "check_input", "grid_starts"]
+__all__ = ["PatchDataset", "ReconDataset", "check_input", "grid_starts", "grid_windows"]
 
 
 def _memory_limit_bytes() -> float:
@@ -159,6 +159,16 @@ def grid_starts(n: int, patch: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - patch, k)).astype(int))
 
 
+def grid_windows(n: int, patch: int) -> list[tuple[slice, slice]]:
+    """The (rows, columns) windows of the ``patch``-square grid that covers an ``n``-square image.
+
+    :func:`grid_starts` in both directions, row by row: the validation and calibration patches of
+    ``train --patch`` (:class:`PatchDataset` with ``grid=True``, :func:`nanoct.learn.calibration.patch_outputs`).
+    """
+    starts = grid_starts(n, patch)
+    return [(slice(r, r + patch), slice(c, c + patch)) for r in starts for c in starts]
+
+
 class PatchDataset(Dataset):
     """Square patches of the pairs of a :class:`ReconDataset` (``train --patch``): a network of any image size.
 
@@ -188,8 +198,8 @@ class PatchDataset(Dataset):
             raise NanoctError(f"--patch {patch!r} must be a whole number from 8 to the image size {n}")
         self.base, self.patch, self.seed, self.grid, self.epoch = base, patch, int(seed), grid, 0
         self.image_size = patch
-        starts = grid_starts(n, patch)
-        self._grid = [(item, r, c) for item in range(len(base)) for r in starts for c in starts] if grid else None
+        tiles = [(item, rows.start, cols.start) for item in range(len(base)) for rows, cols in grid_windows(n, patch)]
+        self._grid = tiles if grid else None
 
     def set_epoch(self, epoch: int) -> None:
         """Draw the training patches of ``epoch`` (set before the epoch's loader is iterated)."""

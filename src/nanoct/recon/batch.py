@@ -23,6 +23,7 @@ reconstruction's note ``sample_shift_check`` (:func:`shift_check_warning` words 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -41,7 +42,7 @@ from .registry import check_method_params, method_spec
 from .result import ReconResult
 from .shared import joint_shifts, read_store_shifts
 
-__all__ = ["reconstruct_dataset", "reconstruct_sample", "record_shift_check", "shift_check_warning"]
+__all__ = ["reconstruct_dataset", "reconstruct_sample", "shift_check_recorder", "shift_check_warning"]
 
 
 def reconstruct_sample(
@@ -91,8 +92,8 @@ def _reconstruct_into(
 ) -> tuple[int, str | None]:
     """Reconstruct and write one sample; its index, and why its shift estimate was rejected (None: it was not).
 
-    A sample with a rejected estimate is written without its progress flag: :func:`record_shift_check`
-    notes it and sets the flag, so that an interrupted run redoes it rather than lose the note.
+    A sample with a rejected estimate is written without its progress flag: :func:`shift_check_recorder`'s
+    callback notes it and sets the flag, so that an interrupted run redoes it rather than lose the note.
     """
     store = open_cached(path)
     sample = store.read_sample(index)
@@ -105,9 +106,12 @@ def _reconstruct_into(
     return index, reason
 
 
-def record_shift_check(store: DataStore, name: str, outcome: tuple[int, str | None]) -> None:
-    """Add a sample whose shift estimate was rejected to the note ``sample_shift_check`` of ``name`` (sample index
-    -> reason), then set its progress flag; drop a sample redone without a rejection from it.
+def shift_check_recorder(store: DataStore, name: str) -> Callable[[tuple[int, str | None]], None]:
+    """The ``on_result`` callback of a run of ``name`` that keeps the note ``sample_shift_check`` (sample index ->
+    reason) of the samples whose shift estimate was rejected.
+
+    The callback adds such a sample to the note, then sets its progress flag; it drops a sample redone
+    without a rejection from the note. The note is read once, here, and written only when it changes.
 
     Parameters
     ----------
@@ -115,20 +119,27 @@ def record_shift_check(store: DataStore, name: str, outcome: tuple[int, str | No
         The data set, opened for writing (only the calling process writes the note).
     name : str
         The reconstruction.
-    outcome : (int, str or None)
-        A sample task's index and the reason its estimate was rejected (None: not rejected).
+
+    Returns
+    -------
+    callable
+        Called with a sample task's outcome: its index and the reason its estimate was rejected (None: not).
     """
-    index, reason = outcome
     reasons = dict(store.recons.note(name, "sample_shift_check") or {})
-    if reason is None and str(index) not in reasons:
-        return
-    if reason is None:  # redone without a rejection (repaired, or on other threads): no longer counted
-        reasons.pop(str(index))
-    else:
-        reasons[str(index)] = reason
-    store.recons.set_note(name, "sample_shift_check", reasons or None)
-    if reason is not None:
-        store.recons.mark_done(name, index)
+
+    def record(outcome: tuple[int, str | None]) -> None:
+        index, reason = outcome
+        if reason is None and str(index) not in reasons:
+            return
+        if reason is None:  # redone without a rejection (repaired, or on other threads): no longer counted
+            reasons.pop(str(index))
+        else:
+            reasons[str(index)] = reason
+        store.recons.set_note(name, "sample_shift_check", dict(reasons) or None)
+        if reason is not None:
+            store.recons.mark_done(name, index)
+
+    return record
 
 
 def shift_check_warning(store: DataStore, name: str, unit: str = "sample") -> str | None:
@@ -325,6 +336,6 @@ def reconstruct_dataset(
             inputs = _Inputs(shifts0=shifts0, fixed=fixed, refine_measured=refine)
         pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
         task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
-        record = partial(record_shift_check, store, name)
+        record = shift_check_recorder(store, name)
         run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, on_result=record)
     return name

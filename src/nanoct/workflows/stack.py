@@ -46,7 +46,7 @@ from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
-from ..recon.batch import record_shift_check
+from ..recon.batch import shift_check_recorder
 from ..recon.measured import read_moved
 from ..recon.stack import corrected_fbp, reproject, with_center
 
@@ -419,7 +419,8 @@ def _reconstruct_slice(
 ) -> tuple[int, str | None]:
     """Reconstruct slice ``index`` and write it with the motion it used (detector pixels); its index, and why
     Dremel (of ``method="dremel"``, or of RESESOP's ``"auto"`` eta) rejected its refinement: None where it did
-    not (the progress flag is set here), else :func:`~nanoct.recon.batch.record_shift_check` sets it.
+    not (the progress flag is set here), else the callback of
+    :func:`~nanoct.recon.batch.shift_check_recorder` sets it.
 
     The shifts row written is the stack's motion (``shifts``), except on measured data with
     Dremel, or RESESOP with ``"auto"`` eta, where it is Dremel's refinement of it for this slice
@@ -630,7 +631,7 @@ def reconstruct_stack(
     if method == "fbp":
         _record_engine(store, name, "backprojection")
     task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
-    record = partial(record_shift_check, store, name)
+    record = shift_check_recorder(store, name)
     run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice",
               on_result=record)  # fmt: skip
     return name
