@@ -47,3 +47,16 @@ def test_scan_motion_from_a_few_rows_then_every_block(tmp_path, monkeypatch):
     monkeypatch.setattr(slabs, "horizontal_motion", lambda *a, **k: pytest.fail("estimated again"))
     slabs.reconstruct_scan(scan, tmp_path / "out", motion_rows=3, block=3, read=read, progress=False)
     assert (out / "slices" / "c" / "1" / "0" / "0").read_bytes() == before
+
+
+def test_a_second_writer_of_the_same_output_is_refused(tmp_path):
+    """A slab output another process is writing (its lock held) is refused before anything is read or written."""
+    from nanoct.core.errors import BusyError
+    from nanoct.io.lock import exclusive
+
+    phi = np.arange(K) * np.pi / K
+    scan, read = _write_scan(tmp_path, _line_integrals(d=np.zeros(K))[1], phi)
+    with exclusive(tmp_path, "out", "the slab output"):
+        with pytest.raises(BusyError, match="being written by another nanoct process"):
+            slabs.reconstruct_scan(scan, tmp_path / "out", motion_rows=3, block=3, read=read, progress=False)
+    assert not (tmp_path / "out").exists()

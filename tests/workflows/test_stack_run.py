@@ -150,6 +150,18 @@ def test_stack_gridrec_matches_the_back_projection_and_records_its_engine(store,
     assert "nothing" not in DataStore.open(store).recons.names()  # nothing written
 
 
+def test_a_second_writer_of_the_same_stack_is_refused(store):
+    """A stack result another process is writing (its lock held) is refused before anything is written."""
+    from nanoct.core.errors import BusyError
+    from nanoct.io.lock import exclusive
+
+    with exclusive(store, "fbp_stack", "the stack"):
+        with pytest.raises(BusyError, match="being written by another nanoct process"):
+            reconstruct_stack(store, motion_slices="0,2", binning=4, workers=0, progress=False)
+    assert "fbp_stack" not in DataStore.open(store).recons.names()
+    assert reconstruct_stack(store, motion_slices="0,2", binning=4, workers=0, progress=False) == "fbp_stack"
+
+
 def test_stack_counts_the_slices_whose_dremel_refinement_was_rejected(store, monkeypatch):
     """A slice whose shift estimate Dremel rejected is noted and marked done after it; the summary names it."""
     from dataclasses import replace

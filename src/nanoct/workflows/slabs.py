@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
+from ..io.lock import exclusive
 from ..io.scanio import read_scan
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
@@ -246,14 +247,15 @@ def reconstruct_scan(
         "model": None if extra["model"] is None else [int(v) for v in extra["model"]],
     }
     _motion_rows(params["motion_slices"], stop - first)  # checked before anything is read
-    info = _existing_info(out, params, overwrite)
-    if "shifts" not in info:
-        source = {"path": str(scan), "n_rows": n_rows, **(read or {})}
-        geometry = Geometry.from_angles(head.angles, n_cols, n_cols)
-        info = _estimate(source, geometry, (first, stop), params, progress)
-    moved = np.asarray(info["vertical"])
-    return reconstruct_slabs(
-        scan, out, shifts=np.asarray(info["shifts"]), vertical=moved if moved.any() else None,
-        center_offset=info["center_offset"], rows=(first, stop), block=block, read=read, workers=workers,
-        scheduler=scheduler, progress=progress, info=info,
-    )  # fmt: skip
+    with exclusive(out.parent, out.name, f"the slab output {out}"):  # one writer of OUT.zarr at a time
+        info = _existing_info(out, params, overwrite)
+        if "shifts" not in info:
+            source = {"path": str(scan), "n_rows": n_rows, **(read or {})}
+            geometry = Geometry.from_angles(head.angles, n_cols, n_cols)
+            info = _estimate(source, geometry, (first, stop), params, progress)
+        moved = np.asarray(info["vertical"])
+        return reconstruct_slabs(
+            scan, out, shifts=np.asarray(info["shifts"]), vertical=moved if moved.any() else None,
+            center_offset=info["center_offset"], rows=(first, stop), block=block, read=read, workers=workers,
+            scheduler=scheduler, progress=progress, info=info,
+        )  # fmt: skip

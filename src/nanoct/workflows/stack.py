@@ -40,6 +40,7 @@ from tqdm.auto import tqdm
 
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
+from ..io.lock import exclusive
 from ..io.store import DataStore, open_cached
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
@@ -616,22 +617,23 @@ def reconstruct_stack(
     if method == "resesop":
         params["eta"] = _check_eta(eta, store.geometry.sino_shape[0])
     name = name or stack_name(method)
-    if overwrite:
-        store.delete_reconstruction(name)
-    store.prepare_reconstruction(name, params, shifts=True)
-    if store.recons.motion_info(name) is None:
-        _estimate(store, name, params, progress)
-    info = store.recons.motion_info(name)
-    shifts = store.recons.shared_shifts(name).astype(np.float64)
-    vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
-    pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
-    if use_gridrec:
-        _run_gridrec(store, name, info, (shifts, vertical), pending, workers, scheduler, progress)
+    with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"):
+        if overwrite:
+            store.delete_reconstruction(name)
+        store.prepare_reconstruction(name, params, shifts=True)
+        if store.recons.motion_info(name) is None:
+            _estimate(store, name, params, progress)
+        info = store.recons.motion_info(name)
+        shifts = store.recons.shared_shifts(name).astype(np.float64)
+        vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
+        pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
+        if use_gridrec:
+            _run_gridrec(store, name, info, (shifts, vertical), pending, workers, scheduler, progress)
+            return name
+        if method == "fbp":
+            _record_engine(store, name, "backprojection")
+        task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
+        record = shift_check_recorder(store, name)
+        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice",
+                  on_result=record)  # fmt: skip
         return name
-    if method == "fbp":
-        _record_engine(store, name, "backprojection")
-    task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
-    record = shift_check_recorder(store, name)
-    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice",
-              on_result=record)  # fmt: skip
-    return name
