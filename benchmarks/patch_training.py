@@ -41,7 +41,7 @@ CIUNET = ["--model", "ciunet-res", "--input", "dremel", "--lr", "1e-3", "--param
 def data(work: Path, times: dict[str, float]) -> None:
     """The binned scan and its Dremel (whose joint motion the matched sets take), the matched set and the test
     set, each with its Dremel reconstruction."""
-    if not (work / "scan" / "zarr.json").is_file():  # import refuses a kept scan imported from another path
+    if not (work / "scan" / "zarr.json").is_file():  # a kept scan is not read and corrected again
         times["import"] = cli("import", REAL / "sinogram_360_neutron_image.tif", "--angles", "0:360", "--open-beam",
                           "--stripes", "all", "--binning", "2", "--center-offset", "auto", "--out", work / "scan",
                           "-q")  # fmt: skip

@@ -111,6 +111,27 @@ def test_the_same_import_again_rewrites_lost_damaged_and_unwritten_slices(tmp_pa
     assert DataStore.open(out).complete_scan(DataStore.open(out).read_array("sinograms", range(SLICES))).size == 0
 
 
+def test_the_same_import_from_another_path_resumes_and_another_file_is_refused(tmp_path, scan, capsys):
+    """The kept import is the same one from any path to the file; other options or other data are refused,
+    naming what differs, and nothing is written."""
+    src, _ = _write(tmp_path, scan, "nxtomo")
+    out = tmp_path / "data"
+    assert run(["import", str(src), "--out", str(out), "--center-offset", str(OFFSET), "-q"]) == 0
+    chunks = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    (tmp_path / "moved").mkdir()
+    moved = tmp_path / "moved" / "copy.nxs"
+    moved.write_bytes(src.read_bytes())
+    assert run(["import", str(moved), "--out", str(out), "--center-offset", str(OFFSET), "-q"]) == 0
+    assert run(["import", str(moved), "--out", str(out), "--center-offset", "1", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "holds an import of " in err and "center_offset_raw 2.0 (this import: 1.0)" in err
+    with h5py.File(moved, "r+") as f:  # another file under the same options
+        f["entry/instrument/detector/data"][4, 1, 10] *= 0.5
+    assert run(["import", str(moved), "--out", str(out), "--center-offset", str(OFFSET), "-q"]) == 2
+    assert "slice 1 differs from this import's" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == chunks  # nothing written
+
+
 def test_binning_says_which_pixels_it_leaves_out(tmp_path, scan, capsys):
     src, _ = _write(tmp_path, scan, "nxtomo")  # 3 rows x 91 columns
     assert run(["import", str(src), "--out", str(tmp_path / "b2"), "--binning", "2", "--center-offset", "1"]) == 0

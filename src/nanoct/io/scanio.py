@@ -678,10 +678,31 @@ def _store_scan(out: str | os.PathLike[str], geometry: Any, stack: np.ndarray, s
 
     if (Path(out) / "zarr.json").is_file():
         store = DataStore.open(out, mode="r+")
-        if store.meta.get("scan") == json.loads(json.dumps(scan)) and store.geometry == geometry:
+        recorded = store.meta.get("scan")
+        if recorded is not None:  # an import: the same one again (from any path to the file) resumes it
+            differs = _import_difference(recorded, json.loads(json.dumps(scan)), store.geometry == geometry)
+            if differs:
+                raise NanoctError(
+                    f"{out} holds an import of {recorded.get('file')} with {differs}; import into a new --out "
+                    "(or delete it first), or rerun the import with its options"
+                )
             store.complete_scan(stack)
             return store
     return create_scan(out, geometry, stack, scan)
+
+
+def _import_difference(recorded: dict[str, Any], scan: dict[str, Any], same_geometry: bool) -> str | None:
+    """What differs between a kept import's record and this import's, other than the paths of the files; None: nothing.
+
+    The angles are compared in the geometry, and the file itself slice by slice
+    (:meth:`~nanoct.io.store.DataStore.complete_scan`).
+    """
+    for key in sorted((recorded.keys() | scan.keys()) - {"file", "angles_from", "notes"}):
+        if recorded.get(key) != scan.get(key):
+            return f"{key} {recorded.get(key)!r} (this import: {scan.get(key)!r})"
+    if recorded.get("notes") != scan.get("notes") or not same_geometry:
+        return "other data (its notes or geometry differ: another file, or the file changed since)"
+    return None
 
 
 def _corrected(scan: RawScan, tolerance: float, corrections: Any) -> tuple[np.ndarray, list[str]]:

@@ -316,12 +316,18 @@ class DataStore:
         -------
         ndarray of int
             The slices written (empty when the data set was complete and intact).
+
+        Raises
+        ------
+        StoreError
+            If it is not an imported scan of that shape, or a slice written before differs from this import's
+            (another file, or the file changed): nothing is written.
         """
         if not self.is_scan or np.shape(sinograms) != self._array("sinograms").shape:
             raise StoreError(f"{self.path} is not the imported scan of these sinograms; import into a new --out")
         self.remove_partial_writes(("sinograms", "done"))
         bad = np.union1d(np.flatnonzero(~self.done), self.damaged_samples(full=True)).astype(int)
-        array = self._array("sinograms")
+        array = _check_kept_slices(self, sinograms, np.setdiff1d(np.arange(self.n), bad))
         for index in bad.tolist():  # one chunk per slice: a write replaces an unreadable chunk file whole
             array[index] = np.asarray(sinograms[index], dtype=np.float32)
         if bad.size:
@@ -592,6 +598,26 @@ def open_cached(path: str) -> DataStore:
     """One writable handle per store and process, for tasks that each write one sample; a store made again
     at the same path (its ``zarr.json`` rewritten) gets a new handle."""
     return DataStore.open(path, mode="r+")
+
+
+def _check_kept_slices(store: DataStore, sinograms: np.ndarray, kept: np.ndarray) -> Any:
+    """The sinograms array of ``store``, once every slice in ``kept`` equals the import's (float32 rounding).
+
+    Raises
+    ------
+    StoreError
+        For the first slice that differs: the data set was imported from another file, or the file changed.
+    """
+    array = store._array("sinograms")
+    for index in kept.tolist():
+        new = np.asarray(sinograms[index], dtype=np.float32)
+        scale = float(np.abs(new).max(initial=0.0))
+        if not np.allclose(array[index], new, rtol=1e-5, atol=1e-6 * scale):
+            raise StoreError(
+                f"{store.path} holds an import whose slice {index} differs from this import's (another file under "
+                "the same options, or the file changed since); import into a new --out (or delete it first)"
+            )
+    return array
 
 
 def create_scan(
