@@ -1,6 +1,6 @@
 """Patch training (``train --patch``): the patches are the images' pixels, drawn per epoch, a validation grid
 covers every image, and a patch-trained sampling network predicts larger images in tiles with intervals fitted
-on the grid's patches."""
+on its tiled predictions of the validation images."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
 from nanoct.io.store import DataStore
-from nanoct.learn.calibration import load_calibration
+from nanoct.learn.calibration import image_statistic, load_calibration
 from nanoct.learn.checkpoint import load_checkpoint
 from nanoct.learn.data import PatchDataset, ReconDataset, grid_starts, grid_windows
 from nanoct.learn.predict import predict
@@ -74,7 +74,9 @@ def test_patches_are_the_images_pixels_drawn_per_epoch(store):
 
 
 @pytest.mark.slow
-def test_a_patch_trained_network_predicts_in_tiles_with_intervals_from_the_grid(store, tmp_path):
+def test_a_patch_trained_network_predicts_in_tiles_calibrated_on_its_tiled_validation_images(store, tmp_path):
+    """The intervals and the out-of-distribution reference are fitted on the very outputs a tiled prediction of
+    each validation image gives (exchangeable with the test images' tiled predictions)."""
     config = TrainConfig("cinn-res", "fbp", epochs=2, batch_size=2, model_kwargs=SMALL, patch=32)
     run = train(store, tmp_path / "run", config, progress=False)
     ckpt = load_checkpoint(run / "best.pt")
@@ -89,8 +91,13 @@ def test_a_patch_trained_network_predicts_in_tiles_with_intervals_from_the_grid(
     data = DataStore.open(store)
     test = data.indices("test")
     entry = load_calibration(run)["best"]
-    assert entry["patch"] == 32 and entry["n_images"] == 3 * 4  # 3 validation images, 2 x 2 patches each
     params = data.reconstruction_params(name)
-    assert params["calibration"] == entry and params["tiling"]["size"] == 32
+    assert entry["patch"] == 32 and entry["n_images"] == 3  # the 3 validation images, whole
+    assert params["calibration"] == entry and params["tiling"]["size"] == 32 and entry["tiling"] == params["tiling"]
     means, stds = data.read_reconstruction(name, test), data.read_uncertainty(name, test)
     assert means.shape == stds.shape == (3, 63, 63) and np.isfinite(means).all() and (stds > 0).all()
+    val = predict(store, run, progress=False, reconstruct_kwargs={"n_samples": 4}, tile=0, split="val", name="v")
+    levels = image_statistic(DataStore.open(store).read_uncertainty(val, data.indices("val")))
+    assert entry["ood"]["val"] == sorted(levels.tolist())  # the reference is the tiled predictions' statistic
+    predict(store, run, progress=False, reconstruct_kwargs={"n_samples": 4}, tile=0, overlap=8, name="o8")
+    assert load_calibration(run)["best"]["tiling"]["overlap"] == 8  # another tiling: fitted again

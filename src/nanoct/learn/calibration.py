@@ -41,6 +41,7 @@ import hashlib
 import inspect
 import json
 import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -91,9 +92,9 @@ __all__ = [
     "image_statistic",
     "load_calibration",
     "ood_p_values",
-    "patch_outputs",
     "reference_rule",
     "sample_outputs",
+    "tiled_outputs",
 ]
 
 CALIBRATION_FILE = "calibration.json"
@@ -194,46 +195,59 @@ def sample_outputs(
     return means, stds
 
 
-def patch_outputs(
-    model: PostProcessor,
+def tiled_outputs(
+    infer: Inference,
     store: DataStore,
     input_name: str,
     indices: np.ndarray,
-    patch: int,
-    reconstruct_kwargs: dict[str, Any] | None = None,
-    device: str | torch.device | None = None,
+    tiling: dict[str, int],
     progress: bool = False,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean, raw std and ground truth of a sampling network on the patches of a grid covering each image.
+    desc: str = "calibrate",
+) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+    """Each sample's index, mean and raw std (or None) of a network applied to ``reconstructions/<input_name>``
+    in tiles (:func:`~nanoct.learn.tiling.predict_tiled` with ``tiling``'s ``size``, ``overlap``, ``margin`` and
+    ``batch``, latent samples seeded with the sample index), one progress bar per image. On the CPU, as many
+    single-threaded network calls at once as torch has threads (:func:`~nanoct.learn.tiling.parallel_tiles`).
 
-    The grid is :class:`~nanoct.learn.data.PatchDataset`'s (``grid=True``); the patches of image ``i``
-    go to the network 16 at a time, the k-th call seeded as a tiled prediction's k-th batch of tiles
-    (:func:`~nanoct.learn.tiling.batch_seed`).
-
-    Returns
-    -------
-    (means, stds, gts) : float32 arrays (n patches, patch, patch)
+    :func:`nanoct.learn.predict.predict` writes these outputs; :func:`calibrate` fits a patch-trained run's
+    intervals and out-of-distribution reference on those of the validation images, so that they are the
+    very outputs a tiled prediction of a validation image gives.
     """
-    from tqdm.auto import tqdm
+    from .tiling import parallel_tiles, predict_tiled
 
-    from .data import grid_windows
-    from .tiling import batch_seed
+    with parallel_tiles(infer.dev) as workers:
+        for i in indices:
+            mean, std = predict_tiled(
+                store.read_reconstruction(input_name, [int(i)])[0],
+                infer,
+                tiling["size"],
+                overlap=tiling["overlap"],
+                margin=tiling["margin"],
+                batch=tiling["batch"],
+                seed=int(i),
+                workers=workers,
+                progress=progress,
+                desc=f"{desc} #{int(i)}",
+            )
+            yield int(i), mean, std
 
-    infer = Inference(model, dict(reconstruct_kwargs or {}), True, device)
-    windows = grid_windows(store.geometry.n, patch)
-    means, stds, gts = [], [], []
-    for i in tqdm(indices, desc="calibrate", unit="img", disable=not progress):
-        x_tilde = store.read_reconstruction(input_name, [int(i)])[0]
-        gt = store.read_phantoms([int(i)])[0]
-        for k, first in enumerate(range(0, len(windows), 16)):
-            chunk = windows[first : first + 16]
-            mean, std = infer(np.stack([x_tilde[w] for w in chunk]), batch_seed(int(i), k))
-            if std is None:
-                raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
-            means.append(mean)
-            stds.append(std)
-            gts.append(np.stack([gt[w] for w in chunk]).astype(np.float32))
-    return np.concatenate(means), np.concatenate(stds), np.concatenate(gts)
+
+def _tiled_val_outputs(
+    model: PostProcessor, store: DataStore, input_name: str, indices: np.ndarray, tiling: dict[str, int], *run: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """Means and raw stds (n, N, N) of :func:`tiled_outputs` of a sampling network (``run``: its sampling
+    arguments, device and progress)."""
+    if not tiling:
+        raise NanoctError("a network trained on patches is calibrated on its tiled predictions: predict with --tile 0")
+    kwargs, device, progress = run
+    infer = Inference(model, dict(kwargs or {}), True, device)
+    means, stds = [], []
+    for _, mean, std in tiled_outputs(infer, store, input_name, indices, tiling, progress):
+        if std is None:
+            raise NanoctError(f"a '{model.name}' network gives no std; only sampling networks are calibrated")
+        means.append(mean)
+        stds.append(std)
+    return np.stack(means), np.stack(stds)
 
 
 def image_statistic(stds: np.ndarray) -> np.ndarray:
@@ -488,6 +502,7 @@ def calibrate(
     refit: bool = False,
     levels: tuple[float, ...] = DEFAULT_LEVELS,
     delta: float = DEFAULT_DELTA,
+    tiling: dict[str, int] | None = None,
 ) -> dict[str, Any]:
     """The calibration of a run's checkpoint: reused from ``calibration.json`` if valid, else fitted and stored.
 
@@ -509,6 +524,12 @@ def calibrate(
         Interval levels (nominal coverage, each in (0, 1)); part of the validity key.
     delta : float
         The guarantee's failure probability; part of the validity key.
+    tiling : dict, optional
+        The tiling of the prediction (:func:`nanoct.learn.predict.predict`'s ``tiling``: ``size``,
+        ``overlap``, ``margin``, ``batch``) of a patch-trained run (``train --patch``); part of the validity
+        key. On a data set of another image size than the patches, the intervals and the
+        out-of-distribution reference are fitted on the validation images predicted with it
+        (:func:`tiled_outputs`), the outputs a tiled prediction gives.
 
     Returns
     -------
@@ -541,7 +562,7 @@ def calibrate(
         "split": "val",
         "level_keys": [level_key(v) for v in levels],
         "delta": float(delta),
-    }
+    } | ({"tiling": dict(tiling)} if tiling else {})
     if not 0 < delta < 1:
         raise NanoctError(f"delta {delta} must lie strictly between 0 and 1 (e.g. 0.1)")
     old = entries.get(name)
@@ -553,7 +574,7 @@ def calibrate(
     ):
         return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
     ckpt = load_checkpoint(ckpt_path)
-    patch = (ckpt.get("config") or {}).get("patch")  # train --patch: fitted on the patches of a validation grid
+    patch = (ckpt.get("config") or {}).get("patch")  # train --patch: fitted on tiled predictions of whole images
     if not (patch and store.indices("val").size and store.geometry.n != patch):
         patch = None
         own = _runs_own(store, run, entries.get(checkpoint), key, int(ckpt["image_size"]))  # raises on another size
@@ -577,11 +598,11 @@ def calibrate(
     check_input(store, key["input"], val, "val")
     model = model_from_checkpoint(ckpt, ckpt_path)
     if patch:
-        means, stds, gts = patch_outputs(model, store, key["input"], val, patch, kwargs, device, progress)
+        means, stds = _tiled_val_outputs(model, store, key["input"], val, tiling, kwargs, device, progress)
         key["patch"] = int(patch)
     else:
         means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
-        gts = store.read_phantoms(val)
+    gts = store.read_phantoms(val)
     rule = reference_rule(store, gts)
     entry = key | {"n_images": len(means)} | fit_intervals(means, stds, gts, tuple(levels), delta, **rule)
     if rule:

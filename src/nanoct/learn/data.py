@@ -162,8 +162,8 @@ def grid_starts(n: int, patch: int) -> np.ndarray:
 def grid_windows(n: int, patch: int) -> list[tuple[slice, slice]]:
     """The (rows, columns) windows of the ``patch``-square grid that covers an ``n``-square image.
 
-    :func:`grid_starts` in both directions, row by row: the validation and calibration patches of
-    ``train --patch`` (:class:`PatchDataset` with ``grid=True``, :func:`nanoct.learn.calibration.patch_outputs`).
+    :func:`grid_starts` in both directions, row by row: the validation patches of ``train --patch``
+    (:class:`PatchDataset` with ``grid=True``).
     """
     starts = grid_starts(n, patch)
     return [(slice(r, r + patch), slice(c, c + patch)) for r in starts for c in starts]
@@ -183,7 +183,7 @@ class PatchDataset(Dataset):
     grid : bool
         ``False`` (training): one patch per pair, at a position drawn from ``(seed, epoch, item)``
         (:meth:`set_epoch`), so every epoch sees other parts of every image and a resumed run the
-        same. ``True`` (validation, calibration): the patches of a fixed grid that covers each
+        same. ``True`` (validation): the patches of a fixed grid that covers each
         image (:func:`grid_starts` in both directions), the same in every epoch.
 
     Raises

@@ -40,13 +40,13 @@ from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..io.store_recon import check_name, differing_keys
 from ..names import prediction_name
-from .calibration import Inference, image_statistic, ood_p_values
+from .calibration import Inference, image_statistic, ood_p_values, tiled_outputs
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
 from .models import model_class
 from .scan_ood import store_scan_scores
-from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP, parallel_tiles, predict_tiled
+from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP
 
 __all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
 
@@ -181,10 +181,8 @@ def predict(
         for a network without sampling (the UNet).
     """
 
-    _check_arguments(checkpoint, split, batch_size)
     run = Path(run_dir)
-    if not run.is_dir():
-        raise NanoctError(f"no training run at {run}; train one first ('nanoct train ... --out {run}')")
+    _check_arguments(run, checkpoint, split, batch_size)
     store = DataStore.open(store_path, mode="r+")
     ckpt_path = run / f"{checkpoint}.pt"
     ckpt = load_checkpoint(ckpt_path)
@@ -220,6 +218,8 @@ def predict(
     on = _calibration_store(store, calibrate_on, run, ckpt, sampling, calibrate)
     if on is not None:
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
+        if (ckpt.get("config") or {}).get("patch"):  # fitted on the validation images predicted in these tiles
+            fit["tiling"] = tiling
         params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
@@ -243,13 +243,15 @@ def predict(
     return out
 
 
-def _check_arguments(checkpoint: str, split: str, batch_size: int) -> None:
+def _check_arguments(run: Path, checkpoint: str, split: str, batch_size: int) -> None:
     if checkpoint not in ("best", "last"):
         raise NanoctError(f"checkpoint {checkpoint!r} must be 'best' or 'last'")
     if split != "all" and split not in SPLITS:
         raise NanoctError(f"split {split!r} is unknown; use one of train, val, test, all")
     if batch_size < 1:
         raise NanoctError(f"batch size {batch_size} must be positive")
+    if not run.is_dir():
+        raise NanoctError(f"no training run at {run}; train one first ('nanoct train ... --out {run}')")
 
 
 def _calibration_store(
@@ -427,36 +429,6 @@ def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None,
     return {"size": size, "overlap": int(overlap), "margin": margin}
 
 
-def _write_tiled(
-    store: DataStore,
-    infer: Inference,
-    input_name: str,
-    out: str,
-    todo: np.ndarray,
-    tiling: dict[str, int],
-    batch_size: int,
-    progress: bool,
-) -> None:
-    """Post-process the samples ``todo`` one at a time in tiles (:func:`nanoct.learn.tiling.predict_tiled`);
-    one progress bar per image; latent samples seeded with the sample index. On the CPU, as many
-    single-threaded network calls at once as torch has threads (:func:`nanoct.learn.tiling.parallel_tiles`)."""
-    with parallel_tiles(infer.dev) as workers:
-        for i in todo:
-            mean, std = predict_tiled(
-                store.read_reconstruction(input_name, [int(i)])[0],
-                infer,
-                tiling["size"],
-                overlap=tiling["overlap"],
-                margin=tiling["margin"],
-                batch=batch_size,
-                seed=int(i),
-                workers=workers,
-                progress=progress,
-                desc=f"{out} #{int(i)}",
-            )
-            store.write_reconstruction(out, int(i), mean, std=std)
-
-
 def _write_outputs(
     store: DataStore,
     infer: Inference,
@@ -468,11 +440,12 @@ def _write_outputs(
     tiling: dict[str, int] | None = None,
 ) -> None:
     """Post-process ``reconstructions/<input_name>`` of the samples ``todo``, ``step`` at a time, into ``<out>``
-    (with ``tiling``: one image at a time, ``step`` tiles at a time, :func:`_write_tiled`)."""
+    (with ``tiling``: one image at a time, ``step`` tiles at a time, :func:`nanoct.learn.calibration.tiled_outputs`)."""
     from tqdm.auto import tqdm
 
     if tiling:
-        _write_tiled(store, infer, input_name, out, todo, tiling, step, progress)
+        for i, mean, std in tiled_outputs(infer, store, input_name, todo, {**tiling, "batch": step}, progress, out):
+            store.write_reconstruction(out, i, mean, std=std)
         return
     with tqdm(total=int(todo.size), desc=out, unit="img", disable=not progress) as bar:
         for start in range(0, todo.size, step):
