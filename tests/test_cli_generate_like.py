@@ -42,6 +42,25 @@ def test_generate_like_then_resume_is_a_no_op(scan, tmp_path, capsys):
     assert "holds ANOTHER data set" in capsys.readouterr().out
 
 
+def test_a_matched_set_resumes_after_the_scan_moved(scan, tmp_path, capsys):
+    """The scan's path is not part of what makes the matched set the same one again; its measurements are."""
+    import shutil
+
+    moved = tmp_path / "moved"
+    shutil.copytree(scan.path, moved)
+    out = tmp_path / "matched"
+    argv = ["--bin", "2", "--n", "4", "--out", str(out), "-w", "0", "-q"]
+    assert run(["generate", "--like", str(scan.path), *argv]) == 0
+    stamp = {p: p.stat().st_mtime_ns for p in (out / "sinograms").rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert run(["generate", "--like", str(moved), *argv[:-3], "--plan"]) == 0
+    assert "(4 already made)" in capsys.readouterr().out
+    assert run(["generate", "--like", str(moved), *argv]) == 0
+    assert {p: p.stat().st_mtime_ns for p in (out / "sinograms").rglob("*") if p.is_file()} == stamp
+    assert run(["generate", "--like", str(moved), *argv, "--seed", "9"]) == 2  # what differs is still refused
+    assert "holds a different data set (differs in: seed)" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [

@@ -256,7 +256,7 @@ def generate(
 
 def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None:
     """``generate --like``: measure the scan, print the plan, and (unless --plan) simulate the matched set."""
-    from .io.store import DataStore
+    from .io.store import DataStore, comparable_description
     from .sim.matched import generate_like, parse_mix, parse_rows, plan_matched
 
     f = flags
@@ -274,8 +274,10 @@ def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None
         done = 0
         if (out / "zarr.json").is_file():
             old = DataStore.open(out)
-            wanted = (matched.simulation, matched.geometry, n, f["seed"], list(fractions))
-            have = (old.meta.get("simulation"), old.geometry, old.n, old.seed, old.meta.get("split_fractions"))
+            simulation = comparable_description({"simulation": json.loads(json.dumps(matched.simulation))})
+            wanted = (simulation, matched.geometry, n, f["seed"], list(fractions))
+            have = (comparable_description({"simulation": old.meta.get("simulation")}), old.geometry, old.n, old.seed,
+                    old.meta.get("split_fractions"))  # fmt: skip
             done = int(old.done.sum()) if have == wanted else -1
         typer.echo("\n".join(matched.describe()))
         state = {-1: "holds ANOTHER data set (the run would stop)", 0: "new"}.get(done, f"{done} already made")

@@ -52,7 +52,7 @@ from .fileio import cached_by_file
 from .lock import pid_alive
 from .store_recon import ReconstructionArrays
 
-__all__ = ["SPLITS", "DataStore", "Sample", "create_scan", "open_cached", "split_assignment"]
+__all__ = ["SPLITS", "DataStore", "Sample", "comparable_description", "create_scan", "open_cached", "split_assignment"]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 2  # 1: fill value 0 (a lost chunk read as zeros); 2: NaN fill for float arrays
@@ -134,6 +134,16 @@ def _build_group(path: Path, meta: dict[str, Any], geometry: Geometry, split: np
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def comparable_description(meta: dict[str, Any]) -> dict[str, Any]:
+    """What makes a simulated data set the same one again: its description without the package version and
+    the path of the scan a ``generate --like`` set was matched to (the scan's measurements stay compared)."""
+    out = {k: v for k, v in meta.items() if k != "version"}
+    like = (out.get("simulation") or {}).get("like")
+    if isinstance(like, dict):
+        out["simulation"] = {**out["simulation"], "like": {k: v for k, v in like.items() if k != "store"}}
+    return out
 
 
 def _check_target(path: Path) -> bool:
@@ -252,8 +262,7 @@ class DataStore:
         )
         if _check_target(path):
             existing = cls.open(path, mode="r+")
-            mine = {k: v for k, v in meta.items() if k != "version"}
-            theirs = {k: v for k, v in existing.meta.items() if k != "version"}
+            mine, theirs = comparable_description(meta), comparable_description(existing.meta)
             if mine != theirs:
                 diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
                 raise StoreError(
