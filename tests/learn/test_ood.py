@@ -227,7 +227,13 @@ def test_ood_check_flags_more_motion_by_the_scan_statistic(motion_stores):
         assert record["statistic"] == "mean_std + scan_motion"
         assert record["flagged"] == sorted(int(i) for i in record["flagged_by"])
         assert all(v == ["scan"] for v in record["flagged_by"].values())
+        assert record["cannot_flag"] == ["std"]  # 20 validation levels: no p-value below 1/21 > 0.025
+        blind = [w for w in caught if w.category is not OutOfDistributionWarning]
+        assert len(blind) == 1 and "'std' of reconstructions/scan_check+fake cannot flag" in str(blind[0].message)
+        assert "at least 39 validation images" in str(blind[0].message)
+        flagged = [w for w in caught if w.category is OutOfDistributionWarning]
+        assert len(flagged) == bool(record["flagged"])
         if record["flagged"]:
-            assert "sinogram" in str(caught[0].message) and caught[0].category is OutOfDistributionWarning
+            assert "sinogram" in str(flagged[0].message)
         store.delete_reconstruction(name)
     assert rates["x1.5"] >= 0.9 and rates["same"] <= 0.1

@@ -355,6 +355,7 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     for s, p in p_by.items():
         own = {**(old.get(s) or {}).get("p_values", {}), **{k: float(v) for k, v in zip(keys, p)}}
         record[s] = {"p_values": own, "flagged": sorted(int(i) for i, v in own.items() if v <= alpha)}
+    record["cannot_flag"] = _blind_checks(name, ood, list(p_by), share)
     store.set_reconstruction_note(name, "ood", record)
     new = [int(k) for k in keys if by[k]]
     if new:
@@ -374,6 +375,23 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
             stacklevel=2,
         )
     return record
+
+
+def _blind_checks(name: str, ood: dict[str, Any], used: list[str], share: float) -> list[str]:
+    """The out-of-distribution checks of ``name`` that cannot flag any image, each with a warning: a reference of
+    n values gives no p-value below ``1 / (n + 1)``, so with ``1 / (n + 1) > share`` nothing is ever flagged."""
+    sizes = {"std": len(ood["val"])} | ({"scan": len(ood["scan"]["scores"])} if "scan" in used else {})
+    blind = [s for s, n in sizes.items() if 1.0 / (n + 1) > share]
+    for s in blind:
+        n, least = sizes[s], int(np.ceil(1.0 / share - 1.0 - 1e-9))
+        warnings.warn(
+            f"the out-of-distribution check '{s}' of reconstructions/{name} cannot flag any image: its reference "
+            f"holds {n} values, so no p-value falls below 1/{n + 1} = {1 / (n + 1):.3f} > {share:g}; calibrate on "
+            f"at least {least} validation images (e.g. predict --calibrate-on a larger set) for it to flag",
+            UserWarning,
+            stacklevel=3,
+        )
+    return blind
 
 
 def _chunked_statistics(
