@@ -382,12 +382,16 @@ def _blind_checks(name: str, ood: dict[str, Any], used: list[str], share: float)
     n values gives no p-value below ``1 / (n + 1)``, so with ``1 / (n + 1) > share`` nothing is ever flagged."""
     sizes = {"std": len(ood["val"])} | ({"scan": len(ood["scan"]["scores"])} if "scan" in used else {})
     blind = [s for s, n in sizes.items() if 1.0 / (n + 1) > share]
+    fix = {
+        "std": "calibrate on at least {} validation images (e.g. predict --calibrate-on a larger set)",
+        "scan": "calibrate on a data set of at least {} train and validation samples",
+    }
     for s in blind:
         n, least = sizes[s], int(np.ceil(1.0 / share - 1.0 - 1e-9))
         warnings.warn(
             f"the out-of-distribution check '{s}' of reconstructions/{name} cannot flag any image: its reference "
-            f"holds {n} values, so no p-value falls below 1/{n + 1} = {1 / (n + 1):.3f} > {share:g}; calibrate on "
-            f"at least {least} validation images (e.g. predict --calibrate-on a larger set) for it to flag",
+            f"holds {n} values, so no p-value falls below 1/{n + 1} = {1 / (n + 1):.3f} > {share:g}; "
+            f"{fix[s].format(least)} for it to flag",
             UserWarning,
             stacklevel=3,
         )
