@@ -7,7 +7,7 @@ shapes, ellipses and the scan's slice as phantoms, the motion statistics of the 
 trains CiUNetRes (the tiny study's architecture, Dremel input) twice:
 
 * ``--patch 64`` for ``--epochs`` epochs (one 64 x 64 patch per image and epoch; validation and the
-  intervals on a grid of 16 patches per validation image), predicted in 64-pixel tiles (``--tile 0``);
+  the intervals on the validation images predicted in tiles), predicted in 64-pixel tiles (``--tile 0``);
 * on the whole 251 x 251 images for ``--full-epochs`` epochs (about the same training time), predicted
   whole.
 

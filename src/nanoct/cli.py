@@ -433,8 +433,9 @@ def train(
     patch: int | None = typer.Option(
         None,
         "--patch",
-        help="Train on PxP patches (a random one per image and epoch; validation and intervals on a grid of "
-        "patches covering each image); the network then predicts in tiles of P (predict --tile 0).",
+        help="Train on PxP patches (a random one per image and epoch; validation on a grid of patches covering "
+        "each image); the network then predicts in tiles of P (predict --tile 0), its intervals fitted on the "
+        "validation images so predicted.",
     ),
     quiet: bool = QUIET,
 ) -> None:

@@ -233,13 +233,18 @@ def tiled_outputs(
 
 
 def _tiled_val_outputs(
-    model: PostProcessor, store: DataStore, input_name: str, indices: np.ndarray, tiling: dict[str, int], *run: Any
+    model: PostProcessor,
+    store: DataStore,
+    input_name: str,
+    indices: np.ndarray,
+    tiling: dict[str, int] | None,
+    kwargs: dict[str, Any],
+    device: str | torch.device | None,
+    progress: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Means and raw stds (n, N, N) of :func:`tiled_outputs` of a sampling network (``run``: its sampling
-    arguments, device and progress)."""
+    """Means and raw stds (n, N, N) of :func:`tiled_outputs` of a sampling network (sampling arguments ``kwargs``)."""
     if not tiling:
         raise NanoctError("a network trained on patches is calibrated on its tiled predictions: predict with --tile 0")
-    kwargs, device, progress = run
     infer = Inference(model, dict(kwargs or {}), True, device)
     means, stds = [], []
     for _, mean, std in tiled_outputs(infer, store, input_name, indices, tiling, progress):

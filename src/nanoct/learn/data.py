@@ -198,8 +198,11 @@ class PatchDataset(Dataset):
             raise NanoctError(f"--patch {patch!r} must be a whole number from 8 to the image size {n}")
         self.base, self.patch, self.seed, self.grid, self.epoch = base, patch, int(seed), grid, 0
         self.image_size = patch
-        tiles = [(item, rows.start, cols.start) for item in range(len(base)) for rows, cols in grid_windows(n, patch)]
-        self._grid = tiles if grid else None
+        self._grid: list[tuple[int, int, int]] | None = None
+        if grid:
+            self._grid = [
+                (item, rows.start, cols.start) for item in range(len(base)) for rows, cols in grid_windows(n, patch)
+            ]
 
     def set_epoch(self, epoch: int) -> None:
         """Draw the training patches of ``epoch`` (set before the epoch's loader is iterated)."""

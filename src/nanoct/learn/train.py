@@ -275,7 +275,8 @@ class TrainConfig:
         drawn from (seed, epoch, image), and validate on the patches of a grid that covers every
         validation image (:class:`~nanoct.learn.data.PatchDataset`): the network's trained size is
         then ``patch``, it predicts larger images in tiles of that size (``predict --tile 0``) and
-        its intervals are fitted on the validation grid's patches. Recorded in ``config.json``.
+        its intervals are fitted on the validation images predicted in those tiles
+        (:func:`~nanoct.learn.calibration.tiled_outputs`). Recorded in ``config.json``.
     """
 
     model: str = "unet"
