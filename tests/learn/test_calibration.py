@@ -11,6 +11,7 @@ import torch
 from scipy import ndimage
 
 import nanoct.learn.calibration as cal_mod
+import nanoct.learn.predict as predict_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
 from nanoct.evaluation.conformal import (
@@ -440,3 +441,39 @@ def test_measured_references_are_fitted_relative_to_each_image_on_the_field_of_v
     assert cal_mod.fit_intervals(bright, stds, gts, levels=(0.9,), **absolute)["levels"] == fit_abs["levels"]
     assert fit["object_conditional"] and "class_multipliers" in groups
     assert not cal_mod.fit_intervals(means, stds, gts, levels=(0.9,))["object_conditional"]
+
+
+@pytest.mark.slow
+def test_a_moved_folder_keeps_its_calibration_and_prediction(setup, tmp_path, monkeypatch):
+    """A data set and run moved together (the run's config.json still naming the old place): the fit is found by
+    the data set's description and input id, recorded under the new path without a refit, and the prediction
+    resumes with nothing recomputed; a data set made again at the moved path is fitted again."""
+    path, run = _copy(setup, tmp_path / "a")
+    name = predict(path, run, progress=False, reconstruct_kwargs=M)
+    before = load_calibration(run)["best"]
+    (tmp_path / "a").rename(tmp_path / "b")
+    data, moved = tmp_path / "b" / "data", tmp_path / "b" / "run"
+
+    def no_refit(*a, **k):
+        raise AssertionError("refitted")
+
+    monkeypatch.setattr(cal_mod, "sample_outputs", no_refit)
+    monkeypatch.setattr(predict_mod, "model_from_checkpoint", no_refit)
+    assert predict(data, moved, progress=False, reconstruct_kwargs=M) == name
+    entries = load_calibration(moved)
+    key = cal_mod.entry_name(moved, "best", data)
+    assert key == f"best@{data.resolve()}" and entries["best"] == before
+    assert entries[key] == before | {"store": str(data.resolve())}
+    params = DataStore.open(data).reconstruction_params(name)
+    assert params["calibration"] == entries[key] and params["run"] == str(moved.resolve())
+    monkeypatch.undo()
+    # another data set at the moved path: its input has another creation id, so no entry is taken for it
+    shutil.rmtree(data)
+    generate_dataset(data, get_preset("tiny-parallel"), 12, seed=7, workers=0, progress=False,
+                     split_fractions=(0.5, 0.25, 0.25))  # fmt: skip
+    reconstruct_dataset(data, "fbp", workers=0, progress=False)
+    refits: list[int] = []
+    real = cal_mod.sample_outputs
+    monkeypatch.setattr(cal_mod, "sample_outputs", lambda *a, **k: (refits.append(1), real(*a, **k))[1])
+    calibrate(data, moved, reconstruct_kwargs=M)
+    assert refits == [1]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -9,6 +11,7 @@ import torch
 import nanoct.learn.predict as predict_mod
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import get_preset
+from nanoct.io.fileio import file_sha256
 from nanoct.io.store import DataStore
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 from nanoct.learn.predict import predict
@@ -189,3 +192,56 @@ def test_a_residual_unet_is_stored_under_its_own_name(setup, tmp_path):
     with torch.no_grad():
         expected = (x - model.net(x))[:, 0].numpy()
     np.testing.assert_allclose(store.read_reconstruction("fbp+unet-res", test), expected, atol=1e-5)
+
+
+def _counting(monkeypatch) -> list[int]:
+    """The batch sizes the network is called on from now on (by predict)."""
+    seen: list[int] = []
+    real = predict_mod.model_from_checkpoint
+
+    def counting(*a, **k):
+        model = real(*a, **k)
+        orig = model.reconstruct
+        model.reconstruct = lambda x, **kw: (seen.append(x.shape[0]), orig(x, **kw))[1]
+        return model
+
+    monkeypatch.setattr(predict_mod, "model_from_checkpoint", counting)
+    return seen
+
+
+def test_a_moved_folder_resumes_and_a_changed_checkpoint_is_redone(setup, tmp_path, monkeypatch):
+    """The checkpoint file's hash, not the run's path, identifies the network: a data set and run moved
+    elsewhere resume their prediction (nothing recomputed, the new places recorded); weights replaced under
+    the same path and epoch are predicted again; a result recorded before the hash resumes in place."""
+    path, run = setup
+    predict(path, run, progress=False)
+    shutil.copytree(path, tmp_path / "a" / "data")
+    shutil.copytree(run, tmp_path / "a" / "run")
+    moved = tmp_path / "b"
+    (tmp_path / "a").rename(moved)
+    data, new_run = moved / "data", moved / "run"
+    seen = _counting(monkeypatch)
+    assert predict(data, new_run, progress=False) == "fbp+unet"
+    assert seen == []
+    store = DataStore.open(data)
+    params = store.reconstruction_params("fbp+unet")
+    assert params["run"] == str(new_run.resolve()) and params["checkpoint_sha256"] == file_sha256(new_run / "best.pt")
+    test = store.indices("test")
+    before = store.read_reconstruction("fbp+unet", test)
+    # the same path and epoch, other weights: the old result is stale and is redone
+    ckpt = torch.load(new_run / "best.pt", weights_only=True)
+    ckpt["model_state"] = {k: v + 0.01 if v.is_floating_point() else v for k, v in ckpt["model_state"].items()}
+    torch.save(ckpt, new_run / "best.pt")
+    predict(data, new_run, progress=False)
+    assert sum(seen) == test.size
+    assert not np.allclose(DataStore.open(data).read_reconstruction("fbp+unet", test), before)
+    # a result stored without the hash (an earlier version): resumed where its run still lies, hash added
+    store = DataStore.open(data, mode="r+")
+    store.recons.set_params("fbp+unet", {k: v for k, v in params.items() if k != "checkpoint_sha256"})
+    predict(data, new_run, progress=False)
+    assert sum(seen) == test.size
+    assert "checkpoint_sha256" in DataStore.open(data).reconstruction_params("fbp+unet")
+    # ... but not from another run directory: nothing tells its weights from others'
+    store.recons.set_params("fbp+unet", params | {"run": str(run.resolve())} | {"checkpoint_sha256": None})
+    with pytest.raises(NanoctError, match=r"differs in: .*run.*--overwrite"):
+        predict(data, new_run, progress=False)

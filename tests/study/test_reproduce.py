@@ -6,6 +6,8 @@ import time
 import numpy as np
 import pytest
 
+import nanoct.learn.calibration as cal_mod
+import nanoct.learn.predict as predict_mod
 from nanoct.core.errors import NanoctError
 from nanoct.io.store import DataStore
 from nanoct.learn.train import resolve_precision
@@ -39,7 +41,7 @@ TOY = Study(
 
 
 @pytest.mark.slow
-def test_reproduce_toy_study(tmp_path):
+def test_reproduce_toy_study(tmp_path, monkeypatch):
     out = tmp_path / "study"
     report = reproduce_study(
         "tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False
@@ -89,6 +91,24 @@ def test_reproduce_toy_study(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")} == stamps
     assert time.perf_counter() - t < 30
     assert not [p.name for p in (out / "report").iterdir() if p.name.startswith(".")]
+    # the study folder moved elsewhere resumes there: nothing trained, calibrated or predicted again
+    before = json.loads((out / "report" / "evaluation.json").read_text())["results"]
+    moved = tmp_path / "moved"
+    out.rename(moved)
+
+    def refused(*args, **kwargs):
+        raise AssertionError("redone after the folder moved")
+
+    monkeypatch.setattr(cal_mod, "sample_outputs", refused)
+    monkeypatch.setattr(predict_mod, "model_from_checkpoint", refused)
+    reproduce_study("tiny-parallel", out=moved, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in (moved / "runs").rglob("*.pt")} == {
+        moved / p.relative_to(out): t for p, t in stamps.items()
+    }
+    assert json.loads((moved / "report" / "evaluation.json").read_text())["results"] == before
+    params = DataStore.open(moved / "data").reconstruction_params("fbp+cinn-res")
+    assert params["run"] == str((moved / "runs" / "cinn-res-fbp").resolve())
+    assert params["calibration"]["store"] == str((moved / "calibration").resolve())
 
 
 def test_jobs_restore_torch_threads():

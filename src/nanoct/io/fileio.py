@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import hashlib
 import os
 import shutil
 import uuid
@@ -32,6 +33,7 @@ __all__ = [
     "atomic_write_text",
     "cached_by_file",
     "disk_space_needed",
+    "file_sha256",
     "free_space",
     "remove_stale_temporaries",
 ]
@@ -148,6 +150,26 @@ def disk_space_needed(path: str | os.PathLike[str], needed: int | None) -> Itera
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically; see :func:`atomic_write_bytes`."""
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """SHA-256 of a file's bytes (hex), read in 1 MiB blocks: what identifies a checkpoint wherever it lies.
+
+    Parameters
+    ----------
+    path : path-like
+        An existing file.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def remove_stale_temporaries(directory: str | os.PathLike[str]) -> list[Path]:

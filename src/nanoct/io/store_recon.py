@@ -287,3 +287,8 @@ class ReconstructionArrays:
     def params(self, name: str) -> dict[str, Any]:
         """Parameters stored with reconstruction ``name``."""
         return dict(self._group[f"reconstructions/{name}"].attrs.get("params", {}))
+
+    def set_params(self, name: str, params: dict[str, Any]) -> None:
+        """Replace the parameters stored with reconstruction ``name`` (its samples and creation id are kept):
+        for parameters that record where its inputs lie, after they moved."""
+        self._group[f"reconstructions/{name}"].attrs["params"] = json.loads(json.dumps(params))

@@ -69,7 +69,7 @@ from ..evaluation.conformal import (
     support_of,
 )
 from ..evaluation.metrics import EDGE_SIGMA, SUPPORT_RADIUS, edge_std, truth_support
-from ..io.fileio import atomic_write_text
+from ..io.fileio import atomic_write_text, file_sha256
 from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -107,14 +107,6 @@ SUPPORT_SOURCES = ("std", "mean", "relative")
 DEFAULT_SUPPORT_SOURCE = "mean"
 #: An image whose out-of-distribution p-value (:func:`ood_p_values`) is at most this is flagged.
 OOD_ALPHA = 0.05
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _meta_sha256(store: DataStore) -> str:
@@ -544,7 +536,8 @@ def calibrate(
         again, e.g. with ``--overwrite``), ``reconstruct``, ``n_samples``, ``split`` = "val",
         ``n_images``) and :func:`fit_intervals`'s result, with ``ood.scan`` the reference of the
         apparent-motion statistic (:func:`nanoct.learn.scan_ood.scan_reference`) where the data
-        set has train or validation samples.
+        set has train or validation samples. ``store`` (the data set's path) is recorded, not compared:
+        a data set or run that moved keeps its fit (:func:`_kept_entry`).
 
     Raises
     ------
@@ -560,7 +553,7 @@ def calibrate(
     key = {
         "format": CALIBRATION_FORMAT,
         "checkpoint": checkpoint,
-        "checkpoint_sha256": _sha256(ckpt_path) if ckpt_path.is_file() else None,
+        "checkpoint_sha256": file_sha256(ckpt_path) if ckpt_path.is_file() else None,
         "store": str(store.path.resolve()),
         "store_meta_sha256": _meta_sha256(store),
         "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
@@ -570,14 +563,9 @@ def calibrate(
     } | ({"tiling": dict(tiling)} if tiling else {})
     if not 0 < delta < 1:
         raise NanoctError(f"delta {delta} must lie strictly between 0 and 1 (e.g. 0.1)")
-    old = entries.get(name)
-    if (
-        not refit
-        and isinstance(old, dict)
-        and all(old.get(k) == v for k, v in key.items())
-        and old.get("input_fingerprint") == _input_fingerprint(store, old.get("input"))
-    ):
-        return old  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
+    kept = None if refit else _kept_entry(entries, name, key, store, run)
+    if kept is not None:
+        return kept  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
     ckpt = load_checkpoint(ckpt_path)
     patch = (ckpt.get("config") or {}).get("patch")  # train --patch: fitted on tiled predictions of whole images
     if not (patch and store.indices("val").size and store.geometry.n != patch):
@@ -618,6 +606,31 @@ def calibrate(
     entries[name] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
     return entry
+
+
+def _kept_entry(
+    entries: dict[str, Any], name: str, key: dict[str, Any], store: DataStore, run: Path
+) -> dict[str, Any] | None:
+    """The entry fitted for ``key`` on this data set: the one under ``name``, else one fitted where the data set
+    lay before it (or the run) was moved or copied. The data set is told by its description and its input
+    array's creation id, not by its path; an entry found under another path is recorded under ``name``
+    with this path (no refit). None where there is none."""
+    fingerprint: dict[str, Any] = {}
+    for k in [name, *(k for k in entries if k != name)]:
+        entry = entries.get(k)
+        if not (isinstance(entry, dict) and all(entry.get(f) == v for f, v in key.items() if f != "store")):
+            continue
+        inp = str(entry.get("input"))
+        if inp not in fingerprint:
+            fingerprint[inp] = _input_fingerprint(store, inp)
+        if entry.get("input_fingerprint") != fingerprint[inp]:
+            continue
+        if entry.get("store") != key["store"] or k != name:
+            entry = entry | {"store": key["store"]}
+            entries[name] = entry
+            atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
+        return entry
+    return None
 
 
 def _runs_own(store: DataStore, run: Path, own: Any, key: dict[str, Any], trained: int) -> dict[str, Any] | None:

@@ -35,7 +35,7 @@ import torch
 
 from ..core.errors import NanoctError, StoreError
 from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS, FOOTPRINT_TOLERANCE, footprint_fits, footprint_outside
-from ..io.fileio import disk_space_needed
+from ..io.fileio import disk_space_needed, file_sha256
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..io.store_recon import check_name, differing_keys
@@ -80,21 +80,44 @@ def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any]) -> None:
 
 
 def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: bool) -> dict:
-    """``params`` plus what the prediction is made from (geometry, input fingerprint).
+    """``params`` plus what the prediction is made from (geometry, input fingerprint, checkpoint file hash).
 
     Deletes an earlier ``out`` made with other settings (with ``overwrite``) or with the same
-    settings from an input that has changed since or under another calibration of the same run
-    (refitted after a format change).
+    settings from an input or checkpoint file that has changed since or under another calibration of
+    the same run (refitted after a format change). An earlier ``out`` of the same checkpoint file whose
+    run or calibration data set has moved since is kept, its parameters recording the new places.
     """
     here = json.loads(json.dumps(store.geometry.to_dict()))
-    made_from = {"geometry": here, "input_fingerprint": store.recons.fingerprint(params["input"])}
+    made_from = {
+        "geometry": here,
+        "input_fingerprint": store.recons.fingerprint(params["input"]),
+        "checkpoint_sha256": file_sha256(Path(params["run"]) / f"{params['checkpoint']}.pt"),
+    }
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
         same_request = _request(old, made_from) == _request(params, made_from)
-        if old != new and (overwrite or same_request):
+        if old != new and _moved(old, new):
+            store.recons.set_params(out, new)
+        elif old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
     return new
+
+
+def _moved(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """Whether a prediction's stored parameters ``old`` differ from ``new`` only in where its run and calibration
+    data set lie (a moved or copied folder: the checkpoint file's hash, or its calibration's, is the same), or
+    only in the hash, which a result of the same run directory made before the hash was recorded lacks."""
+
+    def placeless(params: dict[str, Any]) -> dict[str, Any]:
+        kept = {k: v for k, v in params.items() if k not in ("run", "checkpoint_sha256")}
+        if isinstance(kept.get("calibration"), dict):
+            kept["calibration"] = {k: v for k, v in kept["calibration"].items() if k != "store"}
+        return kept
+
+    recorded = old.get("checkpoint_sha256") or (old.get("calibration") or {}).get("checkpoint_sha256")
+    same_weights = recorded == new["checkpoint_sha256"] or (recorded is None and old.get("run") == new["run"])
+    return same_weights and placeless(old) == placeless(new)
 
 
 def predict(
