@@ -153,3 +153,34 @@ def test_simulated_store_keeps_the_unmoved_model(tiny_store):
     eta = eta_from_residual(store.geometry, sample.sinogram, store.read_reconstruction("d3", [i])[0])
     direct = resesop(store.geometry, sample.sinogram, eta, **QUICK)
     np.testing.assert_array_equal(store.read_reconstruction(name, [i])[0], direct.image)
+
+
+def test_a_moved_reference_store_resumes(tiny_store, reference, tmp_path, monkeypatch):
+    """A reference store moved elsewhere gives the same eta: the reconstruction resumes, nothing redone, the new
+    path recorded. One recorded before the eta's hash resumes from the same path only."""
+    import shutil
+
+    import nanoct.recon.batch as batch_mod
+
+    def run(where):
+        params = {**QUICK, "eta": f"estimate:reference={where}"}
+        return reconstruct_dataset(tiny_store.path, "resesop", split="test", params=params, name="mv", workers=0,
+                                   progress=False)  # fmt: skip
+
+    moved, other = tmp_path / "moved", tmp_path / "elsewhere"
+    shutil.copytree(reference.path, moved)
+    name = run(moved)
+    recorded = DataStore.open(tiny_store.path).reconstruction_params(name)
+    moved.rename(other)
+    monkeypatch.setattr(batch_mod, "_reconstruct_into", lambda *a: pytest.fail("redone"))
+    run(other)
+    store = DataStore.open(tiny_store.path, mode="r+")
+    now = recorded | {"eta": f"estimate:reference={other.resolve()}"}
+    assert store.reconstruction_params(name) == now
+    unhashed = {k: v for k, v in recorded.items() if k != "eta_reference_sha256"}
+    store.recons.set_params(name, unhashed)  # made at the old path by a version that recorded no hash
+    with pytest.raises(NanoctError, match="differs in: eta, eta_reference_sha256"):
+        run(other)
+    store.recons.set_params(name, unhashed | {"eta": now["eta"]})  # ... at this path: resumed, hash added
+    run(other)
+    assert DataStore.open(tiny_store.path).reconstruction_params(name) == now

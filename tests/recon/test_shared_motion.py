@@ -229,3 +229,31 @@ def test_cli_wrong_shifts_file_one_error_nothing_written(tmp_path, stack, monkey
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and len(err) == 1 and "has 5 views, the data set 140" in err[0]
     assert DataStore.open(store.path).reconstruction_names() == []
+
+
+def test_a_moved_shifts_file_resumes_and_another_is_refused(tmp_path, stack, monkeypatch):
+    """The shifts file's content, not its path, is part of the reconstruction: the same file named by another
+    path (moved) resumes with nothing redone; another motion under the moved path is refused."""
+    import nanoct.recon.batch as batch_mod
+
+    g, _, true = stack
+    store = _scan(tmp_path / "scan", stack)
+    (tmp_path / "a").mkdir()
+    first = write_shifts(tmp_path / "a" / "given.txt", true, angles=g.angles)
+    params = {"n_iter": 1, "fix_shifts": True}
+    reconstruct_dataset(store.path, "dremel", params=params | {"shifts_from": str(first)}, workers=0, progress=False)
+    recorded = DataStore.open(store.path).reconstruction_params("dremel")
+    assert len(recorded["shifts_from_sha256"]) == 64
+    moved = tmp_path / "b" / "given.txt"
+    moved.parent.mkdir()
+    first.rename(moved)
+    monkeypatch.setattr(batch_mod, "_reconstruct_into", lambda *a: pytest.fail("redone"))
+    reconstruct_dataset(store.path, "dremel", params=params | {"shifts_from": str(moved)}, workers=0, progress=False)
+    assert DataStore.open(store.path).reconstruction_params("dremel") == recorded | {
+        "shifts_from": str(moved.resolve())
+    }
+    write_shifts(moved, true + 0.25, angles=g.angles)
+    with pytest.raises(NanoctError, match="differs in: shifts_from_sha256"):
+        reconstruct_dataset(
+            store.path, "dremel", params=params | {"shifts_from": str(moved)}, workers=0, progress=False
+        )

@@ -17,11 +17,15 @@ carrying that motion and eta the residual left after it
 the stack and refines it (a simulation holds the joint motion fixed and RESESOP keeps the
 unperturbed model). Where Dremel rejects a sample's shift estimate as a runaway (it keeps the
 shifts at their start: :func:`~nanoct.recon.dremel.runaway_shifts`), the sample is recorded in the
-reconstruction's note ``sample_shift_check`` (:func:`shift_check_warning` words it).
+reconstruction's note ``sample_shift_check`` (:func:`shift_check_warning` words it). The files a run
+reads (a ``shifts_from`` file, a reference store's eta) are recorded by path and by the SHA-256 of
+their content: the same content under another path resumes, other content is refused.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,7 +37,7 @@ import numpy as np
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..core.geometry import Geometry
-from ..io.fileio import disk_space_needed
+from ..io.fileio import disk_space_needed, file_sha256
 from ..io.lock import exclusive
 from ..io.store import DataStore, Sample, open_cached
 from ..names import reconstruction_name
@@ -204,6 +208,41 @@ def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tupl
     return checked, stored
 
 
+#: Parameters naming a file or data set, and the stored parameter that identifies its content.
+_FILE_IDENTITIES = {"shifts_from": "shifts_from_sha256", "eta": "eta_reference_sha256"}
+
+
+def _file_identities(checked: dict[str, Any], eta: EtaPlan | None) -> dict[str, str]:
+    """SHA-256 of what the files a run reads hold (the shifts file, the reference store's eta), stored with its
+    parameters: a resume from a moved file is then told from a run on another one."""
+    out = {}
+    if checked.get("shifts_from") is not None:
+        out["shifts_from_sha256"] = file_sha256(checked["shifts_from"])
+    if eta is not None and eta.reference is not None:
+        out["eta_reference_sha256"] = hashlib.sha256(np.asarray(eta.reference, np.float64).tobytes()).hexdigest()
+    return out
+
+
+def _record_moved_files(store: DataStore, name: str, params: dict[str, Any]) -> None:
+    """Record ``params`` with the kept reconstruction ``name`` where they differ from its parameters only in the
+    paths of files whose content is the same (a shifts file or reference store moved or named by another path;
+    a reconstruction made before the content was recorded, where the path is the same), so that it resumes."""
+    if name not in store.reconstruction_names():
+        return
+    old = json.loads(json.dumps(store.reconstruction_params(name)))
+    new = json.loads(json.dumps(params))
+    named = {*_FILE_IDENTITIES, *_FILE_IDENTITIES.values()}
+    if old == new or {k: v for k, v in old.items() if k not in named} != {
+        k: v for k, v in new.items() if k not in named
+    }:
+        return
+    for path, content in _FILE_IDENTITIES.items():
+        recorded = old.get(content)
+        if (recorded != new.get(content)) if recorded is not None else (old.get(path) != new.get(path)):
+            return
+    store.recons.set_params(name, new)
+
+
 def _motion_slices(store: DataStore, value: str) -> np.ndarray:
     done = np.flatnonzero(store.done)
     if value == "all":
@@ -323,7 +362,9 @@ def reconstruct_dataset(
     with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"), disk_space_needed(store.path, needed):
         if overwrite:
             store.delete_reconstruction(name)
-        store.prepare_reconstruction(name, {"method": method, **stored}, shifts=spec.estimates_motion)
+        params = {"method": method, **stored, **_file_identities(checked, inputs.eta)}
+        _record_moved_files(store, name, params)
+        store.prepare_reconstruction(name, params, shifts=spec.estimates_motion)
         if axis_notes:
             store.recons.set_note(name, "shifts_axis", axis_notes[0])
         if slices is not None:
