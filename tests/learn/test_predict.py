@@ -25,6 +25,21 @@ SMALL = {"channels": [4, 4, 8, 8, 16]}
 pytestmark = pytest.mark.slow
 
 
+def _counting(monkeypatch) -> list[int]:
+    """The batch sizes the network is called on from now on (by predict)."""
+    seen: list[int] = []
+    real = predict_mod.model_from_checkpoint
+
+    def counting(*a, **k):
+        model = real(*a, **k)
+        orig = model.reconstruct
+        model.reconstruct = lambda x, **kw: (seen.append(x.shape[0]), orig(x, **kw))[1]
+        return model
+
+    monkeypatch.setattr(predict_mod, "model_from_checkpoint", counting)
+    return seen
+
+
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("predict")
@@ -68,16 +83,7 @@ def test_sampling_arguments_for_the_unet_are_refused(setup):
 def test_predict_is_resumable_and_noop_when_complete(setup, monkeypatch):
     path, run = setup
     predict(path, run, progress=False)
-    seen: list[int] = []
-    real = predict_mod.model_from_checkpoint
-
-    def counting(*a, **k):
-        model = real(*a, **k)
-        orig = model.reconstruct
-        model.reconstruct = lambda x, **kw: (seen.append(x.shape[0]), orig(x, **kw))[1]
-        return model
-
-    monkeypatch.setattr(predict_mod, "model_from_checkpoint", counting)
+    seen = _counting(monkeypatch)
     predict(path, run, progress=False)
     assert seen == []  # complete: nothing recomputed
     store = DataStore.open(path, mode="r+")
@@ -192,21 +198,6 @@ def test_a_residual_unet_is_stored_under_its_own_name(setup, tmp_path):
     with torch.no_grad():
         expected = (x - model.net(x))[:, 0].numpy()
     np.testing.assert_allclose(store.read_reconstruction("fbp+unet-res", test), expected, atol=1e-5)
-
-
-def _counting(monkeypatch) -> list[int]:
-    """The batch sizes the network is called on from now on (by predict)."""
-    seen: list[int] = []
-    real = predict_mod.model_from_checkpoint
-
-    def counting(*a, **k):
-        model = real(*a, **k)
-        orig = model.reconstruct
-        model.reconstruct = lambda x, **kw: (seen.append(x.shape[0]), orig(x, **kw))[1]
-        return model
-
-    monkeypatch.setattr(predict_mod, "model_from_checkpoint", counting)
-    return seen
 
 
 def test_a_moved_folder_resumes_and_a_changed_checkpoint_is_redone(setup, tmp_path, monkeypatch):
