@@ -49,3 +49,26 @@ def test_stated_units_skip_the_span_check_and_bad_values_are_named(tmp_path):
         read_angles(f"{tmp_path / 'a.h5'}:/bad", units="deg")
     with pytest.raises(NanoctError, match="--angles-units 'grad'"):
         read_angles(tmp_path / "x.txt", units="grad")
+
+
+def test_an_angles_file_longer_than_the_scan_names_angles_select(tmp_path):
+    """More values than projections (the flats' and darks' lines too): the refusal names --angles-select."""
+    np.save(tmp_path / "s.npy", np.ones((8, 2, 5), np.float32))
+    np.savetxt(tmp_path / "long.txt", np.arange(11.0))
+    np.savetxt(tmp_path / "short.txt", np.arange(6.0))
+    with pytest.raises(NanoctError, match=r"11 angle\(s\) for 8 projection\(s\).*--angles-select FIRST:STOP"):
+        read_scan(tmp_path / "s.npy", angles_file=tmp_path / "long.txt", is_line_integral=True)
+    with pytest.raises(NanoctError, match=r"6 angle\(s\) for 8 projection\(s\)") as short:
+        read_scan(tmp_path / "s.npy", angles_file=tmp_path / "short.txt", is_line_integral=True)
+    assert "--angles-select" not in str(short.value)  # too few values: no selection helps
+    chosen = read_scan(
+        tmp_path / "s.npy", angles_file=tmp_path / "long.txt", is_line_integral=True,
+        options=ReaderOptions(angles_select=(2, 10)),
+    )  # fmt: skip
+    np.testing.assert_allclose(np.rad2deg(chosen.angles), np.arange(2.0, 10.0))
+    with h5py.File(tmp_path / "s.nxs", "w") as f:  # a scan file's own angles replaced by the file's
+        f["entry/instrument/detector/data"] = np.ones((8, 2, 5), np.float32)
+        f["entry/instrument/detector/image_key"] = np.zeros(8, int)
+        f["entry/sample/rotation_angle"] = np.linspace(0, 180, 8, endpoint=False)
+    with pytest.raises(NanoctError, match=r"--angles .*long.txt: 11 angle\(s\) for 8 .*--angles-select FIRST:STOP"):
+        read_scan(tmp_path / "s.nxs", angles_file=tmp_path / "long.txt", is_line_integral=True)

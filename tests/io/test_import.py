@@ -132,6 +132,21 @@ def test_the_same_import_from_another_path_resumes_and_another_file_is_refused(t
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == chunks  # nothing written
 
 
+def test_a_refused_import_names_the_option_changed_before_the_axis_it_moved(tmp_path, scan, capsys):
+    """The same import with --open-beam added: the axis --center-offset auto estimates moves with it, and the
+    refusal names the option the user changed, not the estimate that followed from it."""
+    src, _ = _write(tmp_path, scan, "nxtomo")
+    args = ["import", str(src), "--out", str(tmp_path / "data"), "--center-offset", "auto", "-q"]
+    assert run(args) == 0
+    capsys.readouterr()
+    assert run([*args, "--open-beam", "--air-columns", "0:3,88:91"]) == 2
+    err = capsys.readouterr().err
+    assert "corrections.open_beam False (this import: True), set by --open-beam" in err, err
+    assert "set by --air-columns" in err and "axis" not in err and err.count("\n") == 1
+    assert run([*args, "--binning", "2"]) == 2
+    assert "binning 1 (this import: 2), set by --binning;" in capsys.readouterr().err
+
+
 def test_binning_says_which_pixels_it_leaves_out(tmp_path, scan, capsys):
     src, _ = _write(tmp_path, scan, "nxtomo")  # 3 rows x 91 columns
     assert run(["import", str(src), "--out", str(tmp_path / "b2"), "--binning", "2", "--center-offset", "1"]) == 0

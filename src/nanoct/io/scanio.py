@@ -261,7 +261,12 @@ def read_scan(
     if given is not None:
         values = given(scan.n_views) if callable(given) else given
         if values.size != scan.n_views:
-            raise NanoctError(f"--angles {angles_file}: {values.size} angle(s) for {scan.n_views} projection(s)")
+            more = values.size > scan.n_views
+            pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if more else ""
+            raise NanoctError(
+                f"--angles {angles_file}: {values.size} angle(s) for {scan.n_views} projection(s); "
+                f"give one angle per view{pick}"
+            )
         scan = replace(scan, angles=values, source={**scan.source, "angles_from": str(angles_file)})
     if is_line_integral:
         scan = replace(scan, is_line_integral=True, flats=None, darks=None)
@@ -343,7 +348,8 @@ def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, fla
 
     given = given(stack.shape[0]) if callable(given) else given
     if given.size != stack.shape[0]:
-        raise NanoctError(f"{given.size} angle(s) for {stack.shape[0]} projection(s); give one angle per view")
+        pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if given.size > stack.shape[0] else ""
+        raise NanoctError(f"{given.size} angle(s) for {stack.shape[0]} projection(s); give one angle per view{pick}")
     return RawScan(
         np.asarray(stack, dtype=np.float32),
         given,
@@ -691,13 +697,66 @@ def _store_scan(out: str | os.PathLike[str], geometry: Any, stack: np.ndarray, s
     return create_scan(out, geometry, stack, scan)
 
 
+#: The ``nanoct import`` options recorded in a scan's record, with their flags, in the order a refusal names them:
+#: what the user gave before what follows from it (the estimated axis, the pixel size after binning, ...);
+#: ``--center-offset`` last (given as ``auto`` twice, it follows from the rest: compared with the derived values).
+_GIVEN = {
+    "rows": "--rows",
+    "crop": "--crop",
+    "binning": "--binning",
+    "line_integrals": "--line-integrals",
+    "flats": "--flats",
+    "darks": "--darks",
+    "corrections": None,
+    "reader": None,
+    "center_offset_raw": "--center-offset",
+}
+#: Fields of ``reader`` whose flag is not the field's name with dashes.
+_READER_FLAGS = {"angle_units": "--angles-units", "allow": "--allow-outside"}
+
+
+def _nested_defaults(key: str) -> dict[str, Any]:
+    """What an import records as ``key`` (``corrections`` or ``reader``) when every field has its default."""
+    from ..preprocess import Corrections
+
+    defaults = Corrections().to_dict() if key == "corrections" else asdict(ReaderOptions())
+    return json.loads(json.dumps(defaults))
+
+
+def _given_difference(recorded: dict[str, Any], scan: dict[str, Any]) -> str | None:
+    """The options of :data:`_GIVEN` that differ, each with its flag (a correction or reader field by name)."""
+    both_estimated = "axis" in recorded and "axis" in scan  # --center-offset auto twice: the axis follows
+    named: list[str] = []
+    for key, flag in _GIVEN.items():
+        old, new = recorded.get(key), scan.get(key)
+        if key == "center_offset_raw" and both_estimated:
+            continue
+        if flag is not None:
+            if old != new:
+                named.append(f"{key} {old!r} (this import: {new!r}), set by {flag}")
+            continue
+        defaults = _nested_defaults(key)
+        old, new = {**defaults, **(old or {})}, {**defaults, **(new or {})}
+        for field in sorted(old.keys() | new.keys()):
+            if old.get(field) != new.get(field):
+                field_flag = _READER_FLAGS.get(field, "--" + field.replace("_", "-"))
+                named.append(f"{key}.{field} {old.get(field)!r} (this import: {new.get(field)!r}), set by {field_flag}")
+    return " and ".join(named) or None
+
+
 def _import_difference(recorded: dict[str, Any], scan: dict[str, Any], same_geometry: bool) -> str | None:
     """What differs between a kept import's record and this import's, other than the paths of the files; None: nothing.
 
-    The angles are compared in the geometry, and the file itself slice by slice
+    The options the user gives (:data:`_GIVEN`: rows, binning, corrections, ...) are named first, all that
+    differ, each with its flag; only where none differs, the first value that follows from them (e.g. the
+    axis that ``--center-offset auto`` estimated), so that a refusal names the option that was changed. The
+    angles are compared in the geometry, and the file itself slice by slice
     (:meth:`~nanoct.io.store.DataStore.complete_scan`).
     """
-    for key in sorted((recorded.keys() | scan.keys()) - {"file", "angles_from", "notes"}):
+    given = _given_difference(recorded, scan)
+    if given is not None:
+        return given
+    for key in sorted((recorded.keys() | scan.keys()) - {"file", "angles_from", "notes", "corrections", "reader"}):
         if recorded.get(key) != scan.get(key):
             return f"{key} {recorded.get(key)!r} (this import: {scan.get(key)!r})"
     if recorded.get("notes") != scan.get("notes") or not same_geometry:

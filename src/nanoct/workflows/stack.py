@@ -31,6 +31,7 @@ with the reconstruction (the note ``engine``, read with ``store.recons.note(name
 
 from __future__ import annotations
 
+import json
 import os
 from functools import partial
 from typing import Any
@@ -38,10 +39,11 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..core.errors import NanoctError
+from ..core.errors import NanoctError, StoreError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.lock import exclusive
 from ..io.store import DataStore, open_cached
+from ..io.store_recon import differing_keys
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
@@ -293,8 +295,18 @@ def _matching_rows(store: DataStore) -> list[int]:
     return [first + i for i in range(count) if done is None or done[first + i]]
 
 
+def _motion_label(name: str) -> str:
+    """The progress label of the motion estimate of ``name``: ``"NAME: motion"``, or ``"motion"`` for that name."""
+    return name if name == "motion" else f"{name}: motion"
+
+
+def _step(bar: Any, stage: str) -> None:
+    """Show on ``bar`` the stage now running (its postfix), so that a long stage is seen to run."""
+    bar.set_postfix_str(stage)
+
+
 def _focus_matching(
-    store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
+    store: DataStore, params: dict[str, Any], vertical: np.ndarray, bar: Any
 ) -> tuple[np.ndarray, dict[str, Any]] | None:
     """No air seen: :func:`~nanoct.motion.estimate.estimate_motion`'s path (autofocus, matching, autofocus).
 
@@ -303,22 +315,31 @@ def _focus_matching(
     else that of every axis estimator with the shifts undone; or the given one. ``None`` where a
     first autofocus from the start axis runs to its bounds (too little structure to focus on: the
     K11 interior crop, 22 x 26 pixels), so that the caller falls back to Dremel and matching.
+    ``bar`` (a tqdm bar) counts six stages: the open beam, the start axis, the first autofocus
+    and the three of :func:`~nanoct.motion.estimate.estimate_motion`.
     """
     from ..motion.estimate import estimate_motion, start_axis
     from ..motion.focus import focus_smooth
 
     rows = _matching_rows(store) or [int(i) for i in params["motion_slices"]]
+    _step(bar, "open beam, matching rows")
     clean, _ = remove_air(read_straight(store, rows, vertical))
+    bar.update()
     given = None if params["center"] == "auto" else float(params["center"])
+    _step(bar, "start axis")
     start = start_axis(clean[axis_rows(len(rows))], store.geometry.angles) if given is None else given
+    bar.update()
     projections = clean.transpose(1, 0, 2)
+    _step(bar, "autofocus")
     if not focus_smooth(projections, store.geometry.angles, start).accepted:
+        bar.update()
         return None
-    with tqdm(total=3, desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
-        motion = estimate_motion(
-            projections, store.geometry.angles, center=given, horizontal="matching",
-            vertical=False, prealign=False, tilt=False, progress=lambda stage: bar.update(),
-        )  # fmt: skip
+    bar.update()
+    _step(bar, "focus+matching")
+    motion = estimate_motion(
+        projections, store.geometry.angles, center=given, horizontal="matching",
+        vertical=False, prealign=False, tilt=False, progress=lambda stage: bar.update(),
+    )  # fmt: skip
     accepted = motion.record["focus"]["accepted"]
     method = "focus+matching" if any(accepted) else "matching"
     center_method = "given" if given is not None else ", ".join(motion.axis.used)
@@ -345,38 +366,62 @@ def horizontal_motion(
     results were rejected); with ``refine`` given, or where a first autofocus runs to its bounds
     (too little structure to focus on), Dremel and projection matching on the chosen slices
     (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
+
+    With ``progress`` one bar, labelled :func:`_motion_label` of ``name``, counts the stages and
+    names the one running.
     """
-    geometry = store.geometry
-    clean, air = remove_air(read_straight(store, params["motion_slices"], vertical), zero_air=True)
+    refine = (2, 2, 2, 1) if params["refine"] is None else tuple(params["refine"])
+    with tqdm(total=1, desc=_motion_label(name), disable=not progress, unit="stage") as bar:
+        _step(bar, "open beam, motion slices")
+        clean, air = remove_air(read_straight(store, params["motion_slices"], vertical), zero_air=True)
+        bar.total += 1 if air else (6 if params["refine"] is None else 3 + len(refine))  # the stages to come
+        bar.update()
+        if air:
+            return _centroid_motion(store, params, vertical, clean, bar)
+        info: dict[str, Any] = {}
+        if params["refine"] is None:
+            found = _focus_matching(store, params, vertical, bar)
+            if found is not None:
+                return found
+            info["focus"] = {"note": "the autofocus ran to its bounds (too little structure): Dremel and matching"}
+            bar.total += len(refine)  # Dremel's 3 + len(refine) stages for the 3 of the matching not run
+        return _dremel_matching(store, params, clean, info, refine, bar)
+
+
+def _centroid_motion(
+    store: DataStore, params: dict[str, Any], vertical: np.ndarray, clean: np.ndarray, bar: Any
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Air seen: the views' centroids give the shifts, every axis estimator the axis (one stage on ``bar``)."""
+    rows = object_rows(clean)
+    _step(bar, "centroids and axis")
+    _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, store.geometry.angles)
     info: dict[str, Any] = {}
-    if air:
-        rows = object_rows(clean)
-        _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, geometry.angles)
-        if params["center"] == "auto":
-            center, info["axis"] = _axis(store, vertical, shifts)
-        else:
-            center = float(params["center"])
-        info.update(center_method="estimators" if params["center"] == "auto" else "given", horizontal_method="centroid")
-        info.update(center_offset=center, center_raw=center, mass_spread=spread, refine_steps=[])
-        return shifts, info
-    if params["refine"] is None:
-        found = _focus_matching(store, params, vertical, progress, name)
-        if found is not None:
-            return found
-        info["focus"] = {"note": "the autofocus ran to its bounds (too little structure): Dremel and matching"}
+    if params["center"] == "auto":
+        center, info["axis"] = _axis(store, vertical, shifts)
+    else:
+        center = float(params["center"])
+    bar.update()
+    info.update(center_method="estimators" if params["center"] == "auto" else "given", horizontal_method="centroid")
+    info.update(center_offset=center, center_raw=center, mass_spread=spread, refine_steps=[])
+    return shifts, info
+
+
+def _dremel_matching(
+    store: DataStore, params: dict[str, Any], clean: np.ndarray, info: dict[str, Any], refine: tuple[int, ...], bar: Any
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Dremel and projection matching on the chosen slices (``3 + len(refine)`` stages on ``bar``)."""
     from ..motion.stack import estimate_stack_motion
 
-    refine = (2, 2, 2, 1) if params["refine"] is None else tuple(params["refine"])
-    with tqdm(total=3 + len(refine), desc=f"{name}: motion", disable=not progress, unit="stage") as bar:
-        motion = estimate_stack_motion(
-            geometry,
-            clean,
-            binning=params["binning"],
-            coarse_iter=params["coarse_iter"],
-            refine=refine,
-            center=None if params["center"] == "auto" else float(params["center"]),
-            progress=lambda stage: bar.update(),
-        )
+    _step(bar, "dremel+matching")
+    motion = estimate_stack_motion(
+        store.geometry,
+        clean,
+        binning=params["binning"],
+        coarse_iter=params["coarse_iter"],
+        refine=refine,
+        center=None if params["center"] == "auto" else float(params["center"]),
+        progress=lambda stage: bar.update(),
+    )
     info.update(center_offset=motion.center_offset, center_raw=motion.center_raw, horizontal_method="dremel+matching")
     info.update(center_method=motion.center_method, mass_spread=motion.mass_spread, refine_steps=motion.steps)
     return motion.shifts, info
@@ -524,6 +569,23 @@ def _record_engine(store: DataStore, name: str, label: str) -> None:
         store.recons.set_note(name, "engine", [*engines, label])
 
 
+def _refuse_other_params(store: DataStore, name: str, params: dict[str, Any]) -> None:
+    """Refuse ``name`` where it holds slices made with other parameters, naming ``nanoct stack``'s remedies.
+
+    The rule of :meth:`~nanoct.io.store.DataStore.prepare_reconstruction` (a result without a
+    written slice is replaced), checked first so that the message names this command's options.
+    """
+    if name not in store.reconstruction_names():
+        return
+    old, new = store.recons.params(name), json.loads(json.dumps(params))
+    if old != new and store.reconstruction_done(name).any():
+        raise StoreError(
+            f"reconstructions/{name} in {store.path} was made with other parameters (differs in: "
+            f"{', '.join(differing_keys(old, new))}); replace it (nanoct stack ... --name {name} --overwrite) "
+            "or write this one under another name (nanoct stack ... --name NEW_NAME)"
+        )
+
+
 def reconstruct_stack(
     path: str | os.PathLike[str],
     *,
@@ -620,6 +682,7 @@ def reconstruct_stack(
     with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"):
         if overwrite:
             store.delete_reconstruction(name)
+        _refuse_other_params(store, name, params)
         store.prepare_reconstruction(name, params, shifts=True)
         if store.recons.motion_info(name) is None:
             _estimate(store, name, params, progress)
