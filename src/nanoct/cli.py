@@ -188,7 +188,8 @@ def generate(
     motion_from: str | None = typer.Option(
         None,
         "--motion-from",
-        help="With --like: the 'nanoct stack' (or Dremel) result whose motion to match (default: any).",
+        help="With --like: the 'nanoct stack' (or Dremel) result whose motion to match (default: the one the --out "
+        "set was made with, else the first complete one).",
     ),
     hold_out: str | None = typer.Option(
         None,
@@ -267,7 +268,7 @@ def _generate_like(like: Path, n: int, out: Path, flags: dict[str, Any]) -> None
         raise NanoctError(f"--n {n} must be a positive number of samples")
     matched = plan_matched(
         like, binning=f["bin_"], mix=parse_mix(f["mix"]), motion_from=f["motion_from"],
-        perturbed=not f["no_motion"], oversample=f["oversample"], hold_out=parse_rows(f["hold_out"]),
+        perturbed=not f["no_motion"], oversample=f["oversample"], hold_out=parse_rows(f["hold_out"]), out=out,
     )  # fmt: skip
     fractions = _parse_fractions(f["split_fractions"])
     if f["plan"]:

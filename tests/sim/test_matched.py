@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import zarr
 
 from nanoct.core.errors import NanoctError, StoreError
 from nanoct.core.operators import RayTransform
+from nanoct.io.store import DataStore
 from nanoct.recon.measured import looks_measured
 from nanoct.sim import matched
 from nanoct.sim.matched import generate_like, parse_mix, plan_matched
@@ -24,7 +27,30 @@ def scan(tmp_path_factory):
 def moved_scan(tmp_path_factory):
     k = ANGLES_DEG.size
     shifts = 0.6 * np.sin(2 * np.pi * np.arange(k) / k) + np.random.default_rng(5).normal(0, 0.08, k)
-    return scan_store(tmp_path_factory.mktemp("moved") / "scan", shifts=shifts), shifts
+    store = scan_store(tmp_path_factory.mktemp("moved") / "scan", shifts=shifts)
+    _write_slices(store, "fbp_stack", SLICES)  # a finished stack result: its motion is the default source
+    return store, shifts
+
+
+def _write_slices(store: DataStore, name: str, count: int) -> None:
+    """Mark the first ``count`` slices of result ``name`` written (blank images with its motion)."""
+    shifts = store.recons.shared_shifts(name)
+    for i in range(count):
+        store.write_reconstruction(name, i, np.zeros(store.geometry.image_shape, np.float32), shifts=shifts)
+
+
+def _add_result(path, name: str, shifts: np.ndarray, slices: int = SLICES) -> None:
+    """A stack result ``name`` of the scan at ``path`` with motion ``shifts`` and its first ``slices`` slices."""
+    store = DataStore.open(path, mode="r+")
+    store.prepare_reconstruction(name, {"method": "fbp"}, shifts=True)
+    store.recons.set_shared_shifts(name, shifts)
+    store.recons.set_motion_info(name, {"center_offset": OFFSET})
+    _write_slices(store, name, slices)
+
+
+def _copy(store: DataStore, tmp_path) -> DataStore:
+    """A copy of a module's scan that a test may add results to."""
+    return DataStore.open(shutil.copytree(store.path, tmp_path / "scan"))
 
 
 def test_the_plan_has_the_scans_views_binned_detector_axis_and_noise(scan):
@@ -86,6 +112,63 @@ def test_a_stack_motion_gives_the_motion_statistics_and_axis(moved_scan):
     assert "fbp_stack" in plan.simulation["like"]["axis_from"]
     with pytest.raises(NanoctError, match="--motion-from 'nope'"):
         plan_matched(store.path, motion_from="nope")
+
+
+def test_an_interrupted_result_is_not_the_default_motion_source(moved_scan, tmp_path):
+    """'nanoct stack' records its motion before its slices: one stopped halfway (here 'dremel_stack', first in
+    name order) is passed over by default until all its slices are done; asked for by name, it is used."""
+    store, shifts = moved_scan
+    scan = _copy(store, tmp_path)
+    _add_result(scan.path, "dremel_stack", 2 * shifts, slices=2)
+    assert plan_matched(scan.path, binning=2).simulation["like"]["motion"]["from"] == "fbp_stack"
+    assert plan_matched(scan.path, binning=2, motion_from="dremel_stack").simulation["like"]["motion"]["from"] == (
+        "dremel_stack"
+    )
+    _write_slices(DataStore.open(scan.path, mode="r+"), "dremel_stack", SLICES)  # finished: first in name order
+    assert plan_matched(scan.path, binning=2).simulation["like"]["motion"]["from"] == "dremel_stack"
+
+
+def test_resuming_keeps_the_motion_source_the_set_was_made_with(moved_scan, tmp_path, capsys):
+    """A result added to the scan later (first in name order) does not change the source of a set at --out;
+    asking for it names the nested key that differs and the --motion-from that resumes the set."""
+    from nanoct.cli import run
+
+    store, shifts = moved_scan
+    scan, out = _copy(store, tmp_path), tmp_path / "matched"
+    generate_like(out, plan_matched(scan.path, binning=2), 2, workers=0, progress=False)
+    _add_result(scan.path, "a_stack", 2 * shifts)
+    plan = plan_matched(scan.path, binning=2, out=out)
+    assert plan.simulation["like"]["motion"]["from"] == "fbp_stack" and "as the set at" in plan.describe()[4]
+    zarr.open_group(str(out), mode="r+")["done"][1] = False
+    assert generate_like(out, plan, 2, workers=0, progress=False).done.all()  # resumed
+    argv = ["generate", "--like", str(scan.path), "--bin", "2", "--n", "2", "--out", str(out)]
+    assert run([*argv, "--plan"]) == 0
+    text = capsys.readouterr().out
+    assert "from 'fbp_stack'" in text and "(2 already made)" in text
+    for asked in (None, "a_stack"):  # the default without --out, and the other result by name
+        with pytest.raises(StoreError, match="differs in: simulation.like.motion.from, ") as refused:
+            generate_like(out, plan_matched(scan.path, binning=2, motion_from=asked), 2, workers=0, progress=False)
+        assert "took the motion of 'fbp_stack' (this run: 'a_stack'): give --motion-from fbp_stack" in str(
+            refused.value
+        )
+    assert run([*argv, "-w", "0", "-q", "--motion-from", "a_stack"]) == 2
+    assert "--motion-from fbp_stack to resume it" in capsys.readouterr().err
+    DataStore.open(scan.path, mode="r+").delete_reconstruction("fbp_stack")  # gone: the default pick again
+    assert plan_matched(scan.path, binning=2, out=out).simulation["like"]["motion"]["from"] == "a_stack"
+    with pytest.raises(StoreError, match="no longer holds: use another --out"):
+        generate_like(out, plan_matched(scan.path, binning=2, out=out), 2, workers=0, progress=False)
+
+
+def test_a_set_made_without_a_motion_resumes_without_one(scan, tmp_path):
+    """A set matched before any 'nanoct stack' keeps the paper's motion when a stack result appears later."""
+    copy, out = _copy(scan, tmp_path), tmp_path / "matched"
+    generate_like(out, plan_matched(copy.path, binning=2), 2, workers=0, progress=False)
+    _add_result(copy.path, "fbp_stack", np.linspace(-0.5, 0.5, ANGLES_DEG.size))
+    plan = plan_matched(copy.path, binning=2, out=out)
+    assert plan.simulation["like"]["motion"] == {"from": None} and "as the set at" in plan.describe()[4]
+    assert generate_like(out, plan, 2, workers=0, progress=False).done.all()
+    with pytest.raises(StoreError, match="made without a stack motion .*leave --motion-from out to resume it"):
+        generate_like(out, plan_matched(copy.path, binning=2), 2, workers=0, progress=False)
 
 
 def test_resume_makes_only_the_missing_samples_with_the_same_bytes(scan, tmp_path):

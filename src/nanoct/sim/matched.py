@@ -6,8 +6,8 @@ estimated for it) the matched set takes (estimators in :mod:`nanoct.sim.scan_sta
 * the scan's **views** (angles in acquisition order) and **detector**, binned by ``b``
   (``--bin``): ``L / b`` detector pixels, image ``N / b``;
 * the **rotation axis**: the stack's (``motion_info["center_offset"]``) where the store has a
-  stack result with a motion, else the store's own (``nanoct import --center-offset``), moved to
-  the binned detector;
+  stack result with a motion (the motion source, :func:`plan_matched`), else the store's own
+  (``nanoct import --center-offset``), moved to the binned detector;
 * the **noise**: the std per ray measured in the air bands of the binned sinograms, added as
   white Gaussian noise (measured, like the slices below, on at most ``MAX_SLICES`` binned slices
   evenly spread over the stack);
@@ -59,13 +59,15 @@ of each slice in ``rows``; :func:`matched_source` names a sample's slice).
 
 Everything measured is recorded in ``attrs["nanoct"]["simulation"]["like"]``. The set resumes
 like any generated set: the same command again finds the same description (measurements are
-rounded to 6 significant digits, so the same scan gives the same record) and makes only the
-missing samples.
+rounded to 6 significant digits, so the same scan gives the same record; the motion source the set
+was made with is kept where ``--motion-from`` is not given) and makes only the missing samples; a
+set that differs is refused naming the nested keys that differ (e.g. ``simulation.like.motion.from``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 from dataclasses import dataclass
@@ -79,7 +81,7 @@ from scipy import ndimage
 from ..core.errors import NanoctError, StoreError
 from ..core.geometry import Geometry
 from ..io.fileio import cached_by_file
-from ..io.store import DataStore, Sample
+from ..io.store import DataStore, Sample, comparable_description
 from ..recon.fbp import fbp
 from ..recon.measured import air_level, read_moved
 from ..recon.stack import corrected_fbp
@@ -189,21 +191,53 @@ def _open_scan(like: str | os.PathLike[str]) -> DataStore:
     return store
 
 
-def _stack_motion(store: DataStore, name: str | None) -> tuple[str | None, np.ndarray | None, dict[str, Any]]:
-    """The stack result whose motion is used: ``name``, or (None) the first in name order that has one."""
+def _has_motion(store: DataStore, name: str) -> bool:
+    """Whether result ``name`` holds one finite motion for the whole scan."""
+    shifts = store.recons.shared_shifts(name)
+    return shifts is not None and bool(np.isfinite(shifts).all())
+
+
+def _recorded_source(out: str | os.PathLike[str] | None) -> tuple[bool, str | None]:
+    """Whether ``out`` holds a matched set, and the result its motion was taken from (None: the paper's)."""
+    if out is None or not (Path(out) / "zarr.json").is_file():
+        return False, None
+    try:
+        motion = DataStore.open(out).meta["simulation"]["like"]["motion"]
+    except (NanoctError, KeyError, TypeError):  # no data set, or not a matched one: nothing to keep
+        return False, None
+    return True, motion.get("from")
+
+
+def _motion_source(store: DataStore, name: str | None, out: str | os.PathLike[str] | None) -> tuple[str | None, str]:
+    """The result whose motion to use (None: none) and, when it was not asked for, why it was chosen.
+
+    ``name`` as given; else the source recorded in a matched set already at ``out`` (resuming it, so
+    that results added to the scan since do not change it) where that result still holds a motion (or
+    the set used none); else the first result in name order whose motion and slices are all done (an
+    interrupted ``nanoct stack`` has its motion before its slices: it is passed over).
+    """
     names = store.reconstruction_names()
-    if name is not None and name not in names:
-        raise NanoctError(
-            f"--motion-from {name!r}: {store.path} has no such result (present: {', '.join(names) or 'none'}); "
-            "run 'nanoct stack' on it first or leave the flag out"
-        )
-    for candidate in [name] if name is not None else sorted(names):
-        shifts = store.recons.shared_shifts(candidate)
-        if shifts is not None and np.isfinite(shifts).all():
-            return candidate, shifts.astype(np.float64), store.recons.motion_info(candidate) or {}
-        if name is not None:
+    if name is not None:
+        if name not in names:
+            raise NanoctError(
+                f"--motion-from {name!r}: {store.path} has no such result (present: {', '.join(names) or 'none'}); "
+                "run 'nanoct stack' on it first or leave the flag out"
+            )
+        if not _has_motion(store, name):
             raise NanoctError(f"--motion-from {name!r} has no estimated motion (it is not a 'nanoct stack' result)")
-    return None, None, {}
+        return name, ""
+    found, recorded = _recorded_source(out)
+    if found and (recorded is None or (recorded in names and _has_motion(store, recorded))):
+        return recorded, f"as the set at {out} was made"
+    complete = [n for n in sorted(names) if _has_motion(store, n) and store.reconstruction_done(n).all()]
+    return (complete[0], "") if complete else (None, "")
+
+
+def _stack_motion(store: DataStore, name: str | None) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """The motion (K,) of result ``name`` and what was recorded with it (None and {} for no result)."""
+    if name is None:
+        return None, {}
+    return store.recons.shared_shifts(name).astype(np.float64), store.recons.motion_info(name) or {}
 
 
 def scan_slices(sinograms: np.ndarray, geometry: Geometry, shifts: np.ndarray | None = None) -> np.ndarray:
@@ -270,6 +304,9 @@ class MatchedPlan:
         With measured pairs: the motion undone in them (the stack's, binned; zeros without one).
     rows : ndarray of shape (S,), optional
         With measured pairs: the first detector row of the scan that each binned slice averages.
+    motion_note : str
+        Why the motion source was taken when ``--motion-from`` was not given and the default pick was not
+        used (a set already at ``--out`` was made with it); "" otherwise.
     """
 
     like: Path
@@ -279,6 +316,7 @@ class MatchedPlan:
     measured: np.ndarray | None = None
     shifts: np.ndarray | None = None
     rows: np.ndarray | None = None
+    motion_note: str = ""
 
     def describe(self) -> list[str]:
         """Lines saying what the plan takes from the scan."""
@@ -288,7 +326,7 @@ class MatchedPlan:
             f"from '{motion['from']}': smooth amplitude {motion['amplitude']:.3g} px, jitter {motion['jitter']:.3g} px"
             if motion["from"]
             else "none estimated: the paper's defaults (max shift 2 px, jitter 0.127 px)"
-        )
+        ) + (f" ({self.motion_note})" if self.motion_note else "")
         return [
             f"like       {self.like} (bin {like['bin']})",
             f"geometry   {g.n_angles} views, {g.n_det} detector pixels, image {g.n}x{g.n}, "
@@ -315,6 +353,7 @@ def plan_matched(
     perturbed: bool = True,
     oversample: int = 2,
     hold_out: tuple[int, ...] = (),
+    out: str | os.PathLike[str] | None = None,
 ) -> MatchedPlan:
     """Measure a scan and describe the matched set (nothing is written).
 
@@ -328,13 +367,17 @@ def plan_matched(
         Proportions of the paper's shapes, the ellipse family, the scan's slices and (optional
         fourth) measured pairs (sum 1; :func:`parse_mix`).
     motion_from : str, optional
-        The stack result whose motion to use (default: the first that has one).
+        The stack result whose motion to use. Default: the one a matched set already at ``out`` was made
+        with (where it still holds its motion; none where the set used none), else the first in name order
+        whose motion and slices are all done (an interrupted result is passed over), else none.
     perturbed, oversample
         As :class:`~nanoct.sim.simulate.SimulationConfig`.
     hold_out : tuple of int
         Scan rows (:func:`parse_rows`) whose binned slices serve as no phantom and no measured pair
         (kept out of training, e.g. the slices a result is evaluated on); the scan-wide measurements
         (noise, open beam, motion, axis, value scale) still use every slice.
+    out : path, optional
+        Where the set is to be made: a matched set already there keeps its motion source (resuming).
 
     Raises
     ------
@@ -344,7 +387,8 @@ def plan_matched(
         outside the scan or holding out every slice.
     """
     store = _open_scan(like)
-    name, shifts, info = _stack_motion(store, motion_from)
+    name, why = _motion_source(store, motion_from, out)
+    shifts, info = _stack_motion(store, name)
     axis = float(info.get("center_offset", store.geometry.center_offset))
     geometry = binned_geometry(store.geometry, binning, axis)
     groups = _slice_groups(store.n, binning)
@@ -398,7 +442,8 @@ def plan_matched(
     if len(mix) > 3 and mix[3] > 0:
         measured = (sinos[kept], np.zeros(geometry.n_angles) if shifts_b is None else shifts_b, groups[kept, 0])
         record["measured_shift"] = MEASURED_SHIFT
-    return MatchedPlan(Path(like), geometry, {**config.to_dict(), "like": record}, slices, *(measured or ()))
+    simulation = {**config.to_dict(), "like": record}
+    return MatchedPlan(Path(like), geometry, simulation, slices, *(measured or ()), motion_note=why)
 
 
 def _slice_groups(n_slices: int, binning: int) -> np.ndarray:
@@ -439,11 +484,14 @@ def generate_like(
     Raises
     ------
     NanoctError
-        For a bad ``n``, ``seed`` or ``workers``, or when ``out`` holds another data set.
+        For a bad ``n``, ``seed`` or ``workers``, or when ``out`` holds another data set (a
+        :class:`~nanoct.core.errors.StoreError` naming the values that differ, e.g.
+        ``simulation.like.motion.from``, and the ``--motion-from`` that resumes it).
     """
     from .generate import check_run, fill_dataset
 
     check_run(n, seed, workers)
+    _check_same_set(Path(out), plan, n, seed, split_fractions)
     store = DataStore.create(Path(out), plan.geometry, n, seed, plan.simulation, split_fractions)
     group = zarr.open_group(str(store.path), mode="r+")
     if _SLICES not in group or not group[_SLICES].attrs.get("complete"):
@@ -462,6 +510,68 @@ def generate_like(
         array.attrs["complete"] = True
     fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
     return DataStore.open(store.path, mode="r+")
+
+
+def _differences(mine: Any, theirs: Any, key: str = "") -> list[str]:
+    """The dotted keys of the values (leaves; a list is one value) that differ between two descriptions."""
+    if isinstance(mine, dict) and isinstance(theirs, dict):
+        keys = sorted(mine.keys() | theirs.keys())
+        return [d for k in keys for d in _differences(mine.get(k), theirs.get(k), f"{key}.{k}" if key else k)]
+    return [] if mine == theirs else [key]
+
+
+def _check_same_set(out: Path, plan: MatchedPlan, n: int, seed: int, fractions: tuple[float, float, float]) -> None:
+    """Refuse an ``out`` that holds another data set, naming the values that differ (nested: e.g.
+    ``simulation.like.motion.from``) and, where the motion source is one, the ``--motion-from`` that resumes it.
+
+    A data set that cannot be read is left to :meth:`~nanoct.io.store.DataStore.create` to report.
+    """
+    if not (out / "zarr.json").is_file():
+        return
+    try:
+        existing = DataStore.open(out)
+    except StoreError:
+        return
+    wanted = {
+        "geometry": plan.geometry.to_dict(),
+        "n": int(n),
+        "seed": int(seed),
+        "simulation": plan.simulation,
+        "split_fractions": list(fractions),
+    }
+    mine = comparable_description(json.loads(json.dumps(wanted)))  # as DataStore.create records it
+    theirs = comparable_description({k: existing.meta.get(k) for k in wanted})
+    differs = _differences(mine, theirs)
+    if not differs:
+        return
+    source = "simulation.like.motion.from"
+    shown = ([source] if source in differs else []) + [d for d in differs if d != source]
+    listed = ", ".join(shown[:6]) + (f" and {len(shown) - 6} more" if len(shown) > 6 else "")
+    advice = "use another --out, or repeat the original command to resume it"
+    if source in differs:
+        advice = _source_advice(plan, (theirs["simulation"] or {})["like"]["motion"].get("from"))
+    raise StoreError(f"{out} holds a different data set (differs in: {listed}); {advice}")
+
+
+def _source_advice(plan: MatchedPlan, recorded: str | None) -> str:
+    """What to do when the set at ``--out`` took its motion from another source (``recorded``; None: none)."""
+    mine = plan.simulation["like"]["motion"]["from"]
+    mine_text = f"'{mine}'" if mine else "none"
+    if recorded is None:
+        return (
+            f"it was made without a stack motion (the paper's defaults; this run: {mine_text}): leave --motion-from "
+            "out to resume it, or use another --out"
+        )
+    try:
+        present = recorded in DataStore.open(plan.like).reconstruction_names()
+    except StoreError:
+        present = False
+    if not present:
+        return (
+            f"it took the motion of '{recorded}' (this run: {mine_text}), which {plan.like} no longer holds: "
+            "use another --out"
+        )
+    return f"it took the motion of '{recorded}' (this run: {mine_text}): give --motion-from {recorded} to resume it"
 
 
 @cached_by_file(f"{_SLICES}/zarr.json", maxsize=4)
