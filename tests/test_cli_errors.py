@@ -419,3 +419,29 @@ def test_checkpoint_write_failing_then_rerun(work, capsys, monkeypatch):
     assert not [p for p in (work / "r2").iterdir() if ".tmp-" in p.name]
     assert _cli(capsys, args)[0] == 0
     assert len((work / "r2" / "log.csv").read_text().splitlines()) == 3  # header and two epochs
+
+
+def test_main_prints_warnings_as_lines_and_ends_at_once_after_ctrl_c(monkeypatch, capsys):
+    """On the command line a warning is one ``warning:`` line (no source location, flags as typed); after Ctrl-C
+    the process ends with os._exit(130), not through the interpreter's teardown of running threads."""
+    import warnings
+
+    import nanoct.cli as cli
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main replaces it: restored afterwards
+
+    def warns() -> int:
+        warnings.warn("2 of 40 images look\n   out of distribution; try max_shift=1", UserWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(cli, "run", warns)
+    with pytest.raises(SystemExit) as stop:
+        cli.main()
+    assert stop.value.code == 0
+    assert capsys.readouterr().err == "warning: 2 of 40 images look out of distribution; try --max-shift 1\n"
+    ended: list[int] = []
+    monkeypatch.setattr(cli, "run", lambda: 130)
+    monkeypatch.setattr(cli.os, "_exit", lambda code: ended.append(code))
+    with pytest.raises(SystemExit):  # the stub returns, so main goes on to sys.exit
+        cli.main()
+    assert ended == [130]

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 import re
 import sys
 import traceback
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -508,7 +510,11 @@ def predict(
         "smoothly: images of any size in bounded memory; the intervals are the run's own calibration where the "
         "data set has no validation split or another image size.",
     ),
-    tile_overlap: int = typer.Option(16, "--tile-overlap", help="With --tile: pixels shared by neighbouring tiles."),
+    tile_overlap: int | None = typer.Option(
+        None,
+        "--tile-overlap",
+        help="With --tile: pixels shared by neighbouring tiles (default 16, at most half a tile).",
+    ),
     out_name: str | None = typer.Option(
         None,
         "--name",
@@ -1480,6 +1486,23 @@ def run(argv: list[str] | None = None) -> int:
     return code if isinstance(code, int) else 0
 
 
+def _show_warning(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    """A warning on the command line: one ``warning:`` line, without Python's source location."""
+    typer.secho(f"warning: {_as_flags(' '.join(str(message).split()))}", fg=typer.colors.YELLOW, err=True)
+
+
 def main() -> None:
-    """Entry point: :func:`run` on the command line, exit with its status."""
-    sys.exit(run())
+    """Entry point: :func:`run` on the command line, exit with its status.
+
+    Warnings print as ``warning:`` lines. After Ctrl-C the process ends at once (``os._exit``), as
+    a kill would, which every command survives: the teardown of background threads still running
+    (the stores' I/O loop, torch's workers) could otherwise abort it (status 134) after the resume
+    hint was printed.
+    """
+    warnings.showwarning = _show_warning
+    code = run()
+    if code == 130:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    sys.exit(code)

@@ -23,7 +23,7 @@ from nanoct.evaluation.conformal import (
     support_of,
 )
 from nanoct.evaluation.metrics import interval_scores, support_mask, truth_support
-from nanoct.io.store import DataStore
+from nanoct.io.store import DataStore, create_scan
 from nanoct.learn.calibration import (
     CALIBRATION_FILE,
     CALIBRATION_FORMAT,
@@ -323,22 +323,34 @@ def test_calibrate_on_another_data_set_keeps_both_fits(setup, tmp_path):
 
 @pytest.mark.slow
 def test_a_tiled_prediction_of_another_image_size_uses_the_runs_own_calibration(setup, tmp_path):
-    """--tile on a data set of another image size that has a validation split: the run's own (untiled) fit, as
-    for a scan without one; before that fit exists, an error that names the ways out, and nothing written. The
-    tiles per batch, on which the latent draws depend, are recorded."""
+    """--tile on a data set of another image size that has a validation split: the run's own (untiled) fit, made
+    on the data set the run was trained on where it is not yet, as for a scan without one; with that data set
+    gone from its recorded path, an error that names the ways out, and nothing written. The tiles per batch, on
+    which the latent draws depend, are recorded."""
     path, run = _copy(setup, tmp_path)
     big = tmp_path / "big"
     generate_dataset(big, get_preset("small-parallel"), 2, seed=1, workers=0, progress=False,
                      split_fractions=(0, 0.5, 0.5))  # fmt: skip
     reconstruct_dataset(big, "fbp", workers=0, progress=False)
-    with pytest.raises(NanoctError, match=r"127x127 images, the run .* 63x63.*--calibrate-on .*--no-calibrate"):
+    path.rename(tmp_path / "away")
+    with pytest.raises(
+        NanoctError, match=r"127x127 images, the run .* 63x63.*config.json.*--calibrate-on .*--no-calib"
+    ):
         predict(big, run, progress=False, tile=0, reconstruct_kwargs=M)
     assert DataStore.open(big).reconstruction_names() == ["fbp"]
-    own = calibrate(path, run, reconstruct_kwargs=M)
+    (tmp_path / "away").rename(path)
+    assert not (run / CALIBRATION_FILE).exists()
     assert predict(big, run, progress=False, tile=0, reconstruct_kwargs=M, batch_size=4) == "fbp+cinn-res"
     params = DataStore.open(big).reconstruction_params("fbp+cinn-res")
-    assert params["calibration"] == own
+    assert params["calibration"] == load_calibration(run)["best"] == calibrate(path, run, reconstruct_kwargs=M)
+    assert params["calibration"]["store"] == str(path.resolve())
     assert params["tiling"] == {"size": 63, "overlap": 16, "margin": 2, "batch": 4}
+    # an imported scan (no validation split) of the trained size: the same fit
+    own = DataStore.open(path)
+    scan = create_scan(tmp_path / "scan", own.geometry, own.read_array("sinograms", [0]), scan={"source": "test"})
+    reconstruct_dataset(scan.path, "fbp", workers=0, progress=False)
+    predict(scan.path, run, progress=False, reconstruct_kwargs=M)
+    assert DataStore.open(scan.path).reconstruction_params("fbp+cinn-res")["calibration"] == params["calibration"]
 
 
 def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):

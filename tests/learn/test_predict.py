@@ -14,7 +14,7 @@ from nanoct.core.geometry import get_preset
 from nanoct.io.fileio import file_sha256
 from nanoct.io.store import DataStore
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
-from nanoct.learn.predict import predict
+from nanoct.learn.predict import GeometryWarning, geometry_difference, predict
 from nanoct.learn.train import TrainConfig, train
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.sim.generate import generate_dataset
@@ -168,7 +168,8 @@ def test_tiled_prediction(setup, tmp_path):
     reconstruct_dataset(big, "fbp", workers=0, progress=False)
     with pytest.raises(NanoctError, match=r"trained on 63x63 images.*--tile 0"):
         predict(big, run, progress=False)
-    assert predict(big, run, progress=False, tile=0, overlap=20) == "fbp+unet"
+    with pytest.warns(GeometryWarning, match=r"n_angles 140 \(here 282\); n_det 91 \(here 181\)"):
+        assert predict(big, run, progress=False, tile=0, overlap=20) == "fbp+unet"
     big_store = DataStore.open(big)
     out = big_store.read_reconstruction("fbp+unet", [0])[0]
     model = model_from_checkpoint(load_checkpoint(run / "best.pt")).eval()
@@ -180,8 +181,15 @@ def test_tiled_prediction(setup, tmp_path):
     expected, _ = predict_tiled(big_store.read_reconstruction("fbp", [0])[0], network, 63, overlap=20, margin=2)
     assert out.shape == (127, 127)
     np.testing.assert_allclose(out, expected, atol=1e-5)
-    with pytest.raises(NanoctError, match="overlap"):
+    with pytest.raises(NanoctError, match=r"overlap 40: .* between 5 and half the tile \(31\); e.g. --tile-overlap 16"):
         predict(big, run, progress=False, tile=0, overlap=40, name="bad")
+    # a tile below 32 pixels: the default overlap is half of it
+    predict(path, run, progress=False, tile=20, name="small-tiles")
+    assert DataStore.open(path).reconstruction_params("small-tiles")["tiling"] == {
+        "size": 20,
+        "overlap": 10,
+        "margin": 2,
+    }
 
 
 def test_a_residual_unet_is_stored_under_its_own_name(setup, tmp_path):
@@ -236,3 +244,40 @@ def test_a_moved_folder_resumes_and_a_changed_checkpoint_is_redone(setup, tmp_pa
     store.recons.set_params("fbp+unet", params | {"run": str(run.resolve())} | {"checkpoint_sha256": None})
     with pytest.raises(NanoctError, match=r"differs in: .*run.*--overwrite"):
         predict(data, new_run, progress=False)
+
+
+def test_geometry_difference_names_what_differs_beyond_the_tolerances():
+    """The axis counts beyond half a pixel and view angles beyond 1e-6 rad; each differing key is named once."""
+    g = get_preset("tiny-parallel").to_dict()
+    assert geometry_difference(g, g) == []
+    assert geometry_difference(g, g | {"center_offset": 0.4}) == []  # two estimates of one axis
+    assert geometry_difference(g, g | {"center_offset": 0.6}) == ["center_offset 0 (here 0.6)"]
+    views = list(np.linspace(0, 3, 5))
+    a, b = g | {"view_angles": views}, g | {"view_angles": [v + 5e-7 for v in views]}
+    assert geometry_difference(a, b) == []
+    assert geometry_difference(a, g | {"view_angles": [v + 1e-3 for v in views]}) == [
+        "view_angles differ by up to 0.001 rad"
+    ]
+    assert geometry_difference(g, g | {"n_det": 181, "det_spacing": 0.5}) == [
+        "det_spacing 1 (here 0.5)",
+        "n_det 91 (here 181)",
+    ]
+
+
+def test_a_run_of_another_geometry_is_refused_naming_only_what_differs(setup, tmp_path):
+    """Untiled, an axis within half a pixel of the training data's is the same geometry; beyond it the error
+    names the axis alone (not two whole geometries)."""
+    path, run = setup
+    for offset, name in ((0.3, "near"), (0.8, "far")):
+        other = tmp_path / name
+        other.mkdir()
+        ckpt = torch.load(run / "best.pt", weights_only=True)
+        ckpt["config"]["data"]["geometry"]["center_offset"] = offset
+        torch.save(ckpt, other / "best.pt")
+        if offset < 0.5:
+            assert predict(path, other, progress=False, name=name) == name
+            continue
+        with pytest.raises(
+            NanoctError, match=r"another geometry than the data set .*: center_offset 0.8 \(here 0\); train"
+        ):
+            predict(path, other, progress=False, name=name)

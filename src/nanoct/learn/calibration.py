@@ -95,6 +95,7 @@ __all__ = [
     "reference_rule",
     "sample_outputs",
     "tiled_outputs",
+    "training_store",
 ]
 
 CALIBRATION_FILE = "calibration.json"
@@ -651,9 +652,8 @@ def _runs_own(store: DataStore, run: Path, own: Any, key: dict[str, Any], traine
         n = store.geometry.n
         raise NanoctError(
             f"{store.path} holds {n}x{n} images, the run at {run} was trained on {trained}x{trained}: its intervals "
-            "are fitted on a validation split of the trained size; predict on the data set the run was trained on "
-            "first, with the same --samples/--antithetic (it fits the calibration), pass --calibrate-on a data set "
-            "of that size, or --no-calibrate"
+            "are fitted on the data set it was trained on, which predict finds at the path the run's config.json "
+            "records; put it back there, pass --calibrate-on a data set of the run's geometry, or --no-calibrate"
         )
     return None
 
@@ -700,9 +700,26 @@ def entry_name(run_dir: str | os.PathLike[str], checkpoint: str, store_path: str
     """The key of a calibration in ``calibration.json``: the checkpoint's name for a fit on the data set
     the run was trained on (its ``config.json``), ``<checkpoint>@<data set>`` for a fit on another
     (e.g. measured pairs of a scan, ``nanoct predict --calibrate-on``), so that both are kept."""
-    try:
-        trained_on = json.loads((Path(run_dir) / "config.json").read_text()).get("store")
-    except (OSError, ValueError, AttributeError):
-        trained_on = None
+    trained_on = training_store(run_dir)
     here = str(Path(store_path).resolve())
-    return checkpoint if trained_on is None or str(Path(trained_on).resolve()) == here else f"{checkpoint}@{here}"
+    return checkpoint if trained_on is None or str(trained_on.resolve()) == here else f"{checkpoint}@{here}"
+
+
+def training_store(run_dir: str | os.PathLike[str]) -> Path | None:
+    """The path of the data set a run was trained on, as its ``config.json`` records it (None: not recorded).
+
+    Parameters
+    ----------
+    run_dir : path
+        A training run directory.
+
+    Returns
+    -------
+    Path or None
+        The recorded path; the data set need not be there any more.
+    """
+    try:
+        recorded = json.loads((Path(run_dir) / "config.json").read_text()).get("store")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return Path(recorded) if isinstance(recorded, str) and recorded else None

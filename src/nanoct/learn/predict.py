@@ -40,7 +40,7 @@ from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..io.store_recon import check_name, differing_keys
 from ..names import prediction_name
-from .calibration import Inference, image_statistic, ood_p_values, tiled_outputs
+from .calibration import Inference, image_statistic, ood_p_values, tiled_outputs, training_store
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint
 from .data import check_input
@@ -48,7 +48,7 @@ from .models import model_class
 from .scan_ood import store_scan_scores
 from .tiling import DEFAULT_MARGIN, DEFAULT_OVERLAP
 
-__all__ = ["OutOfDistributionWarning", "ood_check", "predict"]
+__all__ = ["GeometryWarning", "OutOfDistributionWarning", "geometry_difference", "ood_check", "predict"]
 
 
 #: Images read at a time by the out-of-distribution checks (the footprint check's labels take about 33 bytes
@@ -60,6 +60,10 @@ class OutOfDistributionWarning(UserWarning):
     """Some predicted images look unlike the validation split the intervals were calibrated on."""
 
 
+class GeometryWarning(UserWarning):
+    """A run is applied in tiles to a data set of another geometry than its training data's."""
+
+
 def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any]:
     """What a prediction's parameters ask for: without what it was made from and without the
     calibration's fitted values (a refit of the same run's calibration is the same request),
@@ -68,14 +72,84 @@ def _request(params: dict[str, Any], made_from: dict[str, Any]) -> dict[str, Any
     return kept | {"calibrated": "calibration" in params}
 
 
-def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any]) -> None:
-    """Refuse a run trained on another geometry than the data set's (before any work is done)."""
+#: How far the axis of the data set may lie from the training data's, in pixels, for a run to apply untiled: two
+#: estimates of one scan's axis (e.g. at another binning) differ by about 0.1 px; a post-processing network sees
+#: reconstructions made about each data set's own axis.
+AXIS_TOLERANCE = 0.5
+#: View angles agreeing to this many radians are the same views (float32 angle files, degrees converted).
+ANGLE_TOLERANCE = 1e-6
+
+
+def geometry_difference(trained: dict[str, Any], here: dict[str, Any]) -> list[str]:
+    """What differs between a run's training geometry and a data set's, e.g. ``["n_det 80 (here 160)"]``.
+
+    The axis (``center_offset``) counts only beyond :data:`AXIS_TOLERANCE` pixels and view angles only
+    beyond :data:`ANGLE_TOLERANCE` radians; other numbers must agree to 1e-9 (relative).
+
+    Parameters
+    ----------
+    trained, here : dict
+        ``Geometry.to_dict()`` of the training data and of the data set.
+
+    Returns
+    -------
+    list of str
+        One ``"<key> <trained> (here <value>)"`` per differing key, in key order; empty where they agree.
+    """
+    out = []
+    for key in sorted(trained.keys() | here.keys()):
+        a, b = trained.get(key), here.get(key)
+        if key == "view_angles" and a is not None and b is not None and len(a) == len(b):
+            same = bool(np.allclose(a, b, rtol=0, atol=ANGLE_TOLERANCE))
+        elif key == "center_offset":  # absent: the detector's centre
+            a, b = float(a or 0.0), float(b or 0.0)
+            same = abs(a - b) <= AXIS_TOLERANCE
+        elif isinstance(a, float) and isinstance(b, float):
+            same = bool(np.isclose(a, b, rtol=1e-9, atol=0))
+        else:
+            same = a == b
+        if not same:
+            out.append(f"{key} {_shown(a, b)}")
+    return out
+
+
+def _shown(a: Any, b: Any) -> str:
+    """Two differing geometry values as a message shows them: ``80 (here 160)``."""
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return f"differ by up to {np.abs(np.subtract(a, b)).max():.3g} rad"
+    a, b = (f"{len(v)} views" if isinstance(v, list) else f"{v:.6g}" if isinstance(v, float) else v for v in (a, b))
+    return f"{a} (here {b})"
+
+
+def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any], tiled: bool = False) -> None:
+    """Refuse a run trained on another geometry than the data set's (before any work is done); ``tiled``
+    (images of any size): warn instead, naming what differs besides the image size."""
     trained = (ckpt.get("config") or {}).get("data", {}).get("geometry")
-    here = json.loads(json.dumps(store.geometry.to_dict()))
-    if trained is not None and trained != here:
+    if trained is None:
+        return
+    differs = geometry_difference(trained, json.loads(json.dumps(store.geometry.to_dict())))
+    if tiled:
+        differs = [d for d in differs if not d.startswith("n ")]
+        if differs:
+            warnings.warn(
+                f"the run {run.resolve()} was trained on another geometry than {store.path} ({'; '.join(differs)}): "
+                "its tiles are predicted anyway, but where the views, detector or pixel size differ the images "
+                "may look unlike its training images",
+                GeometryWarning,
+                stacklevel=3,
+            )
+        return
+    if differs:
+        scan = store.is_scan and store.indices("val").size == 0
         raise NanoctError(
-            f"the run {run.resolve()} was trained on another geometry ({trained}) than the data set {store.path} "
-            f"({here}); train a network on this data set"
+            f"the run {run.resolve()} was trained on another geometry than the data set {store.path}: "
+            f"{'; '.join(differs)}; "
+            + (
+                f"train a network on a set matched to it (nanoct generate --like {store.path} --bin B, with the "
+                "binning of this data set's import), or predict in tiles (--tile 0)"
+                if scan
+                else "train a network on this data set"
+            )
         )
 
 
@@ -137,7 +211,7 @@ def predict(
     levels: tuple[float, ...] = DEFAULT_LEVELS,
     delta: float = DEFAULT_DELTA,
     tile: int | None = None,
-    overlap: int = DEFAULT_OVERLAP,
+    overlap: int | None = None,
     calibrate_on: str | os.PathLike[str] | None = None,
 ) -> str:
     """Post-process ``reconstructions/<input_name>`` of ``split`` with the network of a run.
@@ -178,12 +252,13 @@ def predict(
         Apply the network in ``tile`` x ``tile`` tiles (:func:`nanoct.learn.tiling.predict_tiled`;
         0: the image size the network was trained on), ``overlap`` pixels apart, blended with a
         smooth window: images of any size in bounded memory, with a progress bar per image. The
-        geometry of the data set may then differ from the training data's; the calibration is the
-        run's own (fitted untiled on its validation split) where the data set has no validation
-        split or another image size than the run's. For a sampling network the stored ``tiling`` also
+        geometry of the data set may then differ from the training data's (a :class:`GeometryWarning`
+        names what differs); the calibration is the run's own (fitted on the validation split of the
+        data set it was trained on, there and then if it is not yet) where the data set has no
+        validation split or another image size than the run's. For a sampling network the stored ``tiling`` also
         records ``batch_size`` (tiles per call), on which its latent draws depend.
-    overlap : int
-        Pixels shared by neighbouring tiles.
+    overlap : int, optional
+        Pixels shared by neighbouring tiles (default: 16, at most half the tile).
     calibrate_on : path, optional
         Fit the intervals on the validation split of this data set instead (it must have the
         geometry the run was trained on and hold the input reconstruction for its validation
@@ -285,10 +360,20 @@ def _calibration_store(
     sampling: bool,
     calibrate: bool,
 ) -> DataStore | None:
-    """The data set the intervals are fitted on (None: not calibrated): ``store``, or that of ``--calibrate-on``,
-    checked: it exists, has the run's geometry and a validation split."""
+    """The data set the intervals are fitted on (None: not calibrated): that of ``--calibrate-on``, checked: it
+    exists, has the run's geometry and a validation split; else ``store``, or, where ``store`` has no validation
+    split or another image size than the run's (an imported scan, a tiled prediction), the data set the run was
+    trained on (its own calibration, fitted there if it is not yet) where that is still at its recorded path."""
     if path is None:
-        return store if sampling and calibrate else None
+        if not (sampling and calibrate):
+            return None
+        trained_on = training_store(run)
+        if (store.indices("val").size == 0 or store.geometry.n != int(ckpt["image_size"])) and (
+            trained_on is not None and (trained_on / "zarr.json").is_file()
+        ):
+            own = DataStore.open(trained_on)
+            return own if own.indices("val").size else store
+        return store
     if not (sampling and calibrate):
         raise NanoctError(
             f"--calibrate-on {path}: the run at {run} holds a '{ckpt['model']}' network, whose output is not "
@@ -444,9 +529,10 @@ def _chunked_statistics(
     return np.concatenate(levels), np.concatenate(outside) if footprint else None
 
 
-def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int) -> dict | None:
-    """The tiling of a prediction (``size``, ``overlap``, ``margin``; ``tile`` 0 = the trained size), None
-    untiled; untiled, the data set's image size and geometry must be the training data's."""
+def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int | None) -> dict | None:
+    """The tiling of a prediction (``size``, ``overlap``, ``margin``; ``tile`` 0 = the trained size, ``overlap``
+    None = :data:`~nanoct.learn.tiling.DEFAULT_OVERLAP`, at most half the tile), None untiled; untiled, the
+    data set's image size and geometry must be the training data's (tiled, another geometry is warned of)."""
     trained = int(ckpt["image_size"])
     if tile is None:
         if trained != store.geometry.n:
@@ -459,11 +545,12 @@ def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None,
         return None
     size = trained if tile == 0 else int(tile)
     margin = DEFAULT_MARGIN
+    overlap = min(DEFAULT_OVERLAP, size // 2) if overlap is None else int(overlap)
     if size < 4 * margin + 2 or not 2 * margin + 1 <= overlap <= size // 2:
         raise NanoctError(
             f"tile {size} with overlap {overlap}: the tile must be at least {4 * margin + 2} pixels and the overlap "
-            f"between {2 * margin + 1} and half the tile; e.g. --tile 0 (the trained size, {trained}) with the "
-            f"default overlap {DEFAULT_OVERLAP}"
+            f"between {2 * margin + 1} and half the tile ({size // 2})"
+            + (f"; e.g. --tile-overlap {min(DEFAULT_OVERLAP, size // 2)}" if size >= 4 * margin + 2 else "")
         )
     largest = max(trained, *store.geometry.image_shape)
     if size > largest:
@@ -471,7 +558,8 @@ def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None,
             f"--tile {size} is larger than the images ({store.geometry.n}x{store.geometry.n}) and the trained size "
             f"({trained}): a tile of at most {largest} pixels covers them (e.g. --tile 0, the trained size)"
         )
-    return {"size": size, "overlap": int(overlap), "margin": margin}
+    _check_geometry(store, run, ckpt, tiled=True)
+    return {"size": size, "overlap": overlap, "margin": margin}
 
 
 def _write_outputs(
