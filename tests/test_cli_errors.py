@@ -439,6 +439,12 @@ def test_main_prints_warnings_as_lines_and_ends_at_once_after_ctrl_c(monkeypatch
         cli.main()
     assert stop.value.code == 0
     assert capsys.readouterr().err == "warning: 2 of 40 images look out of distribution; try --max-shift 1\n"
+    monkeypatch.setattr(cli, "run", lambda: (warnings.warn("lr=0.1 is old", DeprecationWarning, stacklevel=1), 0)[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        with pytest.raises(SystemExit):
+            cli.main()
+    assert capsys.readouterr().err == "warning: DeprecationWarning: lr=0.1 is old\n"  # another library's: as it is
     ended: list[int] = []
     monkeypatch.setattr(cli, "run", lambda: 130)
     monkeypatch.setattr(cli.os, "_exit", lambda code: ended.append(code))

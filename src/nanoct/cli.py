@@ -1487,8 +1487,12 @@ def run(argv: list[str] | None = None) -> int:
 
 
 def _show_warning(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
-    """A warning on the command line: one ``warning:`` line, without Python's source location."""
-    typer.secho(f"warning: {_as_flags(' '.join(str(message).split()))}", fg=typer.colors.YELLOW, err=True)
+    """A warning on the command line: one ``warning:`` line, without Python's source location; nanoct's own
+    with its parameters written as flags, another library's with its category."""
+    text = " ".join(str(message).split())
+    own = category is UserWarning or category.__module__.startswith("nanoct")  # nanoct warns with these
+    line = _as_flags(text) if own else f"{category.__name__}: {text}"
+    typer.secho(f"warning: {line}", fg=typer.colors.YELLOW, err=True)
 
 
 def main() -> None:

@@ -351,6 +351,16 @@ def test_a_tiled_prediction_of_another_image_size_uses_the_runs_own_calibration(
     reconstruct_dataset(scan.path, "fbp", workers=0, progress=False)
     predict(scan.path, run, progress=False, reconstruct_kwargs=M)
     assert DataStore.open(scan.path).reconstruction_params("fbp+cinn-res")["calibration"] == params["calibration"]
+    # another data set made at the run's recorded path (another seed) is not the one it was trained on: not fitted
+    # on; the scan keeps the run's own fit, and a new request without one is refused
+    shutil.rmtree(path)
+    generate_dataset(path, get_preset("tiny-parallel"), 12, seed=8, workers=0, progress=False,
+                     split_fractions=(0.5, 0.25, 0.25))  # fmt: skip
+    reconstruct_dataset(path, "fbp", workers=0, progress=False)
+    assert predict(scan.path, run, progress=False, reconstruct_kwargs=M, name="again") == "again"
+    assert DataStore.open(scan.path).reconstruction_params("again")["calibration"] == params["calibration"]
+    with pytest.raises(NanoctError, match=r"no validation samples .*config.json.*--calibrate-on"):
+        predict(scan.path, run, progress=False, reconstruct_kwargs={"n_samples": 5}, name="other-m")
 
 
 def test_calibrate_on_is_checked_before_any_work(setup, tmp_path):

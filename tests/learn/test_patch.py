@@ -101,3 +101,11 @@ def test_a_patch_trained_network_predicts_in_tiles_calibrated_on_its_tiled_valid
     assert entry["ood"]["val"] == sorted(levels.tolist())  # the reference is the tiled predictions' statistic
     predict(store, run, progress=False, reconstruct_kwargs={"n_samples": 4}, tile=0, overlap=8, name="o8")
     assert load_calibration(run)["best"]["tiling"]["overlap"] == 8  # another tiling: fitted again
+    # another data set with its own validation split: fitted there (tiled), not on the set the run was trained on
+    other = tmp_path / "other"
+    generate_dataset(other, get_preset("tiny-parallel"), 4, seed=9, workers=0, progress=False,
+                     split_fractions=(0.0, 0.5, 0.5))  # fmt: skip
+    reconstruct_dataset(other, "fbp", workers=0, progress=False)
+    there = predict(other, run, progress=False, reconstruct_kwargs={"n_samples": 4}, tile=0)
+    fit = DataStore.open(other).reconstruction_params(there)["calibration"]
+    assert fit["store"] == str(other.resolve()) and fit["n_images"] == 2 and fit["patch"] == 32

@@ -586,8 +586,9 @@ def calibrate(
     val = store.indices("val")
     if val.size == 0:
         raise NanoctError(
-            f"{store.path} has no validation samples to calibrate the std of {run} on; predict on the data "
-            "set the run was trained on first (it fits the calibration), or predict with --no-calibrate"
+            f"{store.path} has no validation samples to calibrate the std of {run} on; predict fits them on the "
+            "data set the run was trained on, at the path the run's config.json records: put it back there, pass "
+            "--calibrate-on a data set of the run's geometry, or --no-calibrate"
         )
     check_input(store, key["input"], val, "val")
     model = model_from_checkpoint(ckpt, ckpt_path)
@@ -604,9 +605,16 @@ def calibrate(
     reference = scan_reference(store)
     if reference is not None:
         entry["ood"]["scan"] = reference
+    _write_entry(run, name, entry)
+    return entry
+
+
+def _write_entry(run: Path, name: str, entry: dict[str, Any]) -> None:
+    """Store ``entry`` under ``name`` in the run's ``calibration.json``, read again just before the write, so
+    that entries another process stored since this one read the file are kept."""
+    entries = load_calibration(run)
     entries[name] = entry
     atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
-    return entry
 
 
 def _kept_entry(
@@ -628,8 +636,7 @@ def _kept_entry(
             continue
         if entry.get("store") != key["store"] or k != name:
             entry = entry | {"store": key["store"]}
-            entries[name] = entry
-            atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
+            _write_entry(run, name, entry)
         return entry
     return None
 

@@ -362,18 +362,15 @@ def _calibration_store(
 ) -> DataStore | None:
     """The data set the intervals are fitted on (None: not calibrated): that of ``--calibrate-on``, checked: it
     exists, has the run's geometry and a validation split; else ``store``, or, where ``store`` has no validation
-    split or another image size than the run's (an imported scan, a tiled prediction), the data set the run was
-    trained on (its own calibration, fitted there if it is not yet) where that is still at its recorded path."""
+    split or (for a run not trained on patches) another image size than the run's, the data set the run was
+    trained on (:func:`_training_set`; its own calibration, fitted there if it is not yet)."""
     if path is None:
         if not (sampling and calibrate):
             return None
-        trained_on = training_store(run)
-        if (store.indices("val").size == 0 or store.geometry.n != int(ckpt["image_size"])) and (
-            trained_on is not None and (trained_on / "zarr.json").is_file()
-        ):
-            own = DataStore.open(trained_on)
-            return own if own.indices("val").size else store
-        return store
+        patch = (ckpt.get("config") or {}).get("patch")  # fitted on tiled validation images of any size
+        other_size = store.geometry.n != int(ckpt["image_size"]) and not patch
+        own = _training_set(run, ckpt) if store.indices("val").size == 0 or other_size else None
+        return store if own is None else own
     if not (sampling and calibrate):
         raise NanoctError(
             f"--calibrate-on {path}: the run at {run} holds a '{ckpt['model']}' network, whose output is not "
@@ -395,6 +392,24 @@ def _calibration_store(
             "split (e.g. --split-fractions 0,1,0)"
         )
     return cal
+
+
+def _training_set(run: Path, ckpt: dict[str, Any]) -> DataStore | None:
+    """The data set the run was trained on, where it is still at the path its ``config.json`` records, is the
+    one it was trained on (its size, seed and geometry, as the checkpoint records them) and has a validation
+    split; None otherwise."""
+    path = training_store(run)
+    if path is None or not (path / "zarr.json").is_file():
+        return None
+    try:
+        own = DataStore.open(path)
+    except NanoctError:
+        return None
+    data = (ckpt.get("config") or {}).get("data") or {}
+    same = own.n == data.get("n") and own.seed == data.get("seed")
+    if not same or json.loads(json.dumps(own.geometry.to_dict())) != data.get("geometry"):
+        return None
+    return own if own.indices("val").size else None
 
 
 def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any]:

@@ -203,9 +203,10 @@ def _recorded_source(out: str | os.PathLike[str] | None) -> tuple[bool, str | No
         return False, None
     try:
         motion = DataStore.open(out).meta["simulation"]["like"]["motion"]
-    except (NanoctError, KeyError, TypeError):  # no data set, or not a matched one: nothing to keep
+        source = motion.get("from")
+    except (NanoctError, KeyError, TypeError, AttributeError):  # no data set, or not a matched one: nothing to keep
         return False, None
-    return True, motion.get("from")
+    return True, source
 
 
 def _motion_source(store: DataStore, name: str | None, out: str | os.PathLike[str] | None) -> tuple[str | None, str]:
@@ -229,8 +230,11 @@ def _motion_source(store: DataStore, name: str | None, out: str | os.PathLike[st
     found, recorded = _recorded_source(out)
     if found and (recorded is None or (recorded in names and _has_motion(store, recorded))):
         return recorded, f"as the set at {out} was made"
-    complete = [n for n in sorted(names) if _has_motion(store, n) and store.reconstruction_done(n).all()]
-    return (complete[0], "") if complete else (None, "")
+    moved = [n for n in sorted(names) if _has_motion(store, n)]
+    complete = [n for n in moved if store.reconstruction_done(n).all()]
+    unfinished = [n for n in moved if n not in complete]
+    note = f"passed over the unfinished {', '.join(unfinished)}" if unfinished else ""
+    return (complete[0] if complete else None), note
 
 
 def _stack_motion(store: DataStore, name: str | None) -> tuple[np.ndarray | None, dict[str, Any]]:
@@ -305,8 +309,9 @@ class MatchedPlan:
     rows : ndarray of shape (S,), optional
         With measured pairs: the first detector row of the scan that each binned slice averages.
     motion_note : str
-        Why the motion source was taken when ``--motion-from`` was not given and the default pick was not
-        used (a set already at ``--out`` was made with it); "" otherwise.
+        Where ``--motion-from`` was not given: why the motion source was taken instead of the default pick
+        (a set already at ``--out`` was made with it), or the unfinished results the default passed over;
+        "" otherwise.
     """
 
     like: Path
