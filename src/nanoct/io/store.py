@@ -50,9 +50,18 @@ from ..core.geometry import Geometry
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
 from .fileio import cached_by_file
 from .lock import pid_alive
-from .store_recon import ReconstructionArrays
+from .store_recon import RECONSTRUCT_REMEDY, ReconstructionArrays
 
-__all__ = ["SPLITS", "DataStore", "Sample", "comparable_description", "create_scan", "open_cached", "split_assignment"]
+__all__ = [
+    "SPLITS",
+    "DataStore",
+    "Sample",
+    "comparable_description",
+    "create_scan",
+    "data_set_description",
+    "open_cached",
+    "split_assignment",
+]
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
 FORMAT = 2  # 1: fill value 0 (a lost chunk read as zeros); 2: NaN fill for float arrays
@@ -144,6 +153,41 @@ def comparable_description(meta: dict[str, Any]) -> dict[str, Any]:
     if isinstance(like, dict):
         out["simulation"] = {**out["simulation"], "like": {k: v for k, v in like.items() if k != "store"}}
     return out
+
+
+def data_set_description(
+    geometry: Geometry, n: int, seed: int, simulation: dict[str, Any], split_fractions: tuple[float, float, float]
+) -> dict[str, Any]:
+    """The description :meth:`DataStore.create` records for a simulated data set, as JSON reads it back
+    (compare two with :func:`comparable_description`).
+
+    Parameters
+    ----------
+    geometry : Geometry
+        The data set's geometry.
+    n, seed : int
+        Number of samples and data-set seed.
+    simulation : dict
+        The simulation record.
+    split_fractions : tuple of float
+        Train, validation and test fractions.
+
+    Returns
+    -------
+    dict
+        ``format``, ``version``, ``geometry``, ``n``, ``seed``, ``simulation``, ``split_fractions``.
+    """
+    return _json_roundtrip(
+        {
+            "format": FORMAT,
+            "version": __version__,
+            "geometry": geometry.to_dict(),
+            "n": int(n),
+            "seed": int(seed),
+            "simulation": simulation,
+            "split_fractions": list(split_fractions),
+        }
+    )
 
 
 def _check_target(path: Path) -> bool:
@@ -249,17 +293,7 @@ class DataStore:
             simulation parameters), or is not a nanoct data set at all.
         """
         path = Path(path)
-        meta = _json_roundtrip(
-            {
-                "format": FORMAT,
-                "version": __version__,
-                "geometry": geometry.to_dict(),
-                "n": int(n),
-                "seed": int(seed),
-                "simulation": simulation,
-                "split_fractions": list(split_fractions),
-            }
-        )
+        meta = data_set_description(geometry, n, seed, simulation, split_fractions)
         if _check_target(path):
             existing = cls.open(path, mode="r+")
             mine, theirs = comparable_description(meta), comparable_description(existing.meta)
@@ -434,7 +468,12 @@ class DataStore:
         return self.recons.names()
 
     def prepare_reconstruction(
-        self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False
+        self,
+        name: str,
+        params: dict[str, Any],
+        shifts: bool = False,
+        uncertainty: bool = False,
+        remedy: str = RECONSTRUCT_REMEDY,
     ) -> None:
         """Create ``reconstructions/<name>`` (and its progress flags) if missing.
 
@@ -442,6 +481,7 @@ class DataStore:
         ``uncertainty`` adds ``uncertainty/<name>`` (n, N, N) for a pixel-wise std. When it
         exists with the same parameters, this is resuming: temporaries of a killed run are
         removed and samples whose chunks are missing or damaged are marked for rewriting.
+        ``remedy`` is what a refusal tells the user to do (default: ``nanoct reconstruct``'s).
 
         Raises
         ------
@@ -450,7 +490,7 @@ class DataStore:
         NanoctError
             If ``name`` is not a valid name (:func:`nanoct.io.store_recon.check_name`).
         """
-        self.recons.prepare(name, params, shifts=shifts, uncertainty=uncertainty)
+        self.recons.prepare(name, params, shifts=shifts, uncertainty=uncertainty, remedy=remedy)
 
     def delete_reconstruction(self, name: str) -> None:
         """Remove ``reconstructions/<name>`` with its shifts, uncertainty and progress flags."""

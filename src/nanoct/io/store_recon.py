@@ -53,15 +53,70 @@ def check_name(name: str) -> str:
     return name
 
 
-def differing_keys(old: Any, new: Any, prefix: str = "") -> list[str]:
-    """The keys (dotted, two levels deep at most) in which two parameter records differ, e.g. ``tiling.overlap``;
-    ``[prefix]`` (or ``["params"]``) where they are not both dicts, or are dicts that differ deeper."""
-    if not (isinstance(old, dict) and isinstance(new, dict)) or prefix.count(".") >= 1:
+def differing_keys(old: Any, new: Any, prefix: str = "", depth: int | None = 2) -> list[str]:
+    """The keys (dotted, ``depth`` levels deep at most; None: to the leaves) in which two parameter records differ,
+    e.g. ``tiling.overlap``; ``[prefix]`` (or ``["params"]``) where they are not both dicts, or are dicts that
+    differ deeper."""
+    if not (isinstance(old, dict) and isinstance(new, dict)) or (depth is not None and prefix.count(".") >= depth - 1):
         return [prefix or "params"] if old != new else []
     out: list[str] = []
     for key in sorted(old.keys() | new.keys(), key=str):
-        out += differing_keys(old.get(key), new.get(key), f"{prefix}.{key}" if prefix else str(key))
+        out += differing_keys(old.get(key), new.get(key), f"{prefix}.{key}" if prefix else str(key), depth)
     return out
+
+
+#: What a refusal of a reconstruction made with other parameters tells the user to do, unless its command says.
+RECONSTRUCT_REMEDY = "delete it (nanoct reconstruct ... --overwrite) or choose other parameters"
+
+
+def _dotted(record: dict[str, Any], key: str) -> Any:
+    """The value at a dotted key (``calibration.store``) of a parameter record, None where there is none."""
+    for part in key.split("."):
+        record = record.get(part) if isinstance(record, dict) else None
+    return record
+
+
+def moved_params(
+    old: dict[str, Any], new: dict[str, Any], identities: dict[str, tuple[str, ...]], ignored: tuple[str, ...] = ()
+) -> bool:
+    """Whether two parameter records of a result differ only in where its inputs lie.
+
+    Parameters
+    ----------
+    old, new : dict
+        The stored parameters and those of this run (as JSON reads them back).
+    identities : dict
+        Top-level keys naming a file or folder, each with the keys (dotted) of the SHA-256 of its content:
+        the first is this run's, the others are where an older record kept it. The place may differ where the
+        recorded hash equals this run's, or, for a record without one (made before it was kept), where the
+        place is the same.
+    ignored : tuple of str
+        Dotted keys of other places, recorded and not compared (e.g. ``calibration.store``).
+
+    Returns
+    -------
+    bool
+        True where the records differ, and only so.
+    """
+    if old == new:
+        return False
+    dropped = {*identities, *(keys[0] for keys in identities.values())}
+
+    def placeless(record: dict[str, Any]) -> dict[str, Any]:
+        kept = {k: v for k, v in record.items() if k not in dropped}
+        for key in ignored:
+            outer, _, inner = key.partition(".")
+            if isinstance(kept.get(outer), dict):
+                kept[outer] = {k: v for k, v in kept[outer].items() if k != inner}
+        return kept
+
+    if placeless(old) != placeless(new):
+        return False
+    for place, keys in identities.items():
+        recorded = next((v for v in (_dotted(old, k) for k in keys) if v is not None), None)
+        if (recorded != _dotted(new, keys[0])) if recorded is not None else (old.get(place) != new.get(place)):
+            return False
+    return True
 
 
 def _keys(name: str) -> tuple[str, ...]:
@@ -121,7 +176,14 @@ class ReconstructionArrays:
             key, shape=shape, chunks=(1, *shape[1:]), dtype=dtype, fill_value=fill, overwrite=True
         )
 
-    def prepare(self, name: str, params: dict[str, Any], shifts: bool = False, uncertainty: bool = False) -> None:
+    def prepare(
+        self,
+        name: str,
+        params: dict[str, Any],
+        shifts: bool = False,
+        uncertainty: bool = False,
+        remedy: str = RECONSTRUCT_REMEDY,
+    ) -> None:
         """Create the arrays of ``name`` if missing, else resume; see :meth:`DataStore.prepare_reconstruction`."""
         check_name(name)
         params = json.loads(json.dumps(params))
@@ -132,12 +194,11 @@ class ReconstructionArrays:
                 # a run refused or interrupted before its first sample holds no result (its motion, if
                 # estimated, belongs to the old parameters): a rerun with other parameters replaces it
                 self.delete(name)
-                return self.prepare(name, params, shifts, uncertainty)
+                return self.prepare(name, params, shifts, uncertainty, remedy)
             if old != params:
                 raise StoreError(
                     f"{key} in {self.path} was made with other parameters (differs in: "
-                    f"{', '.join(differing_keys(old, params))}); "
-                    f"delete it (nanoct reconstruct ... --overwrite) or choose other parameters"
+                    f"{', '.join(differing_keys(old, params))}); {remedy}"
                 )
             self.repair(name)
             return
@@ -292,3 +353,16 @@ class ReconstructionArrays:
         """Replace the parameters stored with reconstruction ``name`` (its samples and creation id are kept):
         for parameters that record where its inputs lie, after they moved."""
         self._group[f"reconstructions/{name}"].attrs["params"] = json.loads(json.dumps(params))
+
+    def relocate(
+        self, name: str, params: dict[str, Any], identities: dict[str, tuple[str, ...]], ignored: tuple[str, ...] = ()
+    ) -> bool:
+        """Record ``params`` with the kept reconstruction ``name`` where they differ from its parameters only in
+        where its inputs lie (:func:`moved_params`), so that it resumes; whether it did."""
+        if f"reconstructions/{name}" not in self._group:
+            return False
+        new = json.loads(json.dumps(params))
+        if not moved_params(self.params(name), new, identities, ignored):
+            return False
+        self.set_params(name, new)
+        return True

@@ -153,6 +153,11 @@ def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any], tiled: bo
         )
 
 
+#: What identifies a prediction's network wherever its run lies: the checkpoint file's hash (a sampling network's
+#: result made before it was kept has it in its calibration); a moved calibration data set is recorded, not compared.
+_WEIGHTS = {"run": ("checkpoint_sha256", "calibration.checkpoint_sha256")}
+
+
 def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: bool) -> dict:
     """``params`` plus what the prediction is made from (geometry, input fingerprint, checkpoint file hash).
 
@@ -171,27 +176,10 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: b
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
         same_request = _request(old, made_from) == _request(params, made_from)
-        if old != new and _moved(old, new):
-            store.recons.set_params(out, new)
-        elif old != new and (overwrite or same_request):
+        moved = store.recons.relocate(out, new, _WEIGHTS, ignored=("calibration.store",))
+        if not moved and old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
     return new
-
-
-def _moved(old: dict[str, Any], new: dict[str, Any]) -> bool:
-    """Whether a prediction's stored parameters ``old`` differ from ``new`` only in where its run and calibration
-    data set lie (a moved or copied folder: the checkpoint file's hash, or its calibration's, is the same), or
-    only in the hash, which a result of the same run directory made before the hash was recorded lacks."""
-
-    def placeless(params: dict[str, Any]) -> dict[str, Any]:
-        kept = {k: v for k, v in params.items() if k not in ("run", "checkpoint_sha256")}
-        if isinstance(kept.get("calibration"), dict):
-            kept["calibration"] = {k: v for k, v in kept["calibration"].items() if k != "store"}
-        return kept
-
-    recorded = old.get("checkpoint_sha256") or (old.get("calibration") or {}).get("checkpoint_sha256")
-    same_weights = recorded == new["checkpoint_sha256"] or (recorded is None and old.get("run") == new["run"])
-    return same_weights and placeless(old) == placeless(new)
 
 
 def predict(

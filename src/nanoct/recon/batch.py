@@ -25,7 +25,6 @@ their content: the same content under another path resumes, other content is ref
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -209,7 +208,7 @@ def _batch_values(method: str, store: DataStore, params: dict[str, Any]) -> tupl
 
 
 #: Parameters naming a file or data set, and the stored parameter that identifies its content.
-_FILE_IDENTITIES = {"shifts_from": "shifts_from_sha256", "eta": "eta_reference_sha256"}
+_FILE_IDENTITIES = {"shifts_from": ("shifts_from_sha256",), "eta": ("eta_reference_sha256",)}
 
 
 def _file_identities(checked: dict[str, Any], eta: EtaPlan | None) -> dict[str, str]:
@@ -221,26 +220,6 @@ def _file_identities(checked: dict[str, Any], eta: EtaPlan | None) -> dict[str, 
     if eta is not None and eta.reference is not None:
         out["eta_reference_sha256"] = hashlib.sha256(np.asarray(eta.reference, np.float64).tobytes()).hexdigest()
     return out
-
-
-def _record_moved_files(store: DataStore, name: str, params: dict[str, Any]) -> None:
-    """Record ``params`` with the kept reconstruction ``name`` where they differ from its parameters only in the
-    paths of files whose content is the same (a shifts file or reference store moved or named by another path;
-    a reconstruction made before the content was recorded, where the path is the same), so that it resumes."""
-    if name not in store.reconstruction_names():
-        return
-    old = json.loads(json.dumps(store.reconstruction_params(name)))
-    new = json.loads(json.dumps(params))
-    named = {*_FILE_IDENTITIES, *_FILE_IDENTITIES.values()}
-    if old == new or {k: v for k, v in old.items() if k not in named} != {
-        k: v for k, v in new.items() if k not in named
-    }:
-        return
-    for path, content in _FILE_IDENTITIES.items():
-        recorded = old.get(content)
-        if (recorded != new.get(content)) if recorded is not None else (old.get(path) != new.get(path)):
-            return
-    store.recons.set_params(name, new)
 
 
 def _motion_slices(store: DataStore, value: str) -> np.ndarray:
@@ -363,7 +342,7 @@ def reconstruct_dataset(
         if overwrite:
             store.delete_reconstruction(name)
         params = {"method": method, **stored, **_file_identities(checked, inputs.eta)}
-        _record_moved_files(store, name, params)
+        store.recons.relocate(name, params, _FILE_IDENTITIES)  # a shifts file or reference store moved
         store.prepare_reconstruction(name, params, shifts=spec.estimates_motion)
         if axis_notes:
             store.recons.set_note(name, "shifts_axis", axis_notes[0])

@@ -67,7 +67,6 @@ set that differs is refused naming the nested keys that differ (e.g. ``simulatio
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -81,7 +80,8 @@ from scipy import ndimage
 from ..core.errors import NanoctError, StoreError
 from ..core.geometry import Geometry
 from ..io.fileio import cached_by_file
-from ..io.store import DataStore, Sample, comparable_description
+from ..io.store import DataStore, Sample, comparable_description, data_set_description
+from ..io.store_recon import differing_keys
 from ..recon.fbp import fbp
 from ..recon.measured import air_level, read_moved
 from ..recon.stack import corrected_fbp
@@ -517,14 +517,6 @@ def generate_like(
     return DataStore.open(store.path, mode="r+")
 
 
-def _differences(mine: Any, theirs: Any, key: str = "") -> list[str]:
-    """The dotted keys of the values (leaves; a list is one value) that differ between two descriptions."""
-    if isinstance(mine, dict) and isinstance(theirs, dict):
-        keys = sorted(mine.keys() | theirs.keys())
-        return [d for k in keys for d in _differences(mine.get(k), theirs.get(k), f"{key}.{k}" if key else k)]
-    return [] if mine == theirs else [key]
-
-
 def _check_same_set(out: Path, plan: MatchedPlan, n: int, seed: int, fractions: tuple[float, float, float]) -> None:
     """Refuse an ``out`` that holds another data set, naming the values that differ (nested: e.g.
     ``simulation.like.motion.from``) and, where the motion source is one, the ``--motion-from`` that resumes it.
@@ -537,16 +529,9 @@ def _check_same_set(out: Path, plan: MatchedPlan, n: int, seed: int, fractions: 
         existing = DataStore.open(out)
     except StoreError:
         return
-    wanted = {
-        "geometry": plan.geometry.to_dict(),
-        "n": int(n),
-        "seed": int(seed),
-        "simulation": plan.simulation,
-        "split_fractions": list(fractions),
-    }
-    mine = comparable_description(json.loads(json.dumps(wanted)))  # as DataStore.create records it
-    theirs = comparable_description({k: existing.meta.get(k) for k in wanted})
-    differs = _differences(mine, theirs)
+    mine = comparable_description(data_set_description(plan.geometry, n, seed, plan.simulation, fractions))
+    theirs = comparable_description(existing.meta)
+    differs = differing_keys(mine, theirs, depth=None)
     if not differs:
         return
     source = "simulation.like.motion.from"

@@ -31,7 +31,6 @@ with the reconstruction (the note ``engine``, read with ``store.recons.note(name
 
 from __future__ import annotations
 
-import json
 import os
 from functools import partial
 from typing import Any
@@ -39,11 +38,10 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..core.errors import NanoctError, StoreError
+from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.lock import exclusive
 from ..io.store import DataStore, open_cached
-from ..io.store_recon import differing_keys
 from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.model import fit_motion_model
@@ -569,23 +567,6 @@ def _record_engine(store: DataStore, name: str, label: str) -> None:
         store.recons.set_note(name, "engine", [*engines, label])
 
 
-def _refuse_other_params(store: DataStore, name: str, params: dict[str, Any]) -> None:
-    """Refuse ``name`` where it holds slices made with other parameters, naming ``nanoct stack``'s remedies.
-
-    The rule of :meth:`~nanoct.io.store.DataStore.prepare_reconstruction` (a result without a
-    written slice is replaced), checked first so that the message names this command's options.
-    """
-    if name not in store.reconstruction_names():
-        return
-    old, new = store.recons.params(name), json.loads(json.dumps(params))
-    if old != new and store.reconstruction_done(name).any():
-        raise StoreError(
-            f"reconstructions/{name} in {store.path} was made with other parameters (differs in: "
-            f"{', '.join(differing_keys(old, new))}); replace it (nanoct stack ... --name {name} --overwrite) "
-            "or write this one under another name (nanoct stack ... --name NEW_NAME)"
-        )
-
-
 def reconstruct_stack(
     path: str | os.PathLike[str],
     *,
@@ -682,8 +663,11 @@ def reconstruct_stack(
     with exclusive(store.path, name, f"reconstructions/{name} of {store.path}"):
         if overwrite:
             store.delete_reconstruction(name)
-        _refuse_other_params(store, name, params)
-        store.prepare_reconstruction(name, params, shifts=True)
+        remedy = (
+            f"replace it (nanoct stack ... --name {name} --overwrite) or write this one under another name "
+            "(nanoct stack ... --name NEW_NAME)"
+        )
+        store.prepare_reconstruction(name, params, shifts=True, remedy=remedy)
         if store.recons.motion_info(name) is None:
             _estimate(store, name, params, progress)
         info = store.recons.motion_info(name)
