@@ -507,8 +507,9 @@ def predict(
         None,
         "--tile",
         help="Predict in overlapping tiles of this size (0: the size the network was trained on), blended "
-        "smoothly: images of any size in bounded memory; the intervals are the run's own calibration where the "
-        "data set has no validation split or another image size.",
+        "smoothly: images of any size in bounded memory; the intervals are the run's own calibration (fitted on "
+        "the data set it was trained on) where the data set has no validation split or, for a run not trained "
+        "on patches, another image size.",
     ),
     tile_overlap: int | None = typer.Option(
         None,
