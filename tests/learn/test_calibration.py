@@ -289,6 +289,30 @@ def test_prediction_under_a_refitted_calibration_is_redone(setup, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_checkpoint_replaced_while_predict_reads_it_is_refused(setup, tmp_path, monkeypatch):
+    """The prediction and its calibration name the bytes each loaded: where ``best.pt`` is replaced between
+    the two loads (a training run still writing it), predict stops, writes nothing, and says what to do."""
+    path, run = _copy(setup, tmp_path)
+    real = predict_mod.calibrate_run
+
+    def replaced_first(*a, **k):
+        ckpt = torch.load(run / "best.pt", weights_only=True)
+        ckpt["epoch"] = int(ckpt["epoch"]) + 1
+        torch.save(ckpt, run / "best.pt")
+        return real(*a, **k)
+
+    monkeypatch.setattr(predict_mod, "calibrate_run", replaced_first)
+    with pytest.raises(NanoctError, match=r"best.pt was replaced while predict read it.*run the same command again"):
+        predict(path, run, progress=False, reconstruct_kwargs=M, name="torn")
+    assert "torn" not in DataStore.open(path).reconstruction_names()
+    monkeypatch.setattr(predict_mod, "calibrate_run", real)
+    assert predict(path, run, progress=False, reconstruct_kwargs=M, name="torn") == "torn"  # the same command
+    recorded = DataStore.open(path).reconstruction_params("torn")
+    assert recorded["checkpoint_sha256"] == recorded["calibration"]["checkpoint_sha256"]
+    assert recorded["epoch"] == load_checkpoint(run / "best.pt")["epoch"]
+
+
+@pytest.mark.slow
 def test_calibrate_on_another_data_set_keeps_both_fits(setup, tmp_path):
     """--calibrate-on: the intervals fitted on another data set's validation split, stored beside the run's own."""
     path, run = _copy(setup, tmp_path)

@@ -69,7 +69,7 @@ from ..evaluation.conformal import (
     support_of,
 )
 from ..evaluation.metrics import EDGE_SIGMA, SUPPORT_RADIUS, edge_std, truth_support
-from ..io.fileio import atomic_write_text, file_sha256
+from ..io.fileio import atomic_write_text
 from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -549,12 +549,13 @@ def calibrate(
     store = store if isinstance(store, DataStore) else DataStore.open(store)
     run = Path(run_dir)
     ckpt_path = run / f"{checkpoint}.pt"
+    ckpt = load_checkpoint(ckpt_path)
     entries = load_calibration(run)
     name = entry_name(run, checkpoint, store.path)
     key = {
         "format": CALIBRATION_FORMAT,
         "checkpoint": checkpoint,
-        "checkpoint_sha256": file_sha256(ckpt_path) if ckpt_path.is_file() else None,
+        "checkpoint_sha256": ckpt["file_sha256"],
         "store": str(store.path.resolve()),
         "store_meta_sha256": _meta_sha256(store),
         "reconstruct": json.loads(json.dumps(dict(reconstruct_kwargs or {}))),
@@ -567,7 +568,6 @@ def calibrate(
     kept = None if refit else _kept_entry(entries, name, key, store, run)
     if kept is not None:
         return kept  # the same checkpoint file (so the same model, input and epoch), data set, input arrays and M
-    ckpt = load_checkpoint(ckpt_path)
     patch = (ckpt.get("config") or {}).get("patch")  # train --patch: fitted on tiled predictions of whole images
     if not (patch and store.indices("val").size and store.geometry.n != patch):
         patch = None

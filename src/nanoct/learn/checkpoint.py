@@ -7,12 +7,18 @@ A checkpoint is a ``torch.save`` dict (loaded with ``weights_only=True``)::
     best_epoch, model_state, optimizer_state, scheduler_state, rng (torch/numpy/python/cuda),
     history (one dict per finished epoch: the rows of log.csv), config (the training request)
 
+:func:`load_checkpoint` adds ``file_sha256``, the hash of the very bytes it loaded: what identifies the
+weights a result was made with wherever the run lies, without a window in which the file could be
+replaced between hashing and loading.
+
 It is written with :func:`nanoct.io.fileio.atomic_write_bytes`, so a kill at any moment leaves
 either the old or the new file.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import os
 import random
@@ -99,8 +105,6 @@ def save_checkpoint(
     config: dict[str, Any] | None = None,
 ) -> None:
     """Write a checkpoint of ``model`` (a PostProcessor, possibly DDP-wrapped) atomically."""
-    import io
-
     net = unwrap(model)
     if not isinstance(net, PostProcessor):
         raise TypeError(f"expected a PostProcessor, got {type(net).__name__}")
@@ -145,6 +149,11 @@ def load_checkpoint(
         What the caller expects; a checkpoint of another model, image size or architecture
         is refused.
 
+    Returns
+    -------
+    dict
+        The checkpoint's fields, plus ``file_sha256``: the SHA-256 (hex) of the bytes loaded.
+
     Raises
     ------
     NanoctError
@@ -154,7 +163,8 @@ def load_checkpoint(
     if not path.is_file():
         raise NanoctError(f"checkpoint {path} does not exist; train a model first ('nanoct train')")
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+        data = path.read_bytes()
+        ckpt = torch.load(io.BytesIO(data), map_location=map_location, weights_only=True)
     except Exception as exc:
         raise NanoctError(
             f"checkpoint {path} is corrupt or not a nanoct checkpoint ({type(exc).__name__}: {exc}); "
@@ -176,7 +186,7 @@ def load_checkpoint(
     if hparams is not None and ckpt["hparams"] != hparams:
         diff = sorted(k for k in set(hparams) | set(ckpt["hparams"]) if hparams.get(k) != ckpt["hparams"].get(k))
         raise NanoctError(f"checkpoint {path} has another architecture (differs in: {', '.join(diff)})")
-    return ckpt
+    return ckpt | {"file_sha256": hashlib.sha256(data).hexdigest()}
 
 
 def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike[str] = "checkpoint") -> PostProcessor:

@@ -35,7 +35,7 @@ import torch
 
 from ..core.errors import NanoctError, StoreError
 from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS, FOOTPRINT_TOLERANCE, footprint_fits, footprint_outside
-from ..io.fileio import disk_space_needed, file_sha256
+from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..io.store_recon import check_name, differing_keys
@@ -158,8 +158,9 @@ def _check_geometry(store: DataStore, run: Path, ckpt: dict[str, Any], tiled: bo
 _WEIGHTS = {"run": ("checkpoint_sha256", "calibration.checkpoint_sha256")}
 
 
-def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: bool) -> dict:
-    """``params`` plus what the prediction is made from (geometry, input fingerprint, checkpoint file hash).
+def _provenance(store: DataStore, out: str, params: dict[str, Any], weights: str, overwrite: bool) -> dict:
+    """``params`` plus what the prediction is made from (geometry, input fingerprint, ``weights``: the hash of
+    the checkpoint file as loaded).
 
     Deletes an earlier ``out`` made with other settings (with ``overwrite``) or with the same
     settings from an input or checkpoint file that has changed since or under another calibration of
@@ -170,7 +171,7 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], overwrite: b
     made_from = {
         "geometry": here,
         "input_fingerprint": store.recons.fingerprint(params["input"]),
-        "checkpoint_sha256": file_sha256(Path(params["run"]) / f"{params['checkpoint']}.pt"),
+        "checkpoint_sha256": weights,
     }
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
@@ -307,9 +308,14 @@ def predict(
         if (ckpt.get("config") or {}).get("patch"):  # fitted on the validation images predicted in these tiles
             fit["tiling"] = tiling
         params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
+        if params["calibration"]["checkpoint_sha256"] != ckpt["file_sha256"]:
+            raise NanoctError(
+                f"the checkpoint {ckpt_path} was replaced while predict read it (is 'nanoct train' still writing "
+                "the run?); run the same command again once it is not"
+            )
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
-        params = _provenance(store, out, json.loads(json.dumps(params)), overwrite)
+        params = _provenance(store, out, json.loads(json.dumps(params)), ckpt["file_sha256"], overwrite)
         try:
             store.prepare_reconstruction(out, params, uncertainty=sampling)
         except StoreError as exc:
