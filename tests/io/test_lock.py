@@ -83,6 +83,37 @@ def test_stale_locks_are_broken(tmp_path):
         assert not lock.exists()
 
 
+def test_a_waiting_writer_gets_the_lock_once_it_is_released(tmp_path):
+    """``wait``: a block of milliseconds (a small file's update) waits for the holder instead of failing; past
+    the wait, or with none, it is refused as before."""
+    import threading
+
+    held, release = threading.Event(), threading.Event()
+
+    def holder():
+        with exclusive(tmp_path, "calibration.json", "the file"):
+            held.set()
+            release.wait(10)
+
+    thread = threading.Thread(target=holder)
+    thread.start()
+    held.wait(10)
+    try:
+        for wait in (0.0, 0.2):
+            start = time.monotonic()
+            with pytest.raises(BusyError, match="the file is being written"):
+                with exclusive(tmp_path, "calibration.json", "the file", wait=wait):
+                    pass
+            assert time.monotonic() - start >= wait
+        threading.Timer(0.3, release.set).start()
+        with exclusive(tmp_path, "calibration.json", "the file", wait=10.0) as lock:
+            assert release.is_set() and json.loads(lock.read_text())["pid"] == os.getpid()
+    finally:
+        release.set()
+        thread.join()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_lock_of_another_host_is_kept(tmp_path):
     lock = lock_path(tmp_path, "fbp")
     lock.write_text(_record(host="elsewhere", pid=1))

@@ -124,8 +124,29 @@ def _busy(lock: Path, what: str, owner: dict[str, Any] | None) -> BusyError:
     )
 
 
+def _acquire(lock: Path, what: str, record: dict[str, Any]) -> None:
+    """Create ``lock`` holding ``record``, breaking a stale one; :class:`BusyError` where a live process holds it."""
+    for _ in range(3):
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            owner = _read(lock)
+            if not _stale(lock, owner):
+                if lock.exists():
+                    raise _busy(lock, what, owner) from None
+                continue  # released meanwhile
+            _break(lock, owner)
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(record))
+            f.flush()
+            os.fsync(f.fileno())
+        return
+    raise _busy(lock, what, _read(lock))
+
+
 @contextmanager
-def exclusive(directory: str | os.PathLike[str], name: str, what: str) -> Iterator[Path]:
+def exclusive(directory: str | os.PathLike[str], name: str, what: str, wait: float = 0.0) -> Iterator[Path]:
     """Hold the lock ``DIR/.<name>.lock`` for the duration of the block.
 
     Parameters
@@ -137,6 +158,9 @@ def exclusive(directory: str | os.PathLike[str], name: str, what: str) -> Iterat
         What is locked within the directory (a reconstruction name, ``train``).
     what : str
         How the error message names the locked thing, e.g. ``"reconstructions/fbp of DIR"``.
+    wait : float
+        Seconds to wait for a live holder to release the lock before refusing (for blocks that
+        take milliseconds, such as the update of a small file); 0: refuse at once.
 
     Yields
     ------
@@ -146,32 +170,23 @@ def exclusive(directory: str | os.PathLike[str], name: str, what: str) -> Iterat
     Raises
     ------
     BusyError
-        If a live process holds the lock.
+        If a live process holds the lock (for longer than ``wait``).
     """
     directory = Path(directory)
     made = [p for p in (directory, *directory.parents) if not p.exists()]
     directory.mkdir(parents=True, exist_ok=True)
     lock = lock_path(directory, name)
     record = _owner_record()
+    deadline = time.monotonic() + wait
     try:
-        for _ in range(3):
+        while True:
             try:
-                fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-            except FileExistsError:
-                owner = _read(lock)
-                if not _stale(lock, owner):
-                    if lock.exists():
-                        raise _busy(lock, what, owner) from None
-                    continue  # released meanwhile
-                _break(lock, owner)
-                continue
-            with os.fdopen(fd, "w") as f:
-                f.write(json.dumps(record))
-                f.flush()
-                os.fsync(f.fileno())
-            break
-        else:
-            raise _busy(lock, what, _read(lock))
+                _acquire(lock, what, record)
+                break
+            except BusyError:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.05)
         _HELD.add(record["token"])
         try:
             yield lock

@@ -70,6 +70,7 @@ from ..evaluation.conformal import (
 )
 from ..evaluation.metrics import EDGE_SIGMA, SUPPORT_RADIUS, edge_std, truth_support
 from ..io.fileio import atomic_write_text
+from ..io.lock import exclusive
 from ..io.store import DataStore
 from .base import PostProcessor
 from .checkpoint import load_checkpoint, model_from_checkpoint
@@ -610,11 +611,13 @@ def calibrate(
 
 
 def _write_entry(run: Path, name: str, entry: dict[str, Any]) -> None:
-    """Store ``entry`` under ``name`` in the run's ``calibration.json``, read again just before the write, so
-    that entries another process stored since this one read the file are kept."""
-    entries = load_calibration(run)
-    entries[name] = entry
-    atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
+    """Store ``entry`` under ``name`` in the run's ``calibration.json``: under the file's lock (waiting up to a
+    minute for another process's update), read again just before the write, so that entries another process
+    stored since this one read the file are kept."""
+    with exclusive(run, CALIBRATION_FILE, f"{run / CALIBRATION_FILE}", wait=60.0):
+        entries = load_calibration(run)
+        entries[name] = entry
+        atomic_write_text(run / CALIBRATION_FILE, json.dumps(entries, indent=2))
 
 
 def _kept_entry(
