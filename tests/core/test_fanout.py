@@ -44,3 +44,10 @@ def test_on_result_gets_the_dask_workers_return_values():
     got: list[int] = []
     assert run_tasks(abs, [-3, 1, -2], workers=2, progress=False, on_result=got.append) == 3
     assert sorted(got) == [1, 2, 3]
+
+
+def test_a_resumed_jobs_bar_counts_the_tasks_done_before(capsys):
+    """``done``: the bar of a resumed job starts at the tasks finished by the earlier run, out of all of them."""
+    run_tasks(lambda i: i, [5, 6], workers=0, progress=True, desc="generate", done=3)
+    err = capsys.readouterr().err
+    assert "3/5" in err and "5/5" in err and "0/2" not in err

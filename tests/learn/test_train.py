@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -91,6 +92,14 @@ def test_n_train_is_part_of_the_request(store, tmp_path):
     assert config["data"]["train"] == 2 and int(_log(run)[-1]["steps"]) == 1  # 2 images, batch 2: one step
     with pytest.raises(NanoctError, match="other settings.*data"):
         train(store, run, TrainConfig("unet", "fbp", epochs=2, n_train=4, **FAST), progress=False)
+
+
+def test_the_epoch_bar_ends_where_max_steps_stops_the_run(store, tmp_path, capsys):
+    """--max-steps ends the run inside epoch 1 of 3: the bar shows that epoch done and says why it stopped."""
+    run = train(store, tmp_path / "run", TrainConfig("unet", "fbp", epochs=3, max_steps=1, **FAST))
+    assert [int(r["epoch"]) for r in _log(run)] == [1]
+    bar = capsys.readouterr().err.split("\r")[-1]
+    assert "stopped at --max-steps 1" in bar and "1/3" in bar
 
 
 @pytest.mark.slow
@@ -288,7 +297,8 @@ def test_corrupt_and_mismatched_checkpoints(store, tmp_path):
     model = build_model("unet", **SMALL)
     path = tmp_path / "c.pt"
     save_checkpoint(path, model=model, input_name="fbp", image_size=63, epoch=1)
-    assert load_checkpoint(path, model_name="unet", image_size=63, hparams=model.hparams)["epoch"] == 1
+    loaded = load_checkpoint(path, model_name="unet", image_size=63, hparams=model.hparams)
+    assert loaded["epoch"] == 1 and loaded["file_sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     with pytest.raises(NanoctError, match="holds a 'unet' model, not 'cinn'"):
         load_checkpoint(path, model_name="cinn")
     with pytest.raises(NanoctError, match="63x63"):

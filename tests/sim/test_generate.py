@@ -71,7 +71,7 @@ def test_kill_and_resume_gives_the_same_bytes(tmp_path):
     assert [k for k in a if a[k] != b[k]] == []
 
 
-def test_second_run_is_a_noop_and_reconstruct_resumes(tmp_path):
+def test_second_run_is_a_noop_and_reconstruct_resumes(tmp_path, capsys):
     g = get_preset("tiny-parallel")
     path = tmp_path / "d"
     generate_dataset(path, g, 6, seed=0, workers=0, progress=False)
@@ -86,8 +86,11 @@ def test_second_run_is_a_noop_and_reconstruct_resumes(tmp_path):
     assert done.sum() == len(store.indices("test")) and done[store.indices("test")].all()
     # a later run over all samples adds only the missing ones and keeps the earlier results
     first = store.read_reconstruction("fbp", store.indices("test"))
-    reconstruct_dataset(path, "fbp", split="all", workers=0, progress=False)
+    capsys.readouterr()
+    reconstruct_dataset(path, "fbp", split="all", workers=0, progress=True)
     assert store.reconstruction_done("fbp").all()
+    bar = capsys.readouterr().err  # counts the samples made by the first run, out of all
+    assert f"{done.sum()}/6" in bar and "6/6" in bar
     np.testing.assert_array_equal(first, store.read_reconstruction("fbp", store.indices("test")))
     assert store.reconstruction_params("fbp") == {"method": "fbp"}
 

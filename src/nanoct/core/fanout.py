@@ -121,6 +121,7 @@ def run_tasks(
     progress: bool = True,
     unit: str = "sample",
     on_result: Callable[[Any], None] | None = None,
+    done: int = 0,
 ) -> int:
     """Run ``task(i)`` for every index, on Dask or (``workers == 0``) in this process.
 
@@ -142,6 +143,9 @@ def run_tasks(
         What one task is, for the progress bar.
     on_result : callable, optional
         Called in this process with each task's return value, as the tasks finish.
+    done : int
+        Tasks of the same job finished before (a resumed run): the bar counts from there, out of
+        ``done + len(indices)``.
 
     Returns
     -------
@@ -159,7 +163,7 @@ def run_tasks(
         raise ValueError(f"--workers {workers} must be >= 0")
     if not indices:
         return 0
-    bar = tqdm(total=len(indices), desc=desc, unit=unit, disable=not progress)
+    bar = tqdm(total=done + len(indices), initial=done, desc=desc, unit=unit, disable=not progress)
     try:
         if workers == 0 and not scheduler:
             for i in indices:

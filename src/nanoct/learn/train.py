@@ -778,14 +778,13 @@ def _run(s: _Settings) -> Path:
 
         step_model = DistributedDataParallel(step_model, device_ids=[s.dev.index] if s.dev.type == "cuda" else None)
     bar = tqdm(
-        range(state.start_epoch, s.epochs + 1),
         desc=f"train {s.model_name}",
         unit="epoch",
         disable=not s.progress,
         initial=state.start_epoch - 1,
         total=s.epochs,
     )
-    for epoch in bar:
+    for epoch in range(state.start_epoch, s.epochs + 1):
         t0 = time.perf_counter()
         if s.sched == "cosine":
             for group in state.optimizer.param_groups:
@@ -803,7 +802,9 @@ def _run(s: _Settings) -> Path:
             _save(s, state, epoch, improved)
             row = state.history[-1]
             bar.set_postfix(train=f"{row['train_loss']:.3g}", val=f"{row['val_loss']:.3g}", best=state.best_epoch)
+        bar.update()
         if s.max_steps is not None and state.step >= s.max_steps:
+            bar.set_description(f"train {s.model_name} (stopped at --max-steps {s.max_steps})")
             break
     bar.close()
     if s.distributed:

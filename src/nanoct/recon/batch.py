@@ -357,5 +357,6 @@ def reconstruct_dataset(
         pending = [int(i) for i in wanted[~store.reconstruction_done(name, wanted)]]
         task = partial(_reconstruct_into, str(store.path), method, name, solver_params, inputs)
         record = shift_check_recorder(store, name)
-        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, on_result=record)
+        fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "done": len(wanted) - len(pending)}
+        run_tasks(task, pending, desc=name, on_result=record, **fan)
     return name

@@ -258,5 +258,6 @@ def reconstruct_slabs(
     }
     source["n_rows"] = n_rows
     task = partial(_block_task, str(Path(out)), source, setup, blocks)
-    run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=Path(out).name, progress=progress, unit="block")
+    fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "unit": "block"}
+    run_tasks(task, pending, desc=Path(out).name, done=len(blocks) - len(pending), **fan)
     return Path(out)

@@ -40,6 +40,7 @@ def fill_dataset(store: DataStore, *, workers: int = 2, scheduler: str | None = 
             scheduler=scheduler,
             desc="generate",
             progress=progress,
+            done=store.n - len(pending),
         )
 
 

@@ -681,6 +681,6 @@ def reconstruct_stack(
             _record_engine(store, name, "backprojection")
         task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
         record = shift_check_recorder(store, name)
-        run_tasks(task, pending, workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="slice",
-                  on_result=record)  # fmt: skip
+        fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "unit": "slice"}
+        run_tasks(task, pending, desc=name, on_result=record, done=int(store.done.sum()) - len(pending), **fan)
         return name
