@@ -60,3 +60,28 @@ def test_a_second_writer_of_the_same_output_is_refused(tmp_path):
         with pytest.raises(BusyError, match="being written by another nanoct process"):
             slabs.reconstruct_scan(scan, tmp_path / "out", motion_rows=3, block=3, read=read, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_no_air_the_motion_slices_are_read_and_cleaned_once_on_one_bar(tmp_path, monkeypatch, capsys):
+    """An object wider than the field of view: the streamed path hands its cleaned motion slices to the stack's
+    estimate instead of reading them again (the open beam is removed once), and one bar shows the stages."""
+    import nanoct.motion.axis as axis_mod
+    from nanoct.workflows import stack as stack_wf
+
+    phi = np.arange(K) * np.pi / K
+    _, data = _line_integrals()
+    scan, read = _write_scan(tmp_path, data, phi)
+    calls = []
+    real = axis_mod.remove_air
+
+    def no_air(*a, **k):  # the same cleaning, reported as no air seen
+        calls.append(1)
+        return real(*a, **k)[0], False
+
+    monkeypatch.setattr(axis_mod, "remove_air", no_air)
+    monkeypatch.setattr(stack_wf, "remove_air", no_air)
+    found = (np.zeros(K), {"center_offset": 0.0, "horizontal_method": "focus+matching"})
+    monkeypatch.setattr(stack_wf, "_focus_matching", lambda *a: found)
+    out = slabs.reconstruct_scan(scan, tmp_path / "out", motion_rows=3, block=3, read=read, vertical=False)
+    assert len(calls) == 1 and dict(zarr.open_group(str(out), mode="r").attrs["info"])["center_offset"] == 0.0
+    assert "motion:" in capsys.readouterr().err

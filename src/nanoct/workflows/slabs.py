@@ -11,12 +11,12 @@ reconstructed with gridrec, written as Zarr chunks, resumable by block). The mot
   (:func:`scan_profiles`), registered by :func:`~nanoct.motion.vertical.vertical_motion` (zero
   where not significant, the reason recorded as ``vertical_guard``), for selections of at least
   :data:`~nanoct.workflows.stack.MIN_VERTICAL_SLICES` rows (as the stack);
-* horizontal and axis: from a few rows, each moved back by the vertical shift: the views'
-  centroids where air is seen (the axis the centroids' as the stack chooses it, checked against
-  opposite views; the slow ``find_center_vo`` is left out), else
-  :func:`~nanoct.workflows.stack.horizontal_motion` (autofocus and projection matching on a
-  central block of rows, as ``nanoct stack`` on a data set). The axis
-  tilt is not estimated here (one axis for every row).
+* horizontal and axis: :func:`~nanoct.workflows.stack.horizontal_motion` on a few rows, each
+  moved back by the vertical shift, as ``nanoct stack`` on a data set (autofocus and projection
+  matching on a central block of rows where no air is seen), except that where air is seen the
+  axis is the centroids' as the stack chooses it, checked against opposite views
+  (:func:`slab_centroids`; the slow ``find_center_vo`` is left out). The axis tilt is not
+  estimated here (one axis for every row).
 
 A stopped run resumes with the recorded motion; the same command with other motion options is
 refused (another output, or ``overwrite``).
@@ -42,7 +42,7 @@ from ..motion.vertical import vertical_motion
 from ..recon.slab import SLAB_FORMAT, check_selection, read_block, reconstruct_slabs, slab_blocks
 from .stack import MIN_VERTICAL_SLICES, horizontal_motion
 
-__all__ = ["ScanRows", "reconstruct_scan", "scan_profiles"]
+__all__ = ["ScanRows", "reconstruct_scan", "scan_profiles", "slab_centroids"]
 
 
 class ScanRows:
@@ -116,7 +116,7 @@ def _estimate(source: dict[str, Any], geometry: Geometry, selection: tuple[int, 
         estimate = vertical_motion(scan_profiles(source, selection, params["block"], progress))
         vertical, guard = estimate.shifts, estimate.to_dict()
     motion = {**params, "motion_slices": _motion_rows(params["motion_slices"], rows.n)}
-    shifts, info = _horizontal(rows, motion, vertical, progress)
+    shifts, info = horizontal_motion(rows, motion, vertical, progress, "motion", slab_centroids)  # type: ignore[arg-type]
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
     info["vertical_guard"] = guard
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
@@ -128,30 +128,32 @@ def _estimate(source: dict[str, Any], geometry: Geometry, selection: tuple[int, 
     return info
 
 
-def _horizontal(
-    rows: ScanRows, params: dict[str, Any], vertical: np.ndarray, progress: bool
+def slab_centroids(
+    rows: ScanRows, params: dict[str, Any], vertical: np.ndarray, clean: np.ndarray, bar: Any
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """The horizontal shifts and the axis: the views' centroids where they hold, else the stack's full estimate.
+    """Air seen around the object in ``clean`` (the motion slices, open beam removed): the views' centroids.
 
-    Where air is seen around the object and the views' mass varies by at most 1 %, the axis is
-    the centroids' (the value :func:`~nanoct.motion.axis.estimate_axis` uses then), checked
-    against the opposite views' (``mirror``, with the shifts) on the same rows; the stack's other
-    estimator (``find_center_vo``, about a minute per row at 2048 columns and 1800 views) is not
-    run. Otherwise :func:`~nanoct.workflows.stack.horizontal_motion`, as on a data set.
+    Where the views' mass varies by at most 1 %, the axis is the centroids' (the value
+    :func:`~nanoct.motion.axis.estimate_axis` uses then), checked against the opposite views'
+    (``mirror``, with the shifts) on the same rows; the stack's other estimator
+    (``find_center_vo``, about a minute per row at 2048 columns and 1800 views) is not run.
+    Otherwise :func:`~nanoct.workflows.stack.centroid_motion_axis`, as on a data set. One stage
+    on ``bar`` (:func:`~nanoct.workflows.stack.horizontal_motion`'s).
     """
-    from ..motion.axis import AGREEMENT_PX, object_rows, remove_air
+    from ..motion.axis import AGREEMENT_PX, object_rows
     from ..motion.center import centroid_motion, fit_center
-    from .stack import read_straight
+    from .stack import centroid_motion_axis
 
     phi = rows.geometry.angles
-    clean, air = remove_air(read_straight(rows, params["motion_slices"], vertical), zero_air=True)  # type: ignore[arg-type]
     held = object_rows(clean)
     center, shifts, spread = centroid_motion(clean[held] if held.any() else clean, phi)
-    if not air or not spread <= 0.01:
-        return horizontal_motion(rows, params, vertical, progress, "motion")  # type: ignore[arg-type]
+    if not spread <= 0.01:
+        return centroid_motion_axis(rows, params, vertical, clean, bar)  # type: ignore[arg-type]
+    bar.set_postfix_str("centroids and axis")
     info: dict[str, Any] = {"horizontal_method": "centroid", "mass_spread": spread, "refine_steps": []}
     if params["center"] != "auto":
         info.update(center_offset=float(params["center"]), center_method="given")
+        bar.update()
         return shifts, info
     mirror = fit_center(clean, phi, shifts, max_offset=rows.geometry.n_det / 4)
     notes = []
@@ -161,6 +163,7 @@ def _horizontal(
     axis = {"offset": center, "estimates": {"centroid": center, "mirror": mirror}, "used": ["centroid"], "notes": notes}
     info.update(center_offset=float(center), center_raw=float(center), axis=axis)
     info["center_method"] = "the views' centroids (opposite views as a check)"
+    bar.update()
     return shifts, info
 
 

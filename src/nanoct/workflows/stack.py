@@ -32,6 +32,7 @@ with the reconstruction (the note ``engine``, read with ``store.recons.note(name
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -55,6 +56,7 @@ __all__ = [
     "FBP_ENGINES",
     "MIN_VERTICAL_SLICES",
     "STACK_METHODS",
+    "centroid_motion_axis",
     "fbp_engine",
     "horizontal_motion",
     "read_straight",
@@ -351,7 +353,12 @@ def _focus_matching(
 
 
 def horizontal_motion(
-    store: DataStore, params: dict[str, Any], vertical: np.ndarray, progress: bool, name: str
+    store: DataStore,
+    params: dict[str, Any],
+    vertical: np.ndarray,
+    progress: bool,
+    name: str,
+    centroids: Callable[..., tuple[np.ndarray, dict[str, Any]]] | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """The horizontal shift per view and the axis (``info["center_offset"]``) of a stack.
 
@@ -366,7 +373,9 @@ def horizontal_motion(
     (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
 
     With ``progress`` one bar, labelled :func:`_motion_label` of ``name``, counts the stages and
-    names the one running.
+    names the one running. ``centroids`` replaces :func:`centroid_motion_axis` where air is seen (same
+    arguments; one stage on the bar): a scan streamed from its files takes the cheaper axis of
+    :func:`nanoct.workflows.slabs.slab_centroids`.
     """
     refine = (2, 2, 2, 1) if params["refine"] is None else tuple(params["refine"])
     with tqdm(total=1, desc=_motion_label(name), disable=not progress, unit="stage") as bar:
@@ -375,7 +384,7 @@ def horizontal_motion(
         bar.total += 1 if air else (6 if params["refine"] is None else 3 + len(refine))  # the stages to come
         bar.update()
         if air:
-            return _centroid_motion(store, params, vertical, clean, bar)
+            return (centroids or centroid_motion_axis)(store, params, vertical, clean, bar)
         info: dict[str, Any] = {}
         if params["refine"] is None:
             found = _focus_matching(store, params, vertical, bar)
@@ -386,7 +395,7 @@ def horizontal_motion(
         return _dremel_matching(store, params, clean, info, refine, bar)
 
 
-def _centroid_motion(
+def centroid_motion_axis(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, clean: np.ndarray, bar: Any
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Air seen: the views' centroids give the shifts, every axis estimator the axis (one stage on ``bar``)."""
