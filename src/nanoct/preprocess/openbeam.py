@@ -42,6 +42,7 @@ the two sides alone cannot tell the constant from the curvature. The default,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,9 +88,18 @@ class OpenBeam:
 
     def field(self, view: int) -> np.ndarray:
         """The open beam of one view over the detector, shape (R, L), float64."""
-        w, u = _coordinates(self.shape)
-        terms = poly_terms(u[None, :], w[:, None], self.degree)
+        terms = _detector_terms(tuple(self.shape), self.degree)
         return sum(c * t for c, t in zip(self.coefficients[view], terms)) + np.zeros(self.shape)
+
+
+@functools.lru_cache(maxsize=8)
+def _detector_terms(shape: tuple[int, int], degree: int) -> tuple[np.ndarray, ...]:
+    """:func:`poly_terms` over a detector of ``shape`` (read-only; computed once per shape and degree)."""
+    w, u = _coordinates(shape)
+    terms = tuple(np.asarray(t) for t in poly_terms(u[None, :], w[:, None], degree))
+    for t in terms:
+        t.flags.writeable = False
+    return terms
 
 
 def poly_terms(u: np.ndarray, w: np.ndarray, degree: int) -> list[np.ndarray]:
@@ -137,11 +147,16 @@ def _upper_mode(values: np.ndarray, band: float, sigma: float) -> tuple[float, f
     return level, max(band * sigma, _REL_BAND * abs(level))
 
 
+#: 4-connected neighbours (:func:`scipy.ndimage.label`'s default), made once
+_CROSS = ndimage.generate_binary_structure(2, 1)
+
+
 def _without_specks(mask: np.ndarray) -> np.ndarray:
-    labels, count = ndimage.label(mask)
+    labels, count = ndimage.label(mask, _CROSS)
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
-    keep = np.nonzero(sizes >= min(_MIN_REGION, 3 * mask.shape[0]))[0]  # 3 pixels in a single row
-    return np.isin(labels, keep[keep > 0])
+    kept = sizes >= min(_MIN_REGION, 3 * mask.shape[0])  # 3 pixels in a single row
+    kept[0] = False  # the background
+    return kept[labels]
 
 
 def _slope(smooth: np.ndarray, air: np.ndarray, half: float) -> float:
@@ -202,9 +217,7 @@ def _fit(view: np.ndarray, air: np.ndarray, degree: int) -> np.ndarray:
         return np.zeros(1)
     if degree == 0:
         return np.array([np.median(values)])
-    w, u = _coordinates(view.shape)
-    rows, cols = np.nonzero(air)
-    design = np.stack(poly_terms(u[cols], w[rows], degree), axis=1)
+    design = np.stack([t[air] for t in _detector_terms(view.shape, degree)], axis=1)
     # normal equations (T x T; a minimum-norm solution where rows or columns are constant)
     coef, *_ = np.linalg.lstsq(design.T @ design, design.T @ values, rcond=None)
     return coef
