@@ -422,3 +422,21 @@ def test_pixels_left_out_do_not_move_the_group_fit(rng):
     kept = fit_group_intervals(err[:, 2:], std[:, 2:], labels[:, 2:], 0.9)
     for key in ("multipliers", "maps", "n_pixels", "val_coverage"):
         assert left[key] == kept[key]
+
+
+def test_mean_noise_ratio_against_a_direct_computation(rng):
+    """The median std over sqrt(M) on the known pixels, over the 99th percentile of |mean| there; inf for a zero
+    image; and it matches the spread of means of M independent draws."""
+    from nanoct.evaluation.conformal import mean_noise_ratio
+
+    std = rng.uniform(0.01, 0.03, (2, 16, 16))
+    image = rng.normal(0, 1, (2, 16, 16))
+    known = np.zeros((16, 16), bool)
+    known[2:12, 3:] = True
+    got = mean_noise_ratio(std, image, 9, known)
+    want = [np.median(s[known]) / 3 / np.percentile(np.abs(m[known]), 99) for s, m in zip(std, image)]
+    assert got == pytest.approx(want, rel=1e-12)
+    assert mean_noise_ratio(std[0], np.zeros((16, 16)), 4).tolist() == [np.inf]
+    draws = rng.normal(1.0, 0.2, (400, 16, 16, 25))  # the std of a 25-draw mean: 0.2 / 5
+    means = draws.mean(axis=-1)
+    assert means.std() == pytest.approx(mean_noise_ratio(np.full((16, 16), 0.2), np.ones((16, 16)), 25)[0], rel=0.02)

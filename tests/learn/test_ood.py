@@ -70,20 +70,16 @@ def test_ood_check_warns_on_a_shifted_set_and_records_it(tiny_store, monkeypatch
         store.delete_reconstruction(name)
 
 
-def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tmp_path):
-    """A calibration on one sample's measured pairs (a footprint, fitted on the field of view): fresh slices of the
-    sample pass, also with something beyond the field of view; the sample moved by 12 px is flagged by
-    ``footprint`` with the fraction of its support outside the footprint; a later check of one sample, moved back,
-    unflags it and keeps the others' record; the std level, the calibration's, flags nothing."""
+def _footprint_case(tmp_path, **calibration):
+    """A scan store and a calibration on one sample's measured pairs (a footprint, fitted on the field of view),
+    with ``calibration`` added to it; fresh slices of the sample (mean, std) and its known pixels."""
     from nanoct.core.geometry import Geometry
-    from nanoct.evaluation.conformal import decode_mask, footprint_outside
     from nanoct.io.store import create_scan
     from nanoct.learn.calibration import fit_intervals
     from nanoct.sim.matched import fov_disc
 
     geometry = Geometry.from_dict({**get_preset("tiny-parallel").to_dict(), "center_offset": 20.0})
     known = fov_disc(geometry) > 0  # radius 25 px of a 63 px image: the corners are outside
-    assert not known.all()
     size, n = geometry.n, 20
     store = create_scan(tmp_path / "scan", geometry, np.zeros((8, *geometry.sino_shape)), {"file": "constructed"})
     rng = np.random.default_rng(8)
@@ -98,12 +94,24 @@ def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tm
 
     gts, means, stds = slices(rng)
     rule = {"support_source": "relative", "known": known, "object_conditional": True, "footprint": True}
-    cal = fit_intervals(means, stds, gts, levels=(0.9,), **rule)
+    cal = fit_intervals(means, stds, gts, levels=(0.9,), **rule) | calibration
+    _, fresh, fresh_std = slices(np.random.default_rng(9))
+    return store, cal, (fresh, fresh_std), known, (xx, yy, levels)
+
+
+def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tmp_path):
+    """A calibration on one sample's measured pairs (a footprint, fitted on the field of view): fresh slices of the
+    sample pass, also with something beyond the field of view; the sample moved by 12 px is flagged by
+    ``footprint`` with the fraction of its support outside the footprint; a later check of one sample, moved back,
+    unflags it and keeps the others' record; the std level, the calibration's, flags nothing."""
+    from nanoct.evaluation.conformal import decode_mask, footprint_outside
+
+    store, cal, (fresh, fresh_std), known, (xx, yy, levels) = _footprint_case(tmp_path)
+    assert not known.all()
     groups = cal["levels"]["0.9"]["groups"]
     assert decode_mask(groups["footprint"]).mean() < 0.5
     name = "footprint+fake"
     store.prepare_reconstruction(name, {"calibration": cal}, uncertainty=True)
-    _, fresh, fresh_std = slices(np.random.default_rng(9))
     corner = (np.hypot(xx + 28, yy + 28) <= 4) * levels.max()  # outside the field of view
     images = {
         i: fresh[i] + (corner if i == 2 else 0) if i not in (1, 5) else np.roll(fresh[i], 12, axis=1) for i in range(8)
@@ -119,11 +127,47 @@ def test_ood_check_flags_images_outside_the_footprint_of_the_calibrating_scan(tm
     assert [record["footprint"]["outside"][str(i)] for i in everything] == pytest.approx(expected.tolist())
     assert record["footprint"]["flagged"] == record["flagged"] == [1, 5]
     assert record["flagged_by"] == {"1": ["footprint"], "5": ["footprint"]}
+    assert "unchecked" not in record["footprint"]  # no sampling recorded: every image is checked
     assert footprint_outside(written[1][2], groups, written[0][2])[0] > 0.02  # the corner, were every pixel counted
     store.write_reconstruction(name, 5, fresh[5].astype(np.float32), std=fresh_std[5].astype(np.float32))
     again = ood_check(store, name, np.array([5]))
     assert again["flagged"] == again["footprint"]["flagged"] == [1] and set(again["flagged_by"]) == {"1"}
     assert set(again["footprint"]["outside"]) == {str(i) for i in everything}
+
+
+def test_the_footprint_check_skips_a_mean_whose_sampling_noise_makes_its_support(tmp_path):
+    """A faint slice averaged over a few independent draws: its support relative to its level is speckle of the
+    sampling noise, which leaves the footprint. Its mean's noise (the median std over sqrt(M)) is a large share
+    of its level, so it is recorded as unchecked with a warning instead of flagged; the sample moved is still
+    flagged. The same images from antithetic pairs (no such noise estimate) are checked and flagged."""
+    from nanoct.evaluation.conformal import FOOTPRINT_NOISY_MEAN, mean_noise_ratio
+
+    rng = np.random.default_rng(4)
+    for antithetic in (False, True):
+        reconstruct = {"n_samples": 4} | ({"antithetic": True} if antithetic else {})
+        store, cal, (fresh, _), known, _ = _footprint_case(tmp_path / str(antithetic), n_samples=4,
+                                                           reconstruct=reconstruct)  # fmt: skip
+        name = "noisy+fake"
+        store.prepare_reconstruction(name, {"calibration": cal}, uncertainty=True)
+        std = np.full(fresh.shape[1:], 0.004, np.float32)  # the draws' spread; their mean's noise 0.002
+        faint = fresh[0] / fresh[0].max() * 0.003 + rng.normal(0, 0.002, std.shape)
+        store.write_reconstruction(name, 0, faint.astype(np.float32), std=std)
+        moved = np.roll(fresh[1], 12, axis=1)
+        store.write_reconstruction(name, 1, moved.astype(np.float32), std=std)
+        ratios = mean_noise_ratio(np.stack([std, std]), np.stack([faint, moved]), 4, known)
+        assert ratios[0] > FOOTPRINT_NOISY_MEAN > ratios[1]
+        if antithetic:
+            with pytest.warns(OutOfDistributionWarning):
+                record = ood_check(store, name, np.arange(2))
+            assert record["footprint"]["flagged"] == [0, 1] and "unchecked" not in record["footprint"]
+            continue
+        with pytest.warns(UserWarning, match=r"not made on 1 of 2 images .*samples 0\).*--antithetic or more"):
+            record = ood_check(store, name, np.arange(2))
+        assert record["footprint"]["outside"]["0"] > 0.02  # measured, but not a flag
+        assert record["footprint"]["flagged"] == [1] and "footprint" not in record["flagged_by"].get("0", [])
+        assert record["footprint"]["unchecked"] == {"0": pytest.approx(ratios[0])}
+        # a later check of the other sample keeps the record of the unchecked one
+        assert ood_check(store, name, np.array([1]))["footprint"]["unchecked"] == {"0": pytest.approx(ratios[0])}
 
 
 def _moved_profiles(shifts: np.ndarray, n_det: int = 91, width: float = 6.0) -> np.ndarray:

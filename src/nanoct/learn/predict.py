@@ -34,7 +34,15 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError, StoreError
-from ..evaluation.conformal import DEFAULT_DELTA, DEFAULT_LEVELS, FOOTPRINT_TOLERANCE, footprint_fits, footprint_outside
+from ..evaluation.conformal import (
+    DEFAULT_DELTA,
+    DEFAULT_LEVELS,
+    FOOTPRINT_NOISY_MEAN,
+    FOOTPRINT_TOLERANCE,
+    footprint_fits,
+    footprint_outside,
+    mean_noise_ratio,
+)
 from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
@@ -428,9 +436,12 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     beam: on every pixel): not a slice of the calibrating scan as it lay there (another sample, the
     same one moved, or a slice with nothing in it, whose support is its noise), so its background
     may hide missed object pixels that the intervals do not cover. This check is not a p-value and
-    has no false-alarm rate; where the footprint has another image size than the prediction (a
-    tiled prediction) it is not made (all the background then takes the wider of the two
-    background multipliers, :func:`nanoct.evaluation.conformal.half_width_of`).
+    has no false-alarm rate. It is not made on an image whose mean, of independent draws, is too noisy
+    for its support to mean anything (:func:`nanoct.evaluation.conformal.mean_noise_ratio` above
+    :data:`~nanoct.evaluation.conformal.FOOTPRINT_NOISY_MEAN`; recorded as ``unchecked``, with a
+    warning), nor where the footprint has another image size than the prediction (a tiled
+    prediction; all the background then takes the wider of the two background multipliers,
+    :func:`nanoct.evaluation.conformal.half_width_of`).
 
     The record (merged with earlier ones of other samples) is stored as the note ``ood`` of ``name``
     and a :class:`OutOfDistributionWarning` names the flagged samples and which check flagged
@@ -443,13 +454,14 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
         ``p <= alpha``, and those the footprint check flags), ``flagged_by`` = {sample index: the statistics
         with ``p <= alpha / 2`` (``alpha`` with the std alone), and ``footprint``} and per statistic (``std``,
         and ``scan`` where used) {``p_values``, ``flagged``: its own ``p <= alpha``}; with the footprint check,
-        ``footprint`` = {``tolerance``, ``outside``: {sample index: fraction}, ``flagged``}.
+        ``footprint`` = {``tolerance``, ``outside``: {sample index: fraction}, ``flagged``, and where some image
+        was not checked ``noisy_mean`` and ``unchecked``: {sample index: noise ratio}}.
     """
     calibration = store.reconstruction_params(name)["calibration"]
     ood = calibration["ood"]
     alpha = float(ood["alpha"])
     keys = [str(int(i)) for i in indices]
-    levels, outside = _chunked_statistics(store, name, calibration, indices)
+    levels, outside, noise = _chunked_statistics(store, name, calibration, indices)
     p_by = {"std": ood_p_values(levels, ood["val"])}
     if ood.get("scan"):
         p_by["scan"] = ood_p_values(store_scan_scores(store, indices, ood["scan"]), ood["scan"]["scores"])
@@ -462,9 +474,8 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     by = {k: [s for s, p in p_by.items() if p[j] <= share] for j, k in enumerate(keys)}
     off: set[str] = set()
     if outside is not None:
-        fractions = {**(old.get("footprint") or {}).get("outside", {}), **dict(zip(keys, outside.tolist()))}
-        off = {k for k, v in fractions.items() if v > FOOTPRINT_TOLERANCE}
-        record["footprint"] = {"tolerance": FOOTPRINT_TOLERANCE, "outside": fractions, "flagged": sorted(map(int, off))}
+        record["footprint"] = _footprint_record(name, old.get("footprint") or {}, keys, outside, noise)
+        off = {str(i) for i in record["footprint"]["flagged"]}
         by = {k: v + ["footprint"] * (k in off) for k, v in by.items()}
     record["flagged"] = sorted({int(i) for i, v in p_values.items() if v <= alpha} | {int(k) for k in off})
     earlier = {k: v for k, v in old.get("flagged_by", {}).items() if k not in by}
@@ -494,6 +505,31 @@ def ood_check(store: DataStore, name: str, indices: np.ndarray) -> dict[str, Any
     return record
 
 
+def _footprint_record(
+    name: str, old: dict[str, Any], keys: list[str], outside: np.ndarray, noise: np.ndarray | None
+) -> dict[str, Any]:
+    """The footprint check's record of ``name`` (merged with the ``old`` one of other samples): the fractions of
+    the support outside the footprint, those above the tolerance flagged, except on images whose mean is too
+    noisy for its support to mean anything (``noise`` above :data:`~nanoct.evaluation.conformal.FOOTPRINT_NOISY_MEAN`,
+    ``unchecked``: {sample index: ratio}), which a warning names with what to do."""
+    fractions = {**old.get("outside", {}), **dict(zip(keys, outside.tolist()))}
+    noisy = {} if noise is None else {k: float(r) for k, r in zip(keys, noise) if r > FOOTPRINT_NOISY_MEAN}
+    unchecked = {k: v for k, v in old.get("unchecked", {}).items() if k not in keys} | noisy
+    off = sorted(int(k) for k, v in fractions.items() if v > FOOTPRINT_TOLERANCE and k not in unchecked)
+    if noisy:
+        shown = ", ".join(list(noisy)[:10]) + (" ..." if len(noisy) > 10 else "")
+        warnings.warn(
+            f"the footprint check of reconstructions/{name} was not made on {len(noisy)} of {len(keys)} images "
+            f"(samples {shown}): the sampling noise of their mean is {min(noisy.values()):.2f}-"
+            f"{max(noisy.values()):.2f} of their level (more than {FOOTPRINT_NOISY_MEAN}), so their support is "
+            "noise; predict with --antithetic or more --samples (with --name or --overwrite) to check them",
+            UserWarning,
+            stacklevel=3,
+        )
+    record = {"tolerance": FOOTPRINT_TOLERANCE, "outside": fractions, "flagged": off}
+    return record | ({"noisy_mean": FOOTPRINT_NOISY_MEAN, "unchecked": unchecked} if unchecked else {})
+
+
 def _blind_checks(name: str, ood: dict[str, Any], used: list[str], share: float) -> list[str]:
     """The out-of-distribution checks of ``name`` that cannot flag any image, each with a warning: a reference of
     n values gives no p-value below ``1 / (n + 1)``, so with ``1 / (n + 1) > share`` nothing is ever flagged."""
@@ -517,10 +553,12 @@ def _blind_checks(name: str, ood: dict[str, Any], used: list[str], share: float)
 
 def _chunked_statistics(
     store: DataStore, name: str, calibration: dict[str, Any], indices: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Per image of ``name`` at ``indices``: the std statistic (:func:`nanoct.learn.calibration.image_statistic`)
-    and :func:`nanoct.evaluation.conformal.footprint_outside` (on the field of view for parallel beam; None where
-    the calibration has no footprint of this image size), each std read once, ``OOD_CHUNK`` images at a time."""
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Per image of ``name`` at ``indices``: the std statistic (:func:`nanoct.learn.calibration.image_statistic`),
+    :func:`nanoct.evaluation.conformal.footprint_outside` (on the field of view for parallel beam; None where
+    the calibration has no footprint of this image size) and, for a mean of independent draws, its
+    :func:`nanoct.evaluation.conformal.mean_noise_ratio` (else None), each std read once, ``OOD_CHUNK`` images at
+    a time."""
     groups = next(iter((calibration.get("levels") or {}).values()), {}).get("groups") or {}
     footprint = bool(groups.get("footprint")) and footprint_fits(groups, store.geometry.image_shape)
     known = None
@@ -528,14 +566,20 @@ def _chunked_statistics(
         from ..sim.matched import fov_disc
 
         known = fov_disc(store.geometry) > 0
-    levels, outside = [np.zeros(0)], [np.zeros(0)]
+    draws = calibration.get("n_samples") if not (calibration.get("reconstruct") or {}).get("antithetic") else None
+    levels, outside, noise = [np.zeros(0)], [np.zeros(0)], [np.zeros(0)]
     for start in range(0, len(indices), OOD_CHUNK):
         chunk = indices[start : start + OOD_CHUNK]
         stds = store.read_uncertainty(name, chunk)
         levels.append(image_statistic(stds))
         if footprint:
-            outside.append(footprint_outside(stds, groups, store.read_reconstruction(name, chunk), known))
-    return np.concatenate(levels), np.concatenate(outside) if footprint else None
+            means = store.read_reconstruction(name, chunk)
+            outside.append(footprint_outside(stds, groups, means, known))
+            if draws:
+                noise.append(mean_noise_ratio(stds, means, int(draws), known))
+    if not footprint:
+        return np.concatenate(levels), None, None
+    return np.concatenate(levels), np.concatenate(outside), np.concatenate(noise) if draws else None
 
 
 def _tiling(store: DataStore, run: Path, ckpt: dict[str, Any], tile: int | None, overlap: int | None) -> dict | None:
