@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -523,3 +524,19 @@ def test_a_moved_folder_keeps_its_calibration_and_prediction(setup, tmp_path, mo
     monkeypatch.setattr(cal_mod, "sample_outputs", lambda *a, **k: (refits.append(1), real(*a, **k))[1])
     calibrate(data, moved, reconstruct_kwargs=M)
     assert refits == [1]
+
+
+def test_a_footprint_fitted_on_noisy_means_of_independent_draws_is_warned_of(tiny_store):
+    """Validation means whose sampling noise (std / sqrt(M)) is a large share of their level: their support is
+    partly noise, so the footprint fitted on them is wider than the sample; antithetic means are not judged so."""
+    rng = np.random.default_rng(3)
+    known = np.ones((16, 16), bool)
+    means, stds = rng.normal(0, 0.01, (3, 16, 16)), np.full((3, 16, 16), 0.02)
+    means[0] += 1.0  # one bright image: ratio 0.01 / 1.0; the others about 0.01 / 0.025
+    key = {"n_samples": 4, "reconstruct": {"n_samples": 4}}
+    with pytest.warns(UserWarning, match=r"sampling noise of 2 of 3 means of 4 independent draws .*--antithetic"):
+        cal_mod._warn_noisy_footprint(tiny_store, means, stds, key, known)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cal_mod._warn_noisy_footprint(tiny_store, means, stds, key | {"reconstruct": {"antithetic": True}}, known)
+        cal_mod._warn_noisy_footprint(tiny_store, means[:1], stds[:1], key, known)

@@ -41,6 +41,7 @@ import hashlib
 import inspect
 import json
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -600,6 +601,8 @@ def calibrate(
         means, stds = sample_outputs(model, store, key["input"], val, kwargs, device, progress)
     gts = store.read_phantoms(val)
     rule = reference_rule(store, gts)
+    if rule.get("footprint"):
+        _warn_noisy_footprint(store, means, stds, key, rule["known"])
     entry = key | {"n_images": len(means)} | fit_intervals(means, stds, gts, tuple(levels), delta, **rule)
     if rule:
         entry["references"] = "measured: support relative to each image, field of view only"
@@ -608,6 +611,29 @@ def calibrate(
         entry["ood"]["scan"] = reference
     _write_entry(run, name, entry)
     return entry
+
+
+def _warn_noisy_footprint(
+    store: DataStore, means: np.ndarray, stds: np.ndarray, key: dict[str, Any], known: np.ndarray
+) -> None:
+    """Warn where the footprint is fitted on validation means of independent draws of which some are too noisy
+    for their support to mean anything (:func:`nanoct.evaluation.conformal.mean_noise_ratio` above
+    :data:`~nanoct.evaluation.conformal.FOOTPRINT_NOISY_MEAN`): their speckle widens the footprint."""
+    from ..evaluation.conformal import FOOTPRINT_NOISY_MEAN, mean_noise_ratio
+
+    if key["reconstruct"].get("antithetic") or not key["n_samples"]:
+        return
+    ratios = mean_noise_ratio(stds, means, int(key["n_samples"]), known)
+    noisy = int((ratios > FOOTPRINT_NOISY_MEAN).sum())
+    if noisy:
+        warnings.warn(
+            f"the intervals' footprint is fitted on the validation split of {store.path}, where the sampling noise of "
+            f"{noisy} of {len(ratios)} means of {key['n_samples']} independent draws is more than "
+            f"{FOOTPRINT_NOISY_MEAN} of their level (up to {float(ratios.max()):.2f}), so their support is partly "
+            "noise and the footprint wider than the sample; predict with --antithetic or more --samples",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _write_entry(run: Path, name: str, entry: dict[str, Any]) -> None:
