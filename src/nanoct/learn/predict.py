@@ -315,12 +315,7 @@ def predict(
         fit = {"reconstruct_kwargs": kwargs, "device": device, "progress": progress, "levels": tuple(levels)}
         if (ckpt.get("config") or {}).get("patch"):  # fitted on the validation images predicted in these tiles
             fit["tiling"] = tiling
-        params["calibration"] = calibrate_run(on, run, checkpoint, delta=delta, **fit)
-        if params["calibration"]["checkpoint_sha256"] != ckpt["file_sha256"]:
-            raise NanoctError(
-                f"the checkpoint {ckpt_path} was replaced while predict read it (is 'nanoct train' still writing "
-                "the run?); run the same command again once it is not"
-            )
+        params["calibration"] = _same_weights(calibrate_run(on, run, checkpoint, delta=delta, **fit), ckpt, ckpt_path)
     needed = 4 * int(np.prod(store.geometry.image_shape)) * (1 + sampling) * indices.size  # float32 mean (and std)
     with exclusive(store.path, out, f"reconstructions/{out} of {store.path}"), disk_space_needed(store.path, needed):
         params = _provenance(store, out, json.loads(json.dumps(params)), ckpt["file_sha256"], overwrite)
@@ -341,6 +336,22 @@ def predict(
         if "calibration" in params:
             ood_check(store, out, indices)
     return out
+
+
+def _same_weights(calibration: dict[str, Any], ckpt: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``calibration``, fitted for the checkpoint file predict loaded (``ckpt``, from ``path``): its hash agrees.
+
+    Raises
+    ------
+    NanoctError
+        Where the file was replaced between predict's load and the calibration's.
+    """
+    if calibration["checkpoint_sha256"] != ckpt["file_sha256"]:
+        raise NanoctError(
+            f"the checkpoint {path} was replaced while predict read it (is 'nanoct train' still writing the run?); "
+            "run the same command again once it is not"
+        )
+    return calibration
 
 
 def _check_arguments(run: Path, checkpoint: str, split: str, batch_size: int) -> None:
