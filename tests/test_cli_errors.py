@@ -143,6 +143,11 @@ BAD_ARGS = {
     "predict levels empty item": (["predict", "{w}/par", "--run", "{w}/run", "--levels", "0.9,,0.95"], "--levels"),
     "predict tile too large": (["predict", "{w}/par", "--run", "{w}/run", "--tile", 500], "--tile 500 is larger"),
     "train lr inf": (["train", "{w}/par", "-i", "fbp", "--out", "{w}/r2", "--lr", "inf"], "lr (inf)"),
+    "train param typo": (
+        ["train", "{w}/par", "-i", "fbp", "--out", "{w}/r2", "--param", "chanels=[4,4,8,8,16]"],
+        "no parameter chanels; its parameters are",
+    ),
+    "stack missing path": (["stack", "{w}/scna", "-w", 0], "scna does not exist"),
     "train negative seed": (["train", "{w}/par", "-i", "fbp", "--out", "{w}/r2", "--seed", -5], "--seed -5"),
     "predict other geometry": (["predict", "{w}/fan", "--run", "{w}/run", "--device", "cpu"], "geometry"),
     "predict calibrate-on": (

@@ -1177,6 +1177,8 @@ def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block:
     if out is not None and store_dir is None:
         typer.echo(_stream_stack(source, out, flags))
         return None
+    if not source.exists():
+        raise NanoctError(f"{source} does not exist; give a data set (nanoct import) or a scan file or folder")
     if store_dir is None or out is not None:
         raise NanoctError(
             f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "

@@ -41,7 +41,7 @@ def test_binned_geometry_keeps_the_views_and_refuses_a_binning_that_does_not_div
     b = binned_geometry(g, 3, 2.0)
     np.testing.assert_array_equal(b.angles, g.angles)
     assert (b.n, b.n_det, b.center_offset) == (20, 20, pytest.approx(binned_offset(2.0, 60, 3)))
-    with pytest.raises(NanoctError, match=r"--bin 7 does not divide the scan's detector width 60; use one of"):
+    with pytest.raises(NanoctError, match=r"--bin 7 does not divide the scan.s detector width 60; .*--binning 7"):
         binned_geometry(g, 7, 2.0)
     with pytest.raises(NanoctError, match="--bin 0 must be a whole number"):
         binned_geometry(g, 0, 2.0)

@@ -10,6 +10,7 @@ settings for it. To add a model::
 from __future__ import annotations
 
 import importlib
+import inspect
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -104,6 +105,12 @@ def build_model(name: str, **kwargs: Any) -> PostProcessor:
         If the name is unknown or the keyword arguments are not accepted.
     """
     cls = model_class(name)
+    accepted = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown and not any(p.kind is p.VAR_KEYWORD for p in inspect.signature(cls.__init__).parameters.values()):
+        raise NanoctError(
+            f"model {name!r} has no parameter {', '.join(unknown)}; its parameters are {', '.join(accepted)}"
+        )
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
