@@ -55,3 +55,27 @@ def test_figures(tiny_store, tmp_path):
         assert _is_png(tmp_path / "report" / png)
     assert uncertainty_report(store, results, ["unet"], ["fig_fbp"], runs, tmp_path / "none") == ""
     assert not list(tmp_path.rglob(".*tmp*"))  # no temporary files left
+
+
+def test_show_scales_the_phantom_and_fbps_to_the_phantom(tiny_store, tmp_path, monkeypatch):
+    """A set matched to a scan holds phantoms at the scan's absorbance (e.g. 0.08 at most): drawn on 0..1 they
+    were black; the phantom and both FBPs are drawn on 0..the phantom's maximum."""
+    from dataclasses import replace
+
+    import nanoct.evaluation.figures as figures
+
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda fig, out, dpi: drawn.append(fig) or out)
+    read = type(tiny_store).read_sample
+
+    def scaled(self, i):  # the data of a set made at the scan's absorbance
+        s = read(self, i)
+        return replace(s, phantom=s.phantom * 0.08, sinogram=s.sinogram * 0.08, sinogram_eta=s.sinogram_eta * 0.08)
+
+    monkeypatch.setattr(type(tiny_store), "read_sample", scaled)
+    index = int(tiny_store.indices("test")[0])
+    show_sample(tiny_store, index, tmp_path / "s.png")
+    top = float(tiny_store.read_sample(index).phantom.max())
+    assert 0 < top < 0.1
+    clims = [ax.images[0].get_clim() for ax in drawn[0].axes if ax.images and "sinogram" not in ax.get_title()]
+    assert len(clims) == 3 and all(c == pytest.approx((0.0, top)) for c in clims)

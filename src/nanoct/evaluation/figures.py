@@ -85,7 +85,8 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
         fig.colorbar(im, ax=ax, shrink=0.8)
         return im
 
-    image(fig.add_subplot(grid[0, 0]), sample.phantom, f"phantom #{index} ({split_name})", vmin=0, vmax=1)
+    top = float(sample.phantom.max()) if sample.phantom.max() > 0 else 1.0  # a matched set's scale is the scan's
+    image(fig.add_subplot(grid[0, 0]), sample.phantom, f"phantom #{index} ({split_name})", vmin=0, vmax=top)
     plot_motion(sample.motion, ax=fig.add_subplot(grid[0, 1:3]), angles=geometry.angles)
     ax = fig.add_subplot(grid[0, 3])
     ax.plot(np.rad2deg(geometry.angles), sample.eta, lw=1)
@@ -102,8 +103,8 @@ def show_sample(store: DataStore, index: int, out: str | os.PathLike[str]) -> Pa
         image(ax, data.T, title, vmin=0, vmax=vmax, extent=extent, aspect="auto")
         ax.set_xlabel("view angle [deg]")
         ax.set_ylabel("detector pixel")
-    image(fig.add_subplot(grid[1, 2]), fbp_eta, "FBP of y_eta (no motion)", vmin=0, vmax=1)
-    image(fig.add_subplot(grid[1, 3]), fbp_meas, "FBP of y (motion artefacts)", vmin=0, vmax=1)
+    image(fig.add_subplot(grid[1, 2]), fbp_eta, "FBP of y_eta (no motion)", vmin=0, vmax=top)
+    image(fig.add_subplot(grid[1, 3]), fbp_meas, "FBP of y (motion artefacts)", vmin=0, vmax=top)
     fig.suptitle(f"{store.path.name}: {geometry.kind} beam, N={geometry.n}, K={geometry.n_angles}, L={geometry.n_det}")
     return _save(fig, out, dpi=100)
 
