@@ -56,7 +56,9 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     code, _, err = run(monkeypatch, capsys, "evaluate", d)
     assert code == 2 and "nanoct reconstruct" in err
     code, out, _ = run(monkeypatch, capsys, "reconstruct", d, "--method", "fbp", "--workers", 0, "-q")
-    assert code == 0 and "reconstructions/fbp" in out
+    assert code == 0 and "wrote reconstructions/fbp (4 samples; 4 done)" in out
+    code, out, _ = run(monkeypatch, capsys, "reconstruct", d, "--method", "fbp", "--workers", 0, "-q")
+    assert code == 0 and "reconstructions/fbp was complete already (4 samples); nothing to do" in out
     code, out, _ = run(monkeypatch, capsys, "evaluate", d, "--json")
     assert code == 0 and set(json.loads(out[: out.rindex("}") + 1])["results"]["fbp"]) == {
         "psnr_mean",
@@ -103,7 +105,9 @@ def test_generate_info_show_evaluate(monkeypatch, capsys, tmp_path):
     )
     assert code == 2 and "'step' is unknown" in err and not (tmp_path / "r3").exists()
     code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "-q")
-    assert code == 0 and "reconstructions/fbp+unet" in out
+    assert code == 0 and "wrote reconstructions/fbp+unet (1 sample; 1 done)" in out
+    code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "-q")
+    assert code == 0 and "reconstructions/fbp+unet was complete already (1 sample); nothing to do" in out
     code, out, _ = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--name", "second", "-q")
     assert code == 0 and "reconstructions/second" in out and "second" in DataStore.open(d).reconstruction_names()
     code, _, err = run(monkeypatch, capsys, "predict", d, "--run", run_dir, "--name", "a/b", "-q")

@@ -154,6 +154,32 @@ def _check_device(device: str | None) -> None:
         raise NanoctError(f"--device {device!r} is not a device; use cpu, cuda or cuda:<index>") from exc
 
 
+def _reconstructions(directory: Path) -> dict[str, tuple[Any, int]]:
+    """Each reconstruction of the data set at ``directory``: (its creation id, samples done); empty where the data
+    set cannot be read (the command itself then says why)."""
+    from .io.store import DataStore
+
+    try:
+        store = DataStore.open(directory)
+        return {
+            n: (store.recons.fingerprint(n)["created"], int(store.reconstruction_done(n).sum()))
+            for n in store.reconstruction_names()
+        }
+    except (NanoctError, OSError, KeyError, ValueError):
+        return {}
+
+
+def _written(directory: Path, name: str, before: dict[str, tuple[Any, int]]) -> str:
+    """What a reconstruct or predict run did to ``reconstructions/<name>``, against :func:`_reconstructions`
+    ``before`` it: the samples it wrote, or that it was complete already."""
+    created, done = _reconstructions(directory).get(name, (None, 0))
+    kept = before.get(name)
+    new = done - kept[1] if kept is not None and kept[0] == created else done
+    if new == 0:
+        return f"reconstructions/{name} was complete already ({done} sample{'s' * (done != 1)}); nothing to do"
+    return f"wrote reconstructions/{name} ({new} sample{'s' * (new != 1)}; {done} done)"
+
+
 def _parse_params(items: list[str]) -> dict[str, Any]:
     """``--param name=value`` items as keyword arguments: each value read as JSON (0.2, [16,32], true), the words
     true and false in any case (Python's True, False) as booleans, anything else as the string it is."""
@@ -351,6 +377,7 @@ def reconstruct(
         with_eta = " or ".join(f"--method {m}" for m in methods_with_eta())
         flag = "--eta-scale" if eta_scale is not None else "--eta"
         raise NanoctError(f"{flag} applies to {with_eta} only (methods that use eta), not to --method {method}")
+    before = _reconstructions(directory)
     written = reconstruct_dataset(
         directory,
         method,
@@ -362,7 +389,7 @@ def reconstruct(
         scheduler=scheduler,
         progress=not quiet,
     )
-    typer.echo(f"wrote reconstructions/{written}")
+    typer.echo(_written(directory, written, before))
     store = DataStore.open(directory)
     for key, label in (("shifts_axis", "note"), ("shift_check", "warning")):
         text = store.recons.note(written, key)
@@ -555,6 +582,7 @@ def predict(
     if samples is not None and samples <= 0:
         raise NanoctError(f"--samples {samples} must be a positive number of latent samples")
     kwargs = ({} if samples is None else {"n_samples": samples}) | ({"antithetic": True} if antithetic else {})
+    before = _reconstructions(directory)
     name = predict_model(
         directory,
         run,
@@ -572,7 +600,7 @@ def predict(
         name=out_name,
         calibrate_on=calibrate_on,
     )
-    typer.echo(f"wrote reconstructions/{name}")
+    typer.echo(_written(directory, name, before))
 
 
 def _parse_levels(text: str) -> list[float]:
