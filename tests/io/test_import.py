@@ -145,6 +145,10 @@ def test_a_refused_import_names_the_option_changed_before_the_axis_it_moved(tmp_
     assert "set by --air-columns" in err and "axis" not in err and err.count("\n") == 1
     assert run([*args, "--binning", "2"]) == 2
     assert "binning 1 (this import: 2), set by --binning;" in capsys.readouterr().err
+    # --stripes fills in its method's parameters: the refusal names --stripes, not --stripe-params
+    assert run([*args, "--stripes", "all"]) == 2
+    err = capsys.readouterr().err
+    assert "corrections.stripes None (this import: 'all'), set by --stripes" in err and "stripe_params" not in err
 
 
 def test_binning_says_which_pixels_it_leaves_out(tmp_path, scan, capsys):

@@ -713,6 +713,9 @@ _GIVEN = {
 }
 #: Fields of ``reader`` whose flag is not the field's name with dashes.
 _READER_FLAGS = {"angle_units": "--angles-units", "allow": "--allow-outside"}
+#: Correction fields filled in from another (``--stripes`` records its method's default parameters): not named
+#: where that other differs too.
+_FOLLOWS = {"stripe_params": "stripes"}
 
 
 def _nested_defaults(key: str) -> dict[str, Any]:
@@ -737,7 +740,8 @@ def _given_difference(recorded: dict[str, Any], scan: dict[str, Any]) -> str | N
             continue
         defaults = _nested_defaults(key)
         old, new = {**defaults, **(old or {})}, {**defaults, **(new or {})}
-        for field in sorted(old.keys() | new.keys()):
+        differ = {f for f in old.keys() | new.keys() if old.get(f) != new.get(f)}
+        for field in sorted(f for f in differ if _FOLLOWS.get(f) not in differ):
             if old.get(field) != new.get(field):
                 field_flag = _READER_FLAGS.get(field, "--" + field.replace("_", "-"))
                 named.append(f"{key}.{field} {old.get(field)!r} (this import: {new.get(field)!r}), set by {field_flag}")
