@@ -1384,9 +1384,17 @@ def export(
     directory: Path = typer.Argument(..., help="Data-set store."),
     name: str = typer.Option(..., "--name", "-n", help="Reconstruction to export, e.g. dremel or dremel+ciunet-res."),
     out: Path = typer.Option(..., "--out", "-o", help="FILE.tif | .npy | .h5 (images or std) or FILE.txt (shifts)."),
-    std: bool = typer.Option(False, "--std", help="Export the pixel-wise std instead of the images."),
+    std: bool = typer.Option(
+        False,
+        "--std",
+        help="Export the pixel-wise std of the network's draws instead of the images: where it is unsure, not on "
+        "the scale of the error (use --interval for calibrated widths).",
+    ),
     interval: float | None = typer.Option(
-        None, "--interval", help="Export the half-width of the calibrated interval of this level (e.g. 0.9)."
+        None,
+        "--interval",
+        help="Export the half-width of the calibrated interval of this level (e.g. 0.9): the std mapped to widths "
+        "that cover that share of the calibration set's errors, per pixel group.",
     ),
     guaranteed: bool = typer.Option(
         False, "--guaranteed", help="With --interval: the risk-controlling multiplier (guaranteed w.p. 1 - delta)."
