@@ -172,7 +172,10 @@ def _reconstructions(directory: Path) -> dict[str, tuple[Any, int]]:
 def _written(directory: Path, name: str, before: dict[str, tuple[Any, int]]) -> str:
     """What a reconstruct or predict run did to ``reconstructions/<name>``, against :func:`_reconstructions`
     ``before`` it: the samples it wrote, or that it was complete already."""
-    created, done = _reconstructions(directory).get(name, (None, 0))
+    after = _reconstructions(directory)
+    if name not in after:  # nothing to compare with
+        return f"wrote reconstructions/{name}"
+    created, done = after[name]
     kept = before.get(name)
     new = done - kept[1] if kept is not None and kept[0] == created else done
     if new == 0:
@@ -601,6 +604,14 @@ def predict(
         calibrate_on=calibrate_on,
     )
     typer.echo(_written(directory, name, before))
+    from .io.store import DataStore, ood_brief
+
+    try:
+        ood = _ood_line(ood_brief(DataStore.open(directory).reconstruction_note(name, "ood")).get("ood"))
+    except (NanoctError, OSError, KeyError, ValueError):  # nothing to summarise
+        ood = ""
+    if ood:
+        typer.echo(f"out-of-distribution check: {ood} (all images of reconstructions/{name} predicted so far)")
 
 
 def _parse_levels(text: str) -> list[float]:
@@ -655,6 +666,17 @@ def _damage_message(damaged: dict[str, list[int]], writer: str) -> str:
     )
 
 
+def _ood_line(ood: dict[str, Any] | None, lead: str = "") -> str:
+    """An out-of-distribution summary (:func:`nanoct.io.store.ood_brief`): ``lead`` + "2 of 40 flagged (20, 32);
+    checks std, scan"; empty without one."""
+    if not ood:
+        return ""
+    flagged = ood["flagged"]
+    which = f" ({', '.join(map(str, flagged[:10]))}{' ...' if len(flagged) > 10 else ''})" if flagged else ""
+    left = f"; {len(ood['unchecked'])} left out by footprint (mean too noisy)" if ood["unchecked"] else ""
+    return f"{lead}{len(flagged)} of {ood['checked']} flagged{which}; checks {', '.join(ood['checks'])}{left}"
+
+
 def _print_info(data: dict[str, Any]) -> None:
     g = data["geometry"]
     typer.echo(f"data set   {data['path']}  (nanoct {data['version']}, seed {data['seed']})")
@@ -677,7 +699,8 @@ def _print_info(data: dict[str, Any]) -> None:
             f"oversample={sim.get('oversample')}, noise_std={sim.get('noise_std')}"
         )
     recons = data["reconstructions"]
-    typer.echo("reconstructions " + (", ".join(f"{k} ({v['done']}/{data['n']})" for k, v in recons.items()) or "none"))
+    shown = [f"{k} ({v['done']}/{data['n']}{_ood_line(v.get('ood'), ', ood: ')})" for k, v in recons.items()]
+    typer.echo("reconstructions " + (", ".join(shown) or "none"))
     if "damaged" in data:
         typer.echo("check      " + ("no damaged samples" if not data["damaged"] else "DAMAGED (see below)"))
 

@@ -59,6 +59,7 @@ __all__ = [
     "comparable_description",
     "create_scan",
     "data_set_description",
+    "ood_brief",
     "open_cached",
     "split_assignment",
 ]
@@ -563,6 +564,7 @@ class DataStore:
         for name in self.reconstruction_names():
             flags = self.reconstruction_done(name)
             recons[name] = {"done": int(flags.sum()), "params": self.reconstruction_params(name)}
+            recons[name] |= ood_brief(self.reconstruction_note(name, "ood"))
         return {
             "path": str(self.path),
             "n": self.n,
@@ -581,6 +583,19 @@ class DataStore:
 
 
 #: Groups whose members are one result each (a reconstruction, its std or its progress flags).
+def ood_brief(note: dict[str, Any] | None) -> dict[str, Any]:
+    """What :meth:`DataStore.info` shows of a prediction's out-of-distribution note
+    (:func:`nanoct.learn.predict.ood_check`): ``{"ood": {"checks", "checked", "flagged", "unchecked"}}``, the
+    checks made, the images checked, those flagged and those the footprint check left out; ``{}`` without one."""
+    if not note:
+        return {}
+    footprint = note.get("footprint") or {}
+    checks = [c for c in ("std", "scan") if c in note] + (["footprint"] if footprint else [])
+    unchecked = sorted(int(k) for k in footprint.get("unchecked", {}))
+    brief = {"checks": checks, "checked": len(note.get("p_values", {})), "flagged": list(note.get("flagged", []))}
+    return {"ood": brief | {"unchecked": unchecked}}
+
+
 _RESULT_GROUPS = ("reconstructions", "uncertainty", "progress")
 
 
