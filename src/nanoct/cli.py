@@ -604,6 +604,11 @@ def predict(
         calibrate_on=calibrate_on,
     )
     typer.echo(_written(directory, name, before))
+    _print_ood(directory, name)
+
+
+def _print_ood(directory: Path, name: str) -> None:
+    """Print the out-of-distribution summary (:func:`_ood_line`) of ``reconstructions/<name>``, where it has one."""
     from .io.store import DataStore, ood_brief
 
     try:
