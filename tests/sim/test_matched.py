@@ -124,8 +124,11 @@ def test_an_interrupted_result_is_not_the_default_motion_source(moved_scan, tmp_
     assert plan_matched(scan.path, binning=2, motion_from="dremel_stack").simulation["like"]["motion"]["from"] == (
         "dremel_stack"
     )
+    assert "passed over the unfinished dremel_stack" in plan_matched(scan.path, binning=2).describe()[4]
     _write_slices(DataStore.open(scan.path, mode="r+"), "dremel_stack", SLICES)  # finished: first in name order
-    assert plan_matched(scan.path, binning=2).simulation["like"]["motion"]["from"] == "dremel_stack"
+    plan = plan_matched(scan.path, binning=2)
+    assert plan.simulation["like"]["motion"]["from"] == "dremel_stack"
+    assert "the first by name of dremel_stack, fbp_stack; --motion-from takes another" in plan.describe()[4]
 
 
 def test_resuming_keeps_the_motion_source_the_set_was_made_with(moved_scan, tmp_path, capsys):

@@ -215,7 +215,8 @@ def _motion_source(store: DataStore, name: str | None, out: str | os.PathLike[st
     ``name`` as given; else the source recorded in a matched set already at ``out`` (resuming it, so
     that results added to the scan since do not change it) where that result still holds a motion (or
     the set used none); else the first result in name order whose motion and slices are all done (an
-    interrupted ``nanoct stack`` has its motion before its slices: it is passed over).
+    interrupted ``nanoct stack`` has its motion before its slices: it is passed over; where several are,
+    the note names them).
     """
     names = store.reconstruction_names()
     if name is not None:
@@ -233,8 +234,10 @@ def _motion_source(store: DataStore, name: str | None, out: str | os.PathLike[st
     moved = [n for n in sorted(names) if _has_motion(store, n)]
     complete = [n for n in moved if store.reconstruction_done(n).all()]
     unfinished = [n for n in moved if n not in complete]
-    note = f"passed over the unfinished {', '.join(unfinished)}" if unfinished else ""
-    return (complete[0] if complete else None), note
+    notes = [f"passed over the unfinished {', '.join(unfinished)}"] if unfinished else []
+    if len(complete) > 1:  # their motions may differ: say that one was picked, and how to pick another
+        notes.append(f"the first by name of {', '.join(complete)}; --motion-from takes another")
+    return (complete[0] if complete else None), "; ".join(notes)
 
 
 def _stack_motion(store: DataStore, name: str | None) -> tuple[np.ndarray | None, dict[str, Any]]:
