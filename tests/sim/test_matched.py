@@ -235,6 +235,10 @@ def test_held_out_rows_serve_as_no_phantom_and_no_measured_pair(scan):
     np.testing.assert_array_equal(held.slices, full.slices[[0, 2]])
     np.testing.assert_array_equal(held.measured, full.measured[[0, 2]])
     assert "2 slices kept, 0 nearly empty left out, 1 held out, of 3 measured" in "\n".join(held.describe())
+    # fewer than 4 scan slices among the phantoms (here 2, 67 % of the mix): the plan warns that they can be learnt
+    assert held.describe()[-1].startswith("note       67% of the phantoms are the scan's 2 slice(s)")
+    no_scan = plan_matched(scan.path, binning=2, mix=parse_mix("1,1,0"), hold_out=(3,))
+    assert not no_scan.describe()[-1].startswith("note")
     like, like_full = dict(held.simulation["like"]), dict(full.simulation["like"])
     assert like.pop("held_out") == {"rows": [3], "slices": 1} and "held_out" not in like_full
     assert like.pop("slices") == like_full.pop("slices") - 1 and like == like_full

@@ -111,6 +111,8 @@ __all__ = [
     "simulate_matched_sample",
 ]
 
+#: Fewer scan slices than this among the phantoms: the plan warns that a network can learn them.
+FEW_SLICES = 4
 #: Default phantom mix: the paper's shapes, the ellipse family, the scan's own slices (no measured pairs).
 MIX = (0.4, 0.2, 0.4)
 #: The families of a matched set's samples, in ``--mix`` order.
@@ -349,6 +351,16 @@ class MatchedPlan:
             + f" ({self.slices.shape[0]} slices kept, {like['slices_left_out']} nearly empty left out, "
             + (f"{like['held_out']['slices']} held out, " if "held_out" in like else "")
             + f"of {like['slices_measured']} measured)",
+        ] + self._few_slices_note(mix)
+
+    def _few_slices_note(self, mix: dict[str, float]) -> list[str]:
+        """A warning line where the scan's share of the phantoms comes from fewer than :data:`FEW_SLICES` slices."""
+        share = mix["scan"] + mix.get("measured", 0.0)
+        if share <= 0 or self.slices.shape[0] >= FEW_SLICES:
+            return []
+        return [
+            f"note       {share:.0%} of the phantoms are the scan's {self.slices.shape[0]} slice(s): a network can "
+            "learn them, so scores on this set's images overstate how it does on other slices of the sample"
         ]
 
 
