@@ -616,7 +616,7 @@ def _print_ood(directory: Path, name: str) -> None:
     except (NanoctError, OSError, KeyError, ValueError):  # nothing to summarise
         ood = ""
     if ood:
-        typer.echo(f"out-of-distribution check: {ood} (all images of reconstructions/{name} predicted so far)")
+        typer.echo(f"out-of-distribution check of reconstructions/{name} (every image so far): {ood}")
 
 
 def _parse_levels(text: str) -> list[float]:
