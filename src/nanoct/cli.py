@@ -672,12 +672,12 @@ def _damage_message(damaged: dict[str, list[int]], writer: str) -> str:
 
 
 def _ood_line(ood: dict[str, Any] | None, lead: str = "") -> str:
-    """An out-of-distribution summary (:func:`nanoct.io.store.ood_brief`): ``lead`` + "2 of 40 flagged (20, 32);
+    """An out-of-distribution summary (:func:`nanoct.io.store.ood_brief`): ``lead`` + "2 of 40 flagged: 20, 32;
     checks std, scan"; empty without one."""
     if not ood:
         return ""
     flagged = ood["flagged"]
-    which = f" ({', '.join(map(str, flagged[:10]))}{' ...' if len(flagged) > 10 else ''})" if flagged else ""
+    which = f": {', '.join(map(str, flagged[:10]))}{' ...' if len(flagged) > 10 else ''}" if flagged else ""
     left = f"; {len(ood['unchecked'])} left out by footprint (mean too noisy)" if ood["unchecked"] else ""
     return f"{lead}{len(flagged)} of {ood['checked']} flagged{which}; checks {', '.join(ood['checks'])}{left}"
 
@@ -1234,7 +1234,10 @@ def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block:
         typer.echo(_stream_stack(source, out, flags))
         return None
     if not source.exists():
-        raise NanoctError(f"{source} does not exist; give a data set (nanoct import) or a scan file or folder")
+        raise NanoctError(
+            f"{source} does not exist; give a data set (nanoct import), or a scan file or folder with --out OUT.zarr "
+            "or --store NEW_DIR"
+        )
     if store_dir is None or out is not None:
         raise NanoctError(
             f"{source} is not a data set: stream the scan file with --out OUT.zarr (memory bounded by a block, "

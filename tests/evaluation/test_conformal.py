@@ -437,6 +437,12 @@ def test_mean_noise_ratio_against_a_direct_computation(rng):
     want = [np.median(s[known]) / 3 / np.percentile(np.abs(m[known]), 99) for s, m in zip(std, image)]
     assert got == pytest.approx(want, rel=1e-12)
     assert mean_noise_ratio(std[0], np.zeros((16, 16)), 4).tolist() == [np.inf]
+    assert np.isnan(mean_noise_ratio(std, image, 9, np.zeros((16, 16), bool))).all()  # no pixel known
+    holed = std.copy()
+    holed[:, 5, 5] = np.nan  # a NaN pixel is left out, not spread
+    assert mean_noise_ratio(holed, image, 9, known) == pytest.approx(
+        [np.nanmedian(s[known]) / 3 / np.percentile(np.abs(m[known]), 99) for s, m in zip(holed, image)], rel=1e-12
+    )
     draws = rng.normal(1.0, 0.2, (400, 16, 16, 25))  # the std of a 25-draw mean: 0.2 / 5
     means = draws.mean(axis=-1)
     assert means.std() == pytest.approx(mean_noise_ratio(np.full((16, 16), 0.2), np.ones((16, 16)), 25)[0], rel=0.02)

@@ -175,7 +175,7 @@ def test_the_footprint_check_skips_a_mean_whose_sampling_noise_makes_its_support
         flagged = store.reconstruction_note(name, "ood")["flagged"]
         assert brief == {"checks": ["std", "footprint"], "checked": 2, "flagged": flagged, "unchecked": [0]}
         assert _ood_line(brief) == (
-            f"{len(flagged)} of 2 flagged ({', '.join(map(str, flagged))}); checks std, footprint; 1 left out by "
+            f"{len(flagged)} of 2 flagged: {', '.join(map(str, flagged))}; checks std, footprint; 1 left out by "
             "footprint (mean too noisy)"
         )
 

@@ -502,13 +502,16 @@ def mean_noise_ratio(std: np.ndarray, image: np.ndarray, n_samples: int, known: 
     Returns
     -------
     numpy.ndarray
-        (n,) ratios; ``inf`` for an image that is zero on every known pixel.
+        (n,) ratios (NaN values ignored); ``inf`` for an image that is zero on every known pixel, NaN where no
+        pixel is known.
     """
     std = np.asarray(std, np.float64).reshape(-1, *np.shape(std)[-2:])
     image = np.abs(np.asarray(image, np.float64)).reshape(std.shape)
     mask = np.ones(std.shape[1:], bool) if known is None else np.asarray(known, bool)
-    noise = np.median(std[:, mask], axis=1) / np.sqrt(n_samples)
-    level = np.percentile(image[:, mask], 99, axis=1)
+    if not mask.any():
+        return np.full(len(std), np.nan)
+    noise = np.nanmedian(std[:, mask], axis=1) / np.sqrt(n_samples)
+    level = np.nanpercentile(image[:, mask], 99, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(level > 0, noise / np.where(level > 0, level, 1.0), np.inf)
 

@@ -582,11 +582,21 @@ class DataStore:
         }
 
 
-#: Groups whose members are one result each (a reconstruction, its std or its progress flags).
 def ood_brief(note: dict[str, Any] | None) -> dict[str, Any]:
-    """What :meth:`DataStore.info` shows of a prediction's out-of-distribution note
-    (:func:`nanoct.learn.predict.ood_check`): ``{"ood": {"checks", "checked", "flagged", "unchecked"}}``, the
-    checks made, the images checked, those flagged and those the footprint check left out; ``{}`` without one."""
+    """What :meth:`DataStore.info` shows of a prediction's out-of-distribution note.
+
+    Parameters
+    ----------
+    note : dict or None
+        The note ``ood`` of a prediction (:func:`nanoct.learn.predict.ood_check`), None where it has none.
+
+    Returns
+    -------
+    dict
+        ``{"ood": {"checks", "checked", "flagged", "unchecked"}}``: the checks made (``std``, ``scan``,
+        ``footprint``), the number of images checked, those flagged and those the footprint check left out;
+        ``{}`` without a note.
+    """
     if not note:
         return {}
     footprint = note.get("footprint") or {}
@@ -596,6 +606,7 @@ def ood_brief(note: dict[str, Any] | None) -> dict[str, Any]:
     return {"ood": brief | {"unchecked": unchecked}}
 
 
+#: Groups whose members are one result each (a reconstruction, its std or its progress flags).
 _RESULT_GROUPS = ("reconstructions", "uncertainty", "progress")
 
 

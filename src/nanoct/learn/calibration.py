@@ -624,11 +624,12 @@ def _warn_noisy_footprint(
     if key["reconstruct"].get("antithetic") or not key["n_samples"]:
         return
     ratios = mean_noise_ratio(stds, means, int(key["n_samples"]), known)
+    total, ratios = len(ratios), ratios[np.isfinite(ratios)]  # an image that is zero there has no support to speckle
     noisy = int((ratios > FOOTPRINT_NOISY_MEAN).sum())
     if noisy:
         warnings.warn(
             f"the intervals' footprint is fitted on the validation split of {store.path}, where the sampling noise of "
-            f"{noisy} of {len(ratios)} means of {key['n_samples']} independent draws is more than "
+            f"{noisy} of {total} means of {key['n_samples']} independent draws is more than "
             f"{FOOTPRINT_NOISY_MEAN} of their level (up to {float(ratios.max()):.2f}), so their support is partly "
             "noise and the footprint wider than the sample; predict with --antithetic or more --samples",
             UserWarning,

@@ -524,7 +524,8 @@ def _footprint_record(
     noisy for its support to mean anything (``noise`` above :data:`~nanoct.evaluation.conformal.FOOTPRINT_NOISY_MEAN`,
     ``unchecked``: {sample index: ratio}), which a warning names with what to do."""
     fractions = {**old.get("outside", {}), **dict(zip(keys, outside.tolist()))}
-    noisy = {} if noise is None else {k: float(r) for k, r in zip(keys, noise) if r > FOOTPRINT_NOISY_MEAN}
+    # an image that is zero where it counts has no support to check (inf: nothing left out)
+    noisy = {} if noise is None else {k: float(r) for k, r in zip(keys, noise) if FOOTPRINT_NOISY_MEAN < r < np.inf}
     unchecked = {k: v for k, v in old.get("unchecked", {}).items() if k not in keys} | noisy
     off = sorted(int(k) for k, v in fractions.items() if v > FOOTPRINT_TOLERANCE and k not in unchecked)
     if noisy:

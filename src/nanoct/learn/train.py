@@ -804,7 +804,8 @@ def _run(s: _Settings) -> Path:
             bar.set_postfix(train=f"{row['train_loss']:.3g}", val=f"{row['val_loss']:.3g}", best=state.best_epoch)
         bar.update()
         if s.max_steps is not None and state.step >= s.max_steps:
-            bar.set_description(f"train {s.model_name} (stopped at --max-steps {s.max_steps})")
+            if epoch < s.epochs:
+                bar.set_description(f"train {s.model_name} (stopped at --max-steps {s.max_steps})")
             break
     bar.close()
     if s.distributed:

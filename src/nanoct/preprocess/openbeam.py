@@ -93,13 +93,22 @@ class OpenBeam:
 
 
 @functools.lru_cache(maxsize=8)
-def _detector_terms(shape: tuple[int, int], degree: int) -> tuple[np.ndarray, ...]:
-    """:func:`poly_terms` over a detector of ``shape`` (read-only; computed once per shape and degree)."""
+def _detector_factors(shape: tuple[int, int], degree: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """The factors ``u**i`` (1, L) and ``w**j`` (R, 1) of :func:`poly_terms` over a detector of ``shape``, made
+    once per shape and degree (read-only; a row and a column each, so the cache stays small)."""
     w, u = _coordinates(shape)
-    terms = tuple(np.asarray(t) for t in poly_terms(u[None, :], w[:, None], degree))
-    for t in terms:
-        t.flags.writeable = False
-    return terms
+    u, w = u[None, :], w[:, None]
+    factors = tuple((u ** (d - j), w**j) for d in range(degree + 1) for j in range(d + 1))
+    for pair in factors:
+        for f in pair:
+            f.flags.writeable = False
+    return factors
+
+
+def _detector_terms(shape: tuple[int, int], degree: int) -> list[np.ndarray]:
+    """:func:`poly_terms` over a detector of ``shape``: the same products of the same powers, from the cached
+    factors (:func:`_detector_factors`)."""
+    return [a * b for a, b in _detector_factors(shape, degree)]
 
 
 def poly_terms(u: np.ndarray, w: np.ndarray, degree: int) -> list[np.ndarray]:

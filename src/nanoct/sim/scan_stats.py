@@ -99,10 +99,14 @@ def binned_geometry(geometry: Geometry, binning: int, center_offset: float) -> G
     for what, size in (("detector width", geometry.n_det), ("image size", geometry.n)):
         if size % binning:
             divisors = [d for d in range(1, min(size, 16) + 1) if size % d == 0]
+            again = (
+                f"--binning {binning} (which drops the columns left over) or --crop to a width that {binning} divides"
+                if what == "detector width"
+                else f"--size set to a multiple of {binning}"
+            )
             raise NanoctError(
                 f"--bin {binning} does not divide the scan's {what} {size}; use one of {divisors}, or import the "
-                f"scan again with --binning {binning} (which drops the columns left over) or --crop to a width "
-                f"that {binning} divides, and make the set like that import"
+                f"scan again with {again}, and make the set like that import"
             )
     data = geometry.to_dict()
     data.update(

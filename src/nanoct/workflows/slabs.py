@@ -139,6 +139,24 @@ def slab_centroids(
     (``find_center_vo``, about a minute per row at 2048 columns and 1800 views) is not run.
     Otherwise :func:`~nanoct.workflows.stack.centroid_motion_axis`, as on a data set. One stage
     on ``bar`` (:func:`~nanoct.workflows.stack.horizontal_motion`'s).
+
+    Parameters
+    ----------
+    rows : ScanRows
+        The selected rows of the scan file.
+    params : dict
+        The motion options (``center``: ``"auto"`` or a given offset).
+    vertical : ndarray of shape (K,)
+        The vertical shifts the slices were moved back by.
+    clean : ndarray of shape (S, K, L)
+        The motion slices with their open beam removed.
+    bar : tqdm
+        The motion estimate's progress bar.
+
+    Returns
+    -------
+    tuple
+        The horizontal shifts (K,) and what is recorded with them (``center_offset``, ``horizontal_method``, ...).
     """
     from ..motion.axis import AGREEMENT_PX, object_rows
     from ..motion.center import centroid_motion, fit_center

@@ -398,7 +398,26 @@ def horizontal_motion(
 def centroid_motion_axis(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, clean: np.ndarray, bar: Any
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """Air seen: the views' centroids give the shifts, every axis estimator the axis (one stage on ``bar``)."""
+    """Air seen: the views' centroids give the shifts, every axis estimator the axis (one stage on ``bar``).
+
+    Parameters
+    ----------
+    store : DataStore or ScanRows
+        The stack's data set (or a scan file's selected rows).
+    params : dict
+        The motion options (``center``: ``"auto"`` or a given offset).
+    vertical : ndarray of shape (K,)
+        The vertical shifts the slices were moved back by.
+    clean : ndarray of shape (S, K, L)
+        The motion slices with their open beam removed.
+    bar : tqdm
+        The motion estimate's progress bar.
+
+    Returns
+    -------
+    tuple
+        The horizontal shifts (K,) and what is recorded with them (``center_offset``, ``horizontal_method``, ...).
+    """
     rows = object_rows(clean)
     _step(bar, "centroids and axis")
     _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, store.geometry.angles)
@@ -564,9 +583,9 @@ def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, pending
     blocks = [pending[i : i + 2 * threads] for i in range(0, len(pending), 2 * threads)]
     _record_engine(store, name, backend_label(select_backend("auto")))
     task = partial(_gridrec_block, str(store.path), name, dict(info), motion, threads, blocks)
-    run_tasks(
-        task, range(len(blocks)), workers=workers, scheduler=scheduler, desc=name, progress=progress, unit="block"
-    )
+    finished = int(store.done.sum()) - len(pending)  # slices made by an earlier run, counted in blocks of this one
+    fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "unit": "block"}
+    run_tasks(task, range(len(blocks)), desc=name, done=-(-finished // (2 * threads)), **fan)
 
 
 def _record_engine(store: DataStore, name: str, label: str) -> None:
