@@ -144,19 +144,13 @@ def slab_centroids(
     ----------
     rows : ScanRows
         The selected rows of the scan file.
-    params : dict
-        The motion options (``center``: ``"auto"`` or a given offset).
-    vertical : ndarray of shape (K,)
-        The vertical shifts the slices were moved back by.
-    clean : ndarray of shape (S, K, L)
-        The motion slices with their open beam removed.
-    bar : tqdm
-        The motion estimate's progress bar.
+    params, vertical, clean, bar
+        As for :func:`~nanoct.workflows.stack.centroid_motion_axis`.
 
     Returns
     -------
     tuple
-        The horizontal shifts (K,) and what is recorded with them (``center_offset``, ``horizontal_method``, ...).
+        As :func:`~nanoct.workflows.stack.centroid_motion_axis`: the shifts and what is recorded with them.
     """
     from ..motion.axis import AGREEMENT_PX, object_rows
     from ..motion.center import centroid_motion, fit_center
