@@ -261,12 +261,7 @@ def read_scan(
     if given is not None:
         values = given(scan.n_views) if callable(given) else given
         if values.size != scan.n_views:
-            more = values.size > scan.n_views
-            pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if more else ""
-            raise NanoctError(
-                f"--angles {angles_file}: {values.size} angle(s) for {scan.n_views} projection(s); "
-                f"give one angle per view{pick}"
-            )
+            raise _angle_count_error(values.size, scan.n_views, f"--angles {angles_file}: ")
         scan = replace(scan, angles=values, source={**scan.source, "angles_from": str(angles_file)})
     if is_line_integral:
         scan = replace(scan, is_line_integral=True, flats=None, darks=None)
@@ -348,8 +343,7 @@ def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, fla
 
     given = given(stack.shape[0]) if callable(given) else given
     if given.size != stack.shape[0]:
-        pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if given.size > stack.shape[0] else ""
-        raise NanoctError(f"{given.size} angle(s) for {stack.shape[0]} projection(s); give one angle per view{pick}")
+        raise _angle_count_error(given.size, stack.shape[0])
     return RawScan(
         np.asarray(stack, dtype=np.float32),
         given,
@@ -718,6 +712,13 @@ _READER_FLAGS = {"angle_units": "--angles-units", "allow": "--allow-outside"}
 _FOLLOWS = {"stripe_params": "stripes"}
 
 
+def _angle_count_error(n_angles: int, n_views: int, lead: str = "") -> NanoctError:
+    """The refusal of ``n_angles`` angles for ``n_views`` projections; more angles than views point to
+    ``--angles-select`` (an angles file that lists the flats' and darks' lines too)."""
+    pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if n_angles > n_views else ""
+    return NanoctError(f"{lead}{n_angles} angle(s) for {n_views} projection(s); give one angle per view{pick}")
+
+
 def _nested_defaults(key: str) -> dict[str, Any]:
     """What an import records as ``key`` (``corrections`` or ``reader``) when every field has its default."""
     from ..preprocess import Corrections
@@ -742,9 +743,8 @@ def _given_difference(recorded: dict[str, Any], scan: dict[str, Any]) -> str | N
         old, new = {**defaults, **(old or {})}, {**defaults, **(new or {})}
         differ = {f for f in old.keys() | new.keys() if old.get(f) != new.get(f)}
         for field in sorted(f for f in differ if _FOLLOWS.get(f) not in differ):
-            if old.get(field) != new.get(field):
-                field_flag = _READER_FLAGS.get(field, "--" + field.replace("_", "-"))
-                named.append(f"{key}.{field} {old.get(field)!r} (this import: {new.get(field)!r}), set by {field_flag}")
+            field_flag = _READER_FLAGS.get(field, "--" + field.replace("_", "-"))
+            named.append(f"{key}.{field} {old.get(field)!r} (this import: {new.get(field)!r}), set by {field_flag}")
     return " and ".join(named) or None
 
 

@@ -300,11 +300,6 @@ def _motion_label(name: str) -> str:
     return name if name == "motion" else f"{name}: motion"
 
 
-def _step(bar: Any, stage: str) -> None:
-    """Show on ``bar`` the stage now running (its postfix), so that a long stage is seen to run."""
-    bar.set_postfix_str(stage)
-
-
 def _focus_matching(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, bar: Any
 ) -> tuple[np.ndarray, dict[str, Any]] | None:
@@ -322,20 +317,20 @@ def _focus_matching(
     from ..motion.focus import focus_smooth
 
     rows = _matching_rows(store) or [int(i) for i in params["motion_slices"]]
-    _step(bar, "open beam, matching rows")
+    bar.set_postfix_str("open beam, matching rows")
     clean, _ = remove_air(read_straight(store, rows, vertical))
     bar.update()
     given = None if params["center"] == "auto" else float(params["center"])
-    _step(bar, "start axis")
+    bar.set_postfix_str("start axis")
     start = start_axis(clean[axis_rows(len(rows))], store.geometry.angles) if given is None else given
     bar.update()
     projections = clean.transpose(1, 0, 2)
-    _step(bar, "autofocus")
+    bar.set_postfix_str("autofocus")
     if not focus_smooth(projections, store.geometry.angles, start).accepted:
         bar.update()
         return None
     bar.update()
-    _step(bar, "focus+matching")
+    bar.set_postfix_str("focus+matching")
     motion = estimate_motion(
         projections, store.geometry.angles, center=given, horizontal="matching",
         vertical=False, prealign=False, tilt=False, progress=lambda stage: bar.update(),
@@ -379,7 +374,7 @@ def horizontal_motion(
     """
     refine = (2, 2, 2, 1) if params["refine"] is None else tuple(params["refine"])
     with tqdm(total=1, desc=_motion_label(name), disable=not progress, unit="stage") as bar:
-        _step(bar, "open beam, motion slices")
+        bar.set_postfix_str("open beam, motion slices")
         clean, air = remove_air(read_straight(store, params["motion_slices"], vertical), zero_air=True)
         bar.total += 1 if air else (6 if params["refine"] is None else 3 + len(refine))  # the stages to come
         bar.update()
@@ -419,7 +414,7 @@ def centroid_motion_axis(
         The horizontal shifts (K,) and what is recorded with them (``center_offset``, ``horizontal_method``, ...).
     """
     rows = object_rows(clean)
-    _step(bar, "centroids and axis")
+    bar.set_postfix_str("centroids and axis")
     _, shifts, spread = centroid_motion(clean[rows] if rows.any() else clean, store.geometry.angles)
     info: dict[str, Any] = {}
     if params["center"] == "auto":
@@ -438,7 +433,7 @@ def _dremel_matching(
     """Dremel and projection matching on the chosen slices (``3 + len(refine)`` stages on ``bar``)."""
     from ..motion.stack import estimate_stack_motion
 
-    _step(bar, "dremel+matching")
+    bar.set_postfix_str("dremel+matching")
     motion = estimate_stack_motion(
         store.geometry,
         clean,
@@ -574,8 +569,10 @@ def _gridrec_block(
     return block
 
 
-def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, pending: list[int], *run: Any) -> None:
-    """The pending slices in blocks of two per thread (``motion``: shifts, vertical; ``run``: workers etc.)."""
+def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, slices: tuple, *run: Any) -> None:
+    """The pending slices in blocks of two per thread (``motion``: shifts, vertical; ``slices``: the pending ones
+    and the number made by an earlier run, counted on the bar in blocks; ``run``: workers etc.)."""
+    pending, finished = slices
     from ..recon.gridrec import backend_label, select_backend
 
     workers, scheduler, progress = run
@@ -583,7 +580,6 @@ def _run_gridrec(store: DataStore, name: str, info: dict, motion: tuple, pending
     blocks = [pending[i : i + 2 * threads] for i in range(0, len(pending), 2 * threads)]
     _record_engine(store, name, backend_label(select_backend("auto")))
     task = partial(_gridrec_block, str(store.path), name, dict(info), motion, threads, blocks)
-    finished = int(store.done.sum()) - len(pending)  # slices made by an earlier run, counted in blocks of this one
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "unit": "block"}
     run_tasks(task, range(len(blocks)), desc=name, done=-(-finished // (2 * threads)), **fan)
 
@@ -702,13 +698,14 @@ def reconstruct_stack(
         shifts = store.recons.shared_shifts(name).astype(np.float64)
         vertical = np.asarray(info.get("vertical", np.zeros(shifts.size)), dtype=np.float64)
         pending = [int(i) for i in np.flatnonzero(store.done & ~store.reconstruction_done(name))]
+        finished = int(store.done.sum()) - len(pending)  # slices made by an earlier run
         if use_gridrec:
-            _run_gridrec(store, name, info, (shifts, vertical), pending, workers, scheduler, progress)
+            _run_gridrec(store, name, info, (shifts, vertical), (pending, finished), workers, scheduler, progress)
             return name
         if method == "fbp":
             _record_engine(store, name, "backprojection")
         task = partial(_reconstruct_slice, str(store.path), name, method, info, params.get("eta"), shifts, vertical)
         record = shift_check_recorder(store, name)
         fan = {"workers": workers, "scheduler": scheduler, "progress": progress, "unit": "slice"}
-        run_tasks(task, pending, desc=name, on_result=record, done=int(store.done.sum()) - len(pending), **fan)
+        run_tasks(task, pending, desc=name, on_result=record, done=finished, **fan)
         return name
