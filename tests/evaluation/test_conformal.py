@@ -131,6 +131,34 @@ def test_width_map_evens_out_coverage_and_keeps_the_ranking(rng):
         fit_width_map(err, np.full(std.size, 0.5), 0.9)
 
 
+def test_width_map_grows_no_faster_than_the_std_past_its_knots(rng):
+    """A top bin whose quantile jumps (a few pixels of large error among the largest std, as on the
+    background next to an object) gives a steep last segment; past the last knot the map continues
+    with slope 1 in log-log (width proportional to the std), not with that segment's slope, and below
+    the first knot it shrinks at most in proportion to the std. The multiplier fitted on the map still
+    covers fresh pixels of the same law at the level."""
+    std = rng.uniform(0.1, 1.0, 40_000)
+    top = std > np.quantile(std, 0.97)
+
+    def errors():
+        e = rng.normal(size=std.size) * 0.01 * std
+        return np.where(top & (rng.uniform(size=std.size) < 0.2), rng.normal(size=std.size), e)
+
+    err = errors()
+    m = fit_width_map(err, std, 0.95)
+    x, w = np.asarray(m["std"]), np.asarray(m["width"])
+    assert np.log(w[-1] / w[-2]) / np.log(x[-1] / x[-2]) > 5  # the steep last segment
+    np.testing.assert_allclose(apply_width_map(2 * x[-1:], m), 2 * w[-1], rtol=1e-12)
+    grid = np.linspace(x[-1], 3 * x[-1], 50)
+    assert np.all(np.diff(apply_width_map(grid, m)) > 0)
+    # steep first segment: clipped to slope 1 below it as well
+    steep_first = {"std": [1.0, 2.0, 4.0], "width": [1.0, 8.0, 9.0]}
+    assert apply_width_map(np.array([0.5]), steep_first)[0] == pytest.approx(0.5)
+    q = conformal_multiplier(err, apply_width_map(std, m), 0.95)
+    fresh = errors()
+    assert np.mean(np.abs(fresh) <= q * apply_width_map(std, m)) == pytest.approx(0.95, abs=0.006)
+
+
 def _object_data(n, rng, size=24):
     """Images with a disk object: on the background |err| follows the std, on the object the error has a
     floor (0.02 + std), so one pooled calibration leaves the object's narrowest std fifth under-covered."""

@@ -123,7 +123,7 @@ def test_fit_matches_a_direct_computation_and_is_cached(setup, tmp_path, monkeyp
     entry = calibrate(path, run, reconstruct_kwargs=M)
     assert load_calibration(run)["best"] == entry == json.loads((run / CALIBRATION_FILE).read_text())["best"]
     assert entry["n_samples"] == 4 and entry["split"] == "val" and entry["checkpoint"] == "best"
-    assert entry["format"] == CALIBRATION_FORMAT == 12 and entry["delta"] == 0.1
+    assert entry["format"] == CALIBRATION_FORMAT == 13 and entry["delta"] == 0.1
     # independent recomputation: the network on each validation image, seeded with its index
     store = DataStore.open(path)
     val = store.indices("val")
@@ -524,6 +524,24 @@ def test_a_moved_folder_keeps_its_calibration_and_prediction(setup, tmp_path, mo
     monkeypatch.setattr(cal_mod, "sample_outputs", lambda *a, **k: (refits.append(1), real(*a, **k))[1])
     calibrate(data, moved, reconstruct_kwargs=M)
     assert refits == [1]
+
+
+@pytest.mark.slow
+def test_a_moved_folder_under_a_new_calibration_format_is_predicted_again(setup, tmp_path, monkeypatch):
+    """A study folder copied elsewhere and run with a release whose calibration entries have another format:
+    the entry is fitted again and the prediction made again with it, without --overwrite (the same checkpoint
+    file under the moved run's path is the same request); before, it was refused naming --overwrite, which
+    ``nanoct reproduce`` does not have."""
+    path, run = _copy(setup, tmp_path / "a")
+    name = predict(path, run, progress=False, reconstruct_kwargs=M)
+    (tmp_path / "a").rename(tmp_path / "b")
+    data, moved = tmp_path / "b" / "data", tmp_path / "b" / "run"
+    monkeypatch.setattr(cal_mod, "CALIBRATION_FORMAT", cal_mod.CALIBRATION_FORMAT + 1)
+    assert predict(data, moved, progress=False, reconstruct_kwargs=M) == name
+    params = DataStore.open(data).reconstruction_params(name)
+    assert params["calibration"]["format"] == cal_mod.CALIBRATION_FORMAT and params["run"] == str(moved.resolve())
+    assert params["calibration"] == load_calibration(moved)[cal_mod.entry_name(moved, "best", data)]
+    assert DataStore.open(data).reconstruction_done(name, np.arange(12)).sum() == 3
 
 
 def test_a_footprint_fitted_on_noisy_means_of_independent_draws_is_warned_of(tiny_store):

@@ -54,6 +54,7 @@ __all__ = [
     "support_image",
     "support_of",
     "WIDTH_MAP_BINS",
+    "WIDTH_MAP_MAX_END_SLOPE",
     "WIDTH_MAP_MIN_SLOPE",
     "apply_width_map",
     "conformal_multiplier",
@@ -77,6 +78,11 @@ WIDTH_MAP_BINS = 20
 OBJECT_WIDTH_BINS = 5
 #: Smallest slope of a width map in log(std) -> log(width); it keeps the map strictly increasing.
 WIDTH_MAP_MIN_SLOPE = 0.05
+#: Largest slope of a width map beyond its end knots (log-log): past the largest bin median the width
+#: grows at most in proportion to the std. The top bin's quantile can jump (on the tiny study's Dremel +
+#: CiUNetRes the background map's last segment has slope 16.5), and continuing that slope gave pixels of
+#: twice the last knot's std intervals 10^5 times wider (a mean 95 % half-width of 228 on a 0..1 image).
+WIDTH_MAP_MAX_END_SLOPE = 1.0
 #: Fraction of an image's prediction-time support (on its known pixels) that may lie outside the
 #: calibration's footprint before the image is flagged as not of the calibrating scan
 #: (:func:`footprint_outside`). On the I13 scan's 67 slices (``benchmarks/semireal_networks.py``) 66 have
@@ -186,13 +192,16 @@ def fit_width_map(
 
 def apply_width_map(std: np.ndarray, width_map: dict[str, list[float]]) -> np.ndarray:
     """The width map of :func:`fit_width_map` at ``std`` (float64): piecewise linear in log-log between
-    the knots, continued with the end segments' slopes; a zero std gives zero."""
+    the knots, continued beyond them with the end segments' slopes clipped to
+    [:data:`WIDTH_MAP_MIN_SLOPE`, :data:`WIDTH_MAP_MAX_END_SLOPE`] (so it stays strictly increasing and
+    grows no faster than the std past the knots); a zero std gives zero."""
     lx, ly = np.log(width_map["std"]), np.log(width_map["width"])
     std = np.asarray(std, dtype=np.float64)
     pos = std > 0
     ls = np.log(np.where(pos, std, 1.0))
     out = np.interp(ls, lx, ly)
     first, last = (ly[1] - ly[0]) / (lx[1] - lx[0]), (ly[-1] - ly[-2]) / (lx[-1] - lx[-2])
+    first, last = np.clip([first, last], WIDTH_MAP_MIN_SLOPE, WIDTH_MAP_MAX_END_SLOPE)
     out = np.where(ls < lx[0], ly[0] + first * (ls - lx[0]), out)
     out = np.where(ls > lx[-1], ly[-1] + last * (ls - lx[-1]), out)
     return np.where(pos, np.exp(out), 0.0)

@@ -102,7 +102,7 @@ __all__ = [
 
 CALIBRATION_FILE = "calibration.json"
 #: Version of a calibration entry; entries of another version are fitted again.
-CALIBRATION_FORMAT = 12
+CALIBRATION_FORMAT = 13
 #: What the prediction-time support of the group-conditional calibration is computed from.
 SUPPORT_SOURCES = ("std", "mean", "relative")
 #: The mean: a network sure of an object (small std inside it) still shows it in its mean, so the

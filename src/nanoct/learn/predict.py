@@ -172,8 +172,9 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], weights: str
 
     Deletes an earlier ``out`` made with other settings (with ``overwrite``) or with the same
     settings from an input or checkpoint file that has changed since or under another calibration of
-    the same run (refitted after a format change). An earlier ``out`` of the same checkpoint file whose
-    run or calibration data set has moved since is kept, its parameters recording the new places.
+    the same run (refitted after a format change, also where the run has moved since: the same checkpoint
+    file under another path). An earlier ``out`` of the same checkpoint file whose run or calibration data
+    set has moved since is kept, its parameters recording the new places.
     """
     here = json.loads(json.dumps(store.geometry.to_dict()))
     made_from = {
@@ -184,7 +185,8 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], weights: str
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        same_request = _request(old, made_from) == _request(params, made_from)
+        here = {"run": params["run"]} if old.get("checkpoint_sha256") == weights else {}  # the run moved, not changed
+        same_request = _request(old | here, made_from) == _request(params, made_from)
         moved = store.recons.relocate(out, new, _WEIGHTS, ignored=("calibration.store",))
         if not moved and old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
