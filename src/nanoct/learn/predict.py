@@ -185,8 +185,8 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], weights: str
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        here = {"run": params["run"]} if old.get("checkpoint_sha256") == weights else {}  # the run moved, not changed
-        same_request = _request(old | here, made_from) == _request(params, made_from)
+        moved_run = {"run": params["run"]} if old.get("checkpoint_sha256") == weights else {}  # same weights
+        same_request = _request(old | moved_run, made_from) == _request(params, made_from)
         moved = store.recons.relocate(out, new, _WEIGHTS, ignored=("calibration.store",))
         if not moved and old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
