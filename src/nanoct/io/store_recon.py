@@ -76,6 +76,14 @@ def _dotted(record: dict[str, Any], key: str) -> Any:
     return record
 
 
+def same_content(old: dict[str, Any], new: dict[str, Any], place: str, keys: tuple[str, ...]) -> bool:
+    """Whether the file or folder at top-level key ``place`` holds the same content in both records: the hash
+    recorded under the first of ``keys`` found in ``old`` equals ``new``'s under ``keys[0]``, or, for a record
+    without one (made before it was kept), the place is the same (:func:`moved_params`' identities)."""
+    recorded = next((v for v in (_dotted(old, k) for k in keys) if v is not None), None)
+    return recorded == _dotted(new, keys[0]) if recorded is not None else old.get(place) == new.get(place)
+
+
 def moved_params(
     old: dict[str, Any], new: dict[str, Any], identities: dict[str, tuple[str, ...]], ignored: tuple[str, ...] = ()
 ) -> bool:
@@ -112,11 +120,7 @@ def moved_params(
 
     if placeless(old) != placeless(new):
         return False
-    for place, keys in identities.items():
-        recorded = next((v for v in (_dotted(old, k) for k in keys) if v is not None), None)
-        if (recorded != _dotted(new, keys[0])) if recorded is not None else (old.get(place) != new.get(place)):
-            return False
-    return True
+    return all(same_content(old, new, place, keys) for place, keys in identities.items())
 
 
 def _keys(name: str) -> tuple[str, ...]:

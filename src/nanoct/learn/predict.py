@@ -46,7 +46,7 @@ from ..evaluation.conformal import (
 from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
-from ..io.store_recon import check_name, differing_keys
+from ..io.store_recon import check_name, differing_keys, same_content
 from ..names import prediction_name
 from .calibration import Inference, image_statistic, ood_p_values, tiled_outputs, training_store
 from .calibration import calibrate as calibrate_run
@@ -185,8 +185,8 @@ def _provenance(store: DataStore, out: str, params: dict[str, Any], weights: str
     new = json.loads(json.dumps({**params, **made_from}))
     if out in store.reconstruction_names():
         old = store.reconstruction_params(out)
-        moved_run = {"run": params["run"]} if old.get("checkpoint_sha256") == weights else {}  # same weights
-        same_request = _request(old | moved_run, made_from) == _request(params, made_from)
+        same_weights = {place: new[place] for place, keys in _WEIGHTS.items() if same_content(old, new, place, keys)}
+        same_request = _request(old | same_weights, made_from) == _request(params, made_from)
         moved = store.recons.relocate(out, new, _WEIGHTS, ignored=("calibration.store",))
         if not moved and old != new and (overwrite or same_request):
             store.delete_reconstruction(out)
