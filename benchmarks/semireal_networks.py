@@ -448,10 +448,11 @@ def save_picture(folder: Path, table: dict, images: dict, slices: list[int], cho
             scale = {"std": {}, "outside": {"vmin": 0, "vmax": 1}}.get(col, {"vmin": lo, "vmax": hi})
             ax.imshow(image, cmap={"std": "magma", "outside": "Reds"}.get(col, "gray"), **scale)
             extra = f"\n{table[s][col]['psnr_reg']:.1f} dB" if col in ROWS else ""
+            title = col
             if col == "outside":
                 covered = table[s]["coverage_pairs"]["object_plain"]
-                extra = f" (pairs)\n{100 * covered:.0f} % of the object covered, unregistered"
-            ax.set_title(f"{'reference outside 90 %' if col == 'outside' else col} {s}{extra}", fontsize=8)
+                title, extra = "outside the 90 % interval", f"\nobject {100 * covered:.0f} % covered (unregistered)"
+            ax.set_title(f"{title} {s}{extra}", fontsize=8)
             ax.axis("off")
     fig.suptitle("I13 24737 with added motion, binned 2: networks trained on the matched set", fontsize=10)
     fig.tight_layout()
