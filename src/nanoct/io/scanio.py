@@ -49,7 +49,7 @@ from .angles import H5_SUFFIXES, read_angles, split_h5_spec, uniform_spec
 from .h5tree import H5Tree
 from .hdf5_layouts import LAYOUTS, custom_layout, detect_layout, read_layout
 from .imagefiles import EXPORT_FORMATS, write_images
-from .mrcio import MRC_SUFFIXES, find_tilt_file, read_mrc
+from .mrcio import MRC_SUFFIXES, count_views, find_tilt_file, read_mrc
 from .nxtomo import read_nxtomo, to_unit
 from .rawscan import RawScan, check_angles, detector_window, drop_bad_views, drop_repeated_views
 from .shiftfile import LEFT_OUT, SHIFTS_HEADER, read_shifts, write_shifts
@@ -302,24 +302,12 @@ def _read_mrc(path: Path, window: Any, given: np.ndarray | None, opts: ReaderOpt
             )
         given = read_angles(tilt, degrees=True, units=opts.angle_units, select=opts.angles_select)
         source["angles_from"] = str(tilt)
-    import mrcfile  # noqa: F401  (a missing dependency is an ImportError here, not later)
-
-    n_views = _mrc_views(path)
+    n_views = count_views(path)  # a non-standard header is read permissively (read_mrc warns)
     given = given(n_views) if callable(given) else given
     if given.size != n_views:
         raise NanoctError(f"{path}: {n_views} images but {given.size} tilt angle(s); give one angle per image")
     scan = read_mrc(path, window, given, tilt_axis=opts.tilt_axis)
     return replace(scan, source={**scan.source, **source})
-
-
-def _mrc_views(path: Path) -> int:
-    import mrcfile
-
-    try:
-        with mrcfile.open(path, mode="r", permissive=False, header_only=True) as mrc:
-            return int(mrc.header.nz)
-    except (ValueError, OSError, EOFError) as exc:
-        raise NanoctError(f"cannot read {path} as MRC ({exc}); is the file complete?") from None
 
 
 def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, flats: Any, darks: Any) -> RawScan:
