@@ -177,3 +177,48 @@ def test_noisy_air_at_zero_is_air():
     assert found and np.array_equal(clean, noisy)
     assert not air_at_zero(noisy[:, :, L // 4 : -L // 4])
     assert not air_at_zero(noisy + 0.4)
+
+
+def test_a_large_half_turn_is_searched_coarse_to_fine_as_find_center_vo_would(monkeypatch):
+    """The bounded search (binned columns, averaged views) on a sinogram forced above the bound."""
+    from algotom.prep.calculation import find_center_vo
+
+    import nanoct.motion.axis as axis
+
+    angles = np.arange(721) * np.pi / 720  # 0..180 degrees inclusive
+    sino = _sinograms(angles, n_rows=2)
+    direct = find_center_vo(sino[0], start=L / 4, stop=3 * L / 4) - (L - 1) / 2
+    monkeypatch.setattr(axis, "VO_FULL_VALUES", 1000)
+    monkeypatch.setattr(axis, "VO_FINE_VALUES", 180 * L)  # views averaged by 4 at full width
+    bounded = axis.estimate_axis(sino, angles).estimates["vo"]
+    assert bounded == pytest.approx(OFFSET, abs=0.3) and bounded == pytest.approx(direct, abs=0.3)
+
+
+def test_a_wide_limited_angle_series_is_scored_on_binned_columns(monkeypatch):
+    """192 columns scored binned by 2 (the bound forced to 100): the axis within 0.6 binned pixels."""
+    import nanoct.motion.axis as axis
+
+    angles = np.deg2rad(np.linspace(-60, 60, 61))
+    wide = np.stack([ellipse_sinogram(e, angles, 256, center_offset=OFFSET) for e in stack_phantom(256, 1, seed=4)])
+    sino = wide[:, :, 32:-32]  # no air: the sharpness applies
+    monkeypatch.setattr(axis, "SHARPNESS_MAX_COLS", 100)
+    estimate = axis.estimate_axis(sino, angles)
+    assert estimate.used == ("sharpness",) and estimate.offset == pytest.approx(OFFSET, abs=2 * 0.6)
+    assert estimate.offset % 0.2 == pytest.approx(0.0, abs=1e-6) or estimate.offset % 0.2 == pytest.approx(0.2)
+
+
+def test_air_at_zero_in_noisy_data_trusts_the_centroid_of_a_moving_object():
+    """Noise of 0.05 in absorbance (0.6 % of the largest line integral) hides the flat columns from
+    the open-beam fit; the outer columns at zero still show the air, so the centroid, unbiased by
+    motion, gives the axis (mirror and vo are 4 px off)."""
+    angles = np.arange(360) * np.pi / 360
+    rng = np.random.default_rng(3)
+    shifts = 3.0 * np.sin(3 * angles) + rng.uniform(-1, 1, angles.size)  # a moving object
+    clean = 10 * _sinograms(angles, shifts=shifts)
+    sino = clean + 0.05 * rng.standard_normal(clean.shape)
+    assert not remove_air(sino)[1] and remove_air(sino, zero_air=True)[1]
+    basis = np.stack([np.ones_like(angles), np.cos(angles), np.sin(angles)], axis=1)
+    constant = np.linalg.lstsq(basis, shifts, rcond=None)[0][0]
+    estimate = estimate_axis(sino, angles)
+    assert estimate.air_removed and estimate.used == ("centroid",)
+    assert estimate.offset == pytest.approx(OFFSET - constant, abs=0.1)

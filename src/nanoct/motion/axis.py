@@ -6,8 +6,10 @@ whole detector. To a centroid that is an object as wide as the detector, centred
 pulls every view's centroid (and so the axis) towards the detector centre; the mirror match of
 opposite views sees the same box. :func:`remove_air` therefore first fits each view's open beam
 to its air pixels (:func:`nanoct.preprocess.openbeam.estimate_open_beam`) and subtracts its
-absorbance; where no air is seen (an object wider than the field of view) the data are used as
-they are and the centroid is not trusted.
+absorbance; data whose outer columns already read zero within the noise count as air seen too
+(:func:`air_at_zero`: at a noise of a few per cent the open-beam fit finds no flat columns). Where
+no air is seen (an object wider than the field of view) the data are used as they are and the
+centroid is not trusted.
 
 The estimators (each in detector pixels from the detector centre, positive to the right):
 
@@ -18,7 +20,10 @@ The estimators (each in detector pixels from the detector centre, positive to th
 ``vo``
     Algotom's ``find_center_vo`` (Vo et al., Opt. Express 22, 19078, 2014: the double-wedge
     energy of the sinogram joined to its mirror) on the views of one half turn, median over the
-    rows; only where the views cover at least 179 degrees.
+    rows; only where the views cover at least 179 degrees. A half turn of more than
+    :data:`VO_FULL_VALUES` values a row (2048 columns and 1800 views: 30 s a row in algotom's own
+    search) is searched with the same metric coarse to fine on binned columns and averaged
+    views, on at most :data:`VO_MAX_ROWS` rows (:func:`_vo_bounded`: about 1 s a row).
 ``centroid``
     The constant of the least-squares fit of the views' centroids on ``(1, cos phi, sin phi)``
     (:func:`nanoct.motion.center.centroid_motion`) over the rows that hold the object; trusted only
@@ -26,7 +31,8 @@ The estimators (each in detector pixels from the detector centre, positive to th
 ``sharpness``
     Only when none of the above applies (a limited-angle tilt series): the offset that minimises
     the total variation of Hann-filtered FBP slices over their L2 norm inside the field of view (a
-    wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel. A best value
+    wrong axis doubles every edge into arcs), over a 1-pixel grid refined to 0.1 pixel (of
+    columns binned to at most :data:`SHARPNESS_MAX_COLS`). A best value
     at the grid's bound is no minimum and is not used; the untrusted centroid is then the axis,
     with a warning, and without it no estimator applies (an error asks for the offset).
 
@@ -76,6 +82,21 @@ CENTROID_TOLERANCE = 0.01
 #: low-contrast object (a crop inside the sample, Diamond K11 18014: every pixel within the band).
 MAX_AIR_FRACTION = 0.9
 
+#: A half turn of at most this many values per row (views x columns) goes to algotom's
+#: ``find_center_vo`` as it is (every vendored real scan); a larger one is searched coarse to
+#: fine on reduced data (:func:`_vo_bounded`) ...
+VO_FULL_VALUES = 2**21
+
+#: ... on views averaged to at most this many values per row, ...
+VO_FINE_VALUES = 2**20
+
+#: ... and on at most this many of the rows given.
+VO_MAX_ROWS = 4
+
+#: The sharpness search (limited-angle series) scores rows of at most this many columns; wider
+#: rows are binned to it (:func:`_sharpness`).
+SHARPNESS_MAX_COLS = 512
+
 #: Columns on each side of the detector that :func:`air_at_zero` reads.
 AIR_BAND = 8
 
@@ -102,7 +123,8 @@ class AxisEstimate:
     notes : tuple of str
         Why an estimator was left out, and a warning when the used ones disagree.
     air_removed : bool
-        Whether an open beam was found and removed first.
+        Whether air was seen around the object: an open beam found and removed first, or the
+        detector's outer columns at zero within the noise (:func:`air_at_zero`).
     """
 
     offset: float
@@ -201,7 +223,11 @@ def _remove_air(sino: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
-    """Algotom's ``find_center_vo`` on the views of one half turn, median over the rows."""
+    """Algotom's ``find_center_vo`` on the views of one half turn, median over the rows.
+
+    A half turn of at most :data:`VO_FULL_VALUES` values per row goes to ``find_center_vo`` as it
+    is; a larger one to :func:`_vo_bounded`, whose cost does not grow with the scan.
+    """
     from algotom.prep.calculation import find_center_vo
 
     order = np.argsort(phi)
@@ -211,8 +237,42 @@ def _vo(sino: np.ndarray, phi: np.ndarray) -> float | None:
         return None
     n_det = sino.shape[2]
     lo, hi = n_det / 2 - n_det / 4, n_det / 2 + n_det / 4
-    values = [find_center_vo(np.ascontiguousarray(row[half]), start=lo, stop=hi) - (n_det - 1) / 2 for row in sino]
+    if half.size * n_det <= VO_FULL_VALUES:
+        rows = [np.ascontiguousarray(row[half]) for row in sino]
+        values = [find_center_vo(row, start=lo, stop=hi) - (n_det - 1) / 2 for row in rows]
+    else:
+        chosen = np.unique(np.linspace(0, sino.shape[0] - 1, min(sino.shape[0], VO_MAX_ROWS)).round().astype(int))
+        values = [_vo_bounded(sino[r][half], lo, hi) - (n_det - 1) / 2 for r in chosen]
     return float(np.median(values))
+
+
+def _vo_bounded(sino_180: np.ndarray, start: float, stop: float) -> float:
+    """``find_center_vo``'s search of a large half turn ``(K, L)``, coarse to fine on reduced data.
+
+    Algotom searches every integer centre between ``start`` and ``stop`` on its sinogram binned to
+    about 640 columns and then 33 sub-pixel centres on the full sinogram: about 30 s a row at 2048
+    columns and 1800 views. Here the same metric (algotom's ``coarse_search_cor`` and
+    ``fine_search_cor``) runs on views averaged in groups: integer centres on at most 256 columns
+    and 256 views (binned), then one-pixel steps within the binning on the columns binned by 2,
+    then quarter pixels within 1 pixel at full width, both on views averaged to at most
+    :data:`VO_FINE_VALUES` values (about 1 s a row at that size).
+    """
+    from algotom.prep.calculation import coarse_search_cor, fine_search_cor
+
+    def reduced(factor: int, values: int) -> np.ndarray:
+        """Columns binned by ``factor``, views averaged in groups to at most ``values`` values."""
+        cols = sino_180[:, : sino_180.shape[1] // factor * factor]
+        cols = cols.reshape(cols.shape[0], -1, factor).mean(axis=2)
+        group = max(1, -(-cols.size // values))
+        return cols[: cols.shape[0] // group * group].reshape(-1, group, cols.shape[1]).mean(axis=1)
+
+    factor = max(1, -(-sino_180.shape[1] // 256))
+    coarse = coarse_search_cor(reduced(factor, 256 * 256), start / factor, stop / factor, denoise=True)
+    centre = coarse * factor + (factor - 1) / 2  # the binned column's centre in full-width columns
+    if factor > 2:
+        half = fine_search_cor(reduced(2, VO_FINE_VALUES // 2), (centre - 0.5) / 2, factor / 2, 0.5, denoise=True)
+        centre = 2 * half + 0.5
+    return float(fine_search_cor(reduced(1, VO_FINE_VALUES), centre, 1.0, 0.25, denoise=True))
 
 
 def _sharpness(sino: np.ndarray, phi: np.ndarray) -> tuple[float, bool]:
@@ -228,9 +288,18 @@ def _sharpness(sino: np.ndarray, phi: np.ndarray) -> tuple[float, bool]:
     radius 0.45 L, as total variation over the L2 norm: a wrong axis turns edges into arcs and
     doubles them, which adds variation, while the norm of an FBP image barely depends on the axis
     (each view fills its own line of the Fourier plane). Dividing by the L1 norm instead rewards the
-    wrong axis on limited-angle data, whose smeared slices have the larger L1 norm.
+    wrong axis on limited-angle data, whose smeared slices have the larger L1 norm. Rows wider than
+    :data:`SHARPNESS_MAX_COLS` are scored with their columns binned to at most that many (the
+    central columns a whole number of bins): the steps scale with the binning.
     """
     n_det = sino.shape[2]
+    if n_det > SHARPNESS_MAX_COLS:  # scored on binned columns: the cost of a 2048-column scan is that of 512
+        factor = -(-n_det // SHARPNESS_MAX_COLS)
+        kept = n_det // factor * factor
+        first = (n_det - kept) // 2
+        binned = sino[..., first : first + kept].reshape(*sino.shape[:2], -1, factor).mean(axis=3)
+        offset, found = _sharpness(binned, phi)
+        return factor * offset + first + (kept - 1) / 2 - (n_det - 1) / 2, found
     pad = n_det // 2
     width = n_det + 2 * pad
     grid = np.arange(width) - (width - 1) / 2
@@ -284,7 +353,7 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = CE
         raise NanoctError(f"sinograms of shape {sino.shape} do not match {phi.size} angles")
     if not np.isfinite(sino).all():
         raise NanoctError("the sinograms hold NaN or infinite values; correct or drop those views first")
-    clean, air = remove_air(sino)
+    clean, air = remove_air(sino, zero_air=True)
     estimates: dict[str, float] = {}
     notes: list[str] = []
     used: list[str] = []
