@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import NanoctError
-from .rawscan import check_angles
+from .rawscan import check_angles, check_span
 
 __all__ = ["ANGLE_UNITS", "H5_SUFFIXES", "in_radians", "load_table", "read_angles", "split_h5_spec", "uniform_spec"]
 
@@ -122,10 +122,8 @@ def read_angles(
         degrees = degrees if units is None else units == "deg"
         angles = np.deg2rad(values) if degrees else values
     if select is not None:
-        first, stop = select
-        if not 0 <= first < stop <= angles.size:
-            raise NanoctError(f"--angles-select {first}:{stop} must satisfy 0 <= FIRST < STOP <= {angles.size} values")
-        angles = angles[first:stop]
+        check_span("--angles-select", select, angles.size, "values", owner=f"the angles file {path}")
+        angles = angles[select[0] : select[1]]
     if units is None:
         check_angles(angles, degrees=degrees, where=f"the angles {path}", fix="--angles-units rad")
     elif not np.isfinite(angles).all():

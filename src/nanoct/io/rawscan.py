@@ -5,7 +5,8 @@ detector columns)`` float32 stack, optional flat and dark fields of shape ``(F, 
 view angles in radians. :func:`check_angles` refuses angles that cannot be what the scan meant,
 :func:`drop_bad_views` frames with NaN or infinite values, :func:`drop_repeated_views` views
 whose angle repeats an earlier one, and :func:`detector_window` checks a ``--rows`` / ``--crop``
-selection against the detector.
+selection against the detector (:func:`check_span`: one line naming the flag, its value and the range
+the scan holds).
 """
 
 from __future__ import annotations
@@ -18,7 +19,15 @@ import numpy as np
 
 from ..core.errors import NanoctError
 
-__all__ = ["RawScan", "check_angles", "detector_window", "drop_bad_views", "drop_repeated_views", "listed"]
+__all__ = [
+    "RawScan",
+    "check_angles",
+    "check_span",
+    "detector_window",
+    "drop_bad_views",
+    "drop_repeated_views",
+    "listed",
+]
 
 _MIN_VIEWS_UNIT_CHECK = 8  # fewer views than this may span a few degrees on purpose (a test, an alignment)
 
@@ -222,6 +231,38 @@ def drop_bad_views(scan: RawScan, *, drop: bool) -> tuple[RawScan, list[str]]:
     return (replace(scan, **out) if out else scan), notes
 
 
+def check_span(
+    flag: str, span: tuple[int, int], size: int, unit: str, *, owner: str = "the scan", sep: str = ":"
+) -> None:
+    """Refuse a selection ``FIRST, STOP`` of ``size`` things that is not within ``0 <= FIRST < STOP <= size``.
+
+    Parameters
+    ----------
+    flag : str
+        The option that gave it, e.g. ``"--rows"``.
+    span : (int, int)
+        ``FIRST, STOP`` (STOP excluded).
+    size : int
+        How many there are.
+    unit : str
+        What they are, e.g. ``"detector rows"``.
+    owner : str
+        What holds them, e.g. ``"the scan"`` or an angles file.
+    sep : str
+        The separator the option is written with (``":"``; ``","`` for ``--crop``).
+
+    Raises
+    ------
+    NanoctError
+        One line naming the flag, the value and the valid range, e.g.
+        ``--rows 5000:5001: the scan has 256 detector rows (0:256)``.
+    """
+    first, stop = (int(v) for v in span)
+    if not 0 <= first < stop <= size:
+        order = "; FIRST must be below STOP" if first >= stop else ""
+        raise NanoctError(f"{flag} {first}{sep}{stop}: {owner} has {size} {unit} (0{sep}{size}){order}")
+
+
 def detector_window(
     rows: slice | None, crop: tuple[int, int] | None
 ) -> Callable[[tuple[int, ...]], tuple[slice, slice]]:
@@ -237,15 +278,18 @@ def detector_window(
     Returns
     -------
     callable
-        Raises :class:`NanoctError` when the selection does not fit the detector it is given.
+        Raises :class:`NanoctError` (:func:`check_span`) when the selection does not fit the detector it is
+        given, before anything of it is read.
     """
+    if rows is not None and rows.step not in (None, 1):
+        raise NanoctError(f"--rows {rows.start}:{rows.stop}:{rows.step}: give FIRST:STOP (every row between them)")
 
     def window(shape: tuple[int, ...]) -> tuple[slice, slice]:
         n_rows, n_cols = shape
-        if rows is not None and not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= n_rows):
-            raise NanoctError(f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {n_rows} rows")
-        if crop is not None and not 0 <= crop[0] < crop[1] <= n_cols:
-            raise NanoctError(f"--crop {crop[0]},{crop[1]} must satisfy 0 <= first < stop <= {n_cols} columns")
+        if rows is not None:
+            check_span("--rows", (rows.start or 0, rows.stop or 0), n_rows, "detector rows")
+        if crop is not None:
+            check_span("--crop", crop, n_cols, "detector columns", sep=",")
         return (rows if rows is not None else slice(None)), (slice(*crop) if crop is not None else slice(None))
 
     return window

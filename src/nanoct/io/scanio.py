@@ -51,7 +51,7 @@ from .hdf5_layouts import LAYOUTS, custom_layout, detect_layout, read_layout
 from .imagefiles import EXPORT_FORMATS, write_images
 from .mrcio import MRC_SUFFIXES, count_views, find_tilt_file, read_mrc
 from .nxtomo import read_nxtomo, to_unit
-from .rawscan import RawScan, check_angles, detector_window, drop_bad_views, drop_repeated_views
+from .rawscan import RawScan, check_angles, check_span, detector_window, drop_bad_views, drop_repeated_views
 from .shiftfile import LEFT_OUT, SHIFTS_HEADER, read_shifts, write_shifts
 from .tiffio import read_array, read_field, read_tiff_folder
 
@@ -453,17 +453,8 @@ def sinograms(
         If the selection is empty or the binning does not fit.
     """
     stack = np.asarray(data, dtype=np.float32)
-    if rows is not None:
-        if not (rows.step in (None, 1) and 0 <= (rows.start or 0) < (rows.stop or 0) <= stack.shape[1]):
-            raise NanoctError(
-                f"--rows {rows.start}:{rows.stop} must satisfy 0 <= FIRST < STOP <= {stack.shape[1]} rows"
-            )
-        stack = stack[:, rows]
-    if crop is not None:
-        first, stop = crop
-        if not 0 <= first < stop <= stack.shape[2]:
-            raise NanoctError(f"--crop {first},{stop} must satisfy 0 <= first < stop <= {stack.shape[2]} columns")
-        stack = stack[:, :, first:stop]
+    row_cut, column_cut = detector_window(rows, crop)(stack.shape[1:])
+    stack = stack[:, row_cut, column_cut]
     if stack.shape[1] == 0:
         raise NanoctError(f"the row selection {rows} keeps no detector row of {data.shape[1]}")
     if not 1 <= binning <= stack.shape[2]:
@@ -610,6 +601,9 @@ def import_scan(
     )  # fmt: skip
     n_rows, n_cols = raw.source["detector_shape"]
     kept_cols = (crop[1] - crop[0]) if crop is not None else n_cols
+    for span in getattr(corrections, "air_columns", None) or ():  # counted in the columns read
+        owner = "the detector read (from --crop's first column)" if crop is not None else "the detector"
+        check_span("--air-columns", span, kept_cols, "columns", owner=owner)
     if not 1 <= binning <= kept_cols:
         raise NanoctError(f"--binning {binning} must be between 1 and the {kept_cols} detector columns kept")
     kept, dropped = drop_bad_views(raw, drop=drop_bad)

@@ -39,6 +39,7 @@ import zarr
 from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..core.geometry import Geometry
+from ..io.rawscan import check_span
 from ..io.scanio import line_integrals, read_scan
 
 __all__ = ["SLAB_FORMAT", "check_selection", "read_block", "reconstruct_slabs", "slab_blocks"]
@@ -61,8 +62,7 @@ def check_selection(rows: tuple[int, int] | None, block: Any, n_rows: int) -> tu
         For rows outside the detector's ``n_rows`` or a block that is not a whole number >= 1.
     """
     first, stop = (0, n_rows) if rows is None else (int(rows[0]), int(rows[1]))
-    if not 0 <= first < stop <= n_rows:
-        raise NanoctError(f"--rows {first}:{stop} must satisfy 0 <= FIRST < STOP <= {n_rows} (the detector's rows)")
+    check_span("--rows", (first, stop), n_rows, "detector rows")
     if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
         raise NanoctError(f"--block {block!r} must be a whole number of detector rows >= 1, e.g. 16")
     return first, stop

@@ -100,7 +100,10 @@ def _motion_rows(value: Any, n: int) -> list[int]:
         return sorted({int(r) for r in np.linspace(0, n - 1, max(1, min(value, n))).round()})
     chosen = sorted({int(r) for r in value})
     if not chosen or chosen[0] < 0 or chosen[-1] >= n:
-        raise NanoctError(f"--motion-slices {value!r}: give rows of the selection, 0..{n - 1}")
+        text = ",".join(str(int(r)) for r in value)
+        raise NanoctError(
+            f"--motion-slices {text}: rows of the selection, counted from its first; it has {n} rows (0..{n - 1})"
+        )
     return chosen
 
 
