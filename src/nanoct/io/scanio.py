@@ -250,6 +250,7 @@ def read_scan(
         raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
     if opts.has_paths and fmt not in HDF5_FORMATS:
         raise NanoctError(f"--data-path, --image-key-path and --angles-path are for HDF5 files; {path} is {fmt}")
+    _check_unused(path, fmt, angles_file, degrees, (flats, darks), is_line_integral, opts)
     window = detector_window(rows, crop)
     given = None if angles_file is None else _given_angles(angles_file, degrees, opts)
     if fmt in HDF5_FORMATS:
@@ -266,6 +267,46 @@ def read_scan(
     if is_line_integral:
         scan = replace(scan, is_line_integral=True, flats=None, darks=None)
     return scan
+
+
+def _check_unused(
+    path: Any, fmt: str, angles_file: Any, degrees: bool, fields: tuple[Any, Any], line: bool, opts: ReaderOptions
+) -> None:
+    """Refuse the reading options that the file's format and the other options leave unused (each silently
+    ignored otherwise): flat and dark files beside an HDF5 or MRC scan or with line integrals, ``--tilt-axis``
+    of another format than MRC, ``--allow-outside`` without an HDF5 file, ``--angles-select`` and ``--radians``
+    without an angles file they apply to."""
+    given = [flag for flag, value in zip(("--flats", "--darks"), fields) if value is not None]
+    them = "them" if len(given) > 1 else "it"
+    if given and fmt not in ("tiff", "npy"):
+        raise NanoctError(f"{' and '.join(given)}: for TIFF and .npy scans; {path} is {fmt} (drop {them})")
+    if given and line:
+        raise NanoctError(f"{' and '.join(given)}: --line-integrals takes no flat/dark correction (drop {them})")
+    if opts.tilt_axis != "columns" and fmt != "mrc":
+        raise NanoctError(f"--tilt-axis {opts.tilt_axis}: for MRC tilt series; {path} is {fmt} (drop it)")
+    h5_angles = angles_file is not None and split_h5_spec(angles_file) is not None
+    if opts.allow and fmt not in HDF5_FORMATS and not h5_angles:
+        raise NanoctError(f"--allow-outside: for HDF5 files (the folders their links may read); {path} is {fmt}")
+    if opts.angles_select is not None:
+        first, stop = opts.angles_select
+        if angles_file is None and fmt != "mrc":
+            raise NanoctError(
+                f"--angles-select {first}:{stop}: picks values of an --angles file (or of an MRC stack's tilt file); "
+                f"{path} is {fmt} and no --angles is given (drop it, or give --angles FILE)"
+            )
+        if angles_file is not None and uniform_spec(angles_file) is not None:
+            raise NanoctError(
+                f"--angles-select {first}:{stop}: picks values of an --angles file; --angles {angles_file} spaces "
+                "the views evenly (drop one)"
+            )
+    if not degrees and opts.angle_units is not None:
+        raise NanoctError(f"--radians and --angles-units {opts.angle_units}: both state the unit; give one")
+    if not degrees and (angles_file is None or h5_angles):
+        what = "no --angles is given" if angles_file is None else f"--angles {angles_file} is an HDF5 dataset"
+        raise NanoctError(
+            f"--radians: the unit of an --angles text file or FIRST:STOP; {what} (drop it; --angles-units rad "
+            "states the unit of the file's own angles)"
+        )
 
 
 def _is_h5(path: str | os.PathLike[str]) -> bool:
