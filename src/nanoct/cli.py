@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import errno
+import inspect
 import json
 import os
 import re
+import shlex
 import sys
 import traceback
 import warnings
@@ -114,6 +116,42 @@ CROP = typer.Option(None, "--crop", help="Detector columns FIRST,STOP to keep.")
 LINE_INTEGRALS = typer.Option(
     False, "--line-integrals", help="The data are already -log normalised (no flat/dark correction)."
 )
+#: The options above by their parameter names in 'import' and 'stack': how to read a scan file, and the
+#: corrections of its projections. Given to 'stack' on a data set they are refused (they apply when importing).
+_READING = (
+    "fmt", "angles", "angles_select", "radians", "angles_units", "data_path", "image_key_path", "angles_path",
+    "allow_outside", "tilt_axis", "flats", "darks", "line_integrals", "rows", "crop", "entry",
+)  # fmt: skip
+_CORRECTING = (
+    "outliers", "outlier_size", "outlier_kind", "open_beam", "air_columns", "open_beam_degree", "delta_beta",
+    "energy_kev", "distance_m", "pixel_size_m", "stripes", "stripe_params",
+)  # fmt: skip
+#: Options that set how another one works, with the one each needs (given alone, nothing would use them).
+_NEEDS = {"outlier_size": "outliers", "outlier_kind": "outliers", "open_beam_degree": "open_beam"}
+
+
+def _option_infos(command: Any) -> dict[str, Any]:
+    """The options of a command's function by parameter name (their flags and defaults: the signature's)."""
+    params = inspect.signature(command).parameters
+    return {name: p.default for name, p in params.items() if isinstance(p.default, typer.models.OptionInfo)}
+
+
+def _long_flag(info: Any) -> str:
+    return next(d for d in info.param_decls if d.startswith("--"))
+
+
+def _given(command: Any, flags: dict[str, Any], names: Any) -> dict[str, Any]:
+    """The options ``names`` of ``command`` whose value in ``flags`` (its ``locals()``) is not their default, as
+    ``{flag: value}`` in the order of ``names``; the defaults are those of the command's own signature."""
+    infos = _option_infos(command)
+    given = {}
+    for name in names:
+        value, default = flags[name], infos[name].default
+        if isinstance(default, list):  # a repeatable option
+            value = list(value)
+        if value != default:
+            given[_long_flag(infos[name])] = value
+    return given
 
 
 def _parse_fractions(text: str) -> tuple[float, float, float]:
@@ -1042,6 +1080,8 @@ def import_(
     stack), post-process it with a network trained on data simulated with its geometry, and
     export the images.
     """
+    if line_integrals and _given(import_, locals(), ["tolerance"]):
+        raise NanoctError(f"--tolerance {tolerance:g}: for the flat/dark correction, which --line-integrals skips")
     store = _import_from_flags(
         src, out, locals(), binning=binning, center_offset=_parse_center(center_offset), size=size,
         tolerance=tolerance, drop_bad=drop_bad_views,
@@ -1060,20 +1100,33 @@ def _import_from_flags(src: Path, out: Path, flags: dict[str, Any], **settings: 
 
     f = flags
     row_range = _parse_range(f["rows"], "--rows", ":")
-    options = _reader_options(
-        f["data_path"], f["image_key_path"], f["angles_path"], f["angles_units"], f["allow_outside"],
-        f["tilt_axis"], f["angles_select"],
-    )  # fmt: skip
+    for name, needed in _NEEDS.items():
+        alone = _given(import_, f, [name])
+        if alone and not _given(import_, f, [needed]):
+            flag, other = next(iter(alone)), _long_flag(_option_infos(import_)[needed])
+            raise NanoctError(f"{flag} {alone[flag]}: used only with {other} (add {other}, or drop {flag})")
     corrections = _corrections(
         f["outliers"], f["outlier_size"], f["outlier_kind"], f["open_beam"], f["air_columns"], f["open_beam_degree"],
         (f["delta_beta"], f["energy_kev"], f["distance_m"], f["pixel_size_m"]), f["stripes"], f["stripe_params"],
     )  # fmt: skip
     return import_scan(
-        src, out, fmt=f["fmt"], angles_file=f["angles"], degrees=not f["radians"], flats=f["flats"],
-        darks=f["darks"], is_line_integral=f["line_integrals"], entry=f["entry"],
-        rows=None if row_range is None else slice(*row_range), crop=_parse_range(f["crop"], "--crop", ","),
-        options=options, corrections=corrections, **settings,
+        src, out, **_read_settings(f), rows=None if row_range is None else slice(*row_range),
+        crop=_parse_range(f["crop"], "--crop", ","), corrections=corrections, **settings,
     )  # fmt: skip
+
+
+def _read_settings(flags: dict[str, Any]) -> dict[str, Any]:
+    """The keywords of :func:`~nanoct.io.scanio.read_scan` that the reading flags of ``import`` and ``stack`` give,
+    other than the rows and columns."""
+    f = flags
+    options = _reader_options(
+        f["data_path"], f["image_key_path"], f["angles_path"], f["angles_units"], f["allow_outside"],
+        f["tilt_axis"], f["angles_select"],
+    )  # fmt: skip
+    return {
+        "fmt": f["fmt"], "angles_file": f["angles"], "degrees": not f["radians"], "flats": f["flats"],
+        "darks": f["darks"], "is_line_integral": f["line_integrals"], "entry": f["entry"], "options": options,
+    }  # fmt: skip
 
 
 def _corrections(
@@ -1209,7 +1262,7 @@ def stack(
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
 
-    source = _stack_source(source, store_dir, out, block, locals())
+    source = _stack_source(source, locals())
     if source is None:  # streamed into --out
         return
     written = reconstruct_stack(
@@ -1221,14 +1274,25 @@ def stack(
     typer.echo(_stack_summary(DataStore.open(source), written))
 
 
-def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block: int | None, flags: dict) -> Any:
+def _stack_source(source: Path, flags: dict[str, Any]) -> Any:
     """The data set ``nanoct stack`` works on: ``source``, or the scan file imported into ``--store``.
 
     A scan file with ``--out`` is streamed here instead (its summary printed; ``None`` returned).
+    ``flags`` holds the command's parameters by name (its ``locals()``): an option that does not
+    apply to ``source`` is refused.
     """
+    f = flags
+    store_dir, out, block = f["store_dir"], f["out"], f["block"]
+    if f["eta"] != "auto" and f["method"] != "resesop":
+        raise NanoctError(f"--eta {f['eta']}: RESESOP's uncertainty level, used only with --method resesop")
     if (source / "zarr.json").is_file():
-        if out is not None or block is not None:
-            raise NanoctError(f"--out and --block stream a scan file; {source} is a data set (drop them)")
+        scan_only = _given(stack, f, ["store_dir", "out", "block"])
+        if scan_only:
+            raise NanoctError(
+                f"{', '.join(scan_only)}: for a scan file (--out streams it, --block sets its blocks, --store imports "
+                f"it); {source} is a data set (drop {'them' if len(scan_only) > 1 else 'it'})"
+            )
+        _refuse_reading(source, f)
         return source
     if out is not None and store_dir is None:
         typer.echo(_stream_stack(source, out, flags))
@@ -1248,12 +1312,33 @@ def _stack_source(source: Path, store_dir: Path | None, out: Path | None, block:
     return _import_from_flags(source, store_dir, flags).path
 
 
-#: ``nanoct stack`` flags the streaming path (``--out``) does not apply, with their defaults.
-_NOT_STREAMED = {
-    "crop": None, "outliers": None, "open_beam": False, "air_columns": None, "delta_beta": None,
-    "energy_kev": None, "distance_m": None, "pixel_size_m": None, "stripes": None, "stripe_params": None,
-    "name": None, "eta": "auto",
-}  # fmt: skip
+def _refuse_reading(directory: Path, flags: dict[str, Any]) -> None:
+    """Refuse the reading and correction flags given to ``nanoct stack`` on the data set ``directory``: they apply
+    when a scan file is read, so the message gives the import that applies them."""
+    from .io.store import DataStore
+
+    given = _given(stack, flags, (*_READING, *_CORRECTING))
+    if not given:
+        return
+    try:
+        scan = DataStore.open(directory).meta.get("scan") or {}
+    except (NanoctError, OSError, KeyError, ValueError):  # the stack itself then says what is wrong
+        scan = {"file": "SCAN"}
+    names = ", ".join(given)
+    if not scan:
+        raise NanoctError(f"{names}: reading and correction options are for a scan file; {directory} is simulated")
+    words = ["nanoct", "import", str(scan.get("file") or "SCAN"), "--out", "NEW_DIR"]
+    for flag, value in given.items():
+        values = value if isinstance(value, list) else [value]  # a repeatable option: once per value
+        words += [flag] if value is True else [w for v in values for w in (flag, str(v))]
+    raise NanoctError(
+        f"{names}: reading and correction options apply when importing; the data set {directory} is already "
+        f"imported: use {shlex.join(words)} (or give stack the scan file with --store NEW_DIR or --out OUT.zarr)"
+    )
+
+
+#: ``nanoct stack`` options the streaming path (``--out``) does not apply (their defaults: the signature's).
+_NOT_STREAMED = ("crop", *_CORRECTING, "name", "eta")
 
 
 def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
@@ -1262,10 +1347,11 @@ def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
     from .workflows.stack import fbp_engine
 
     f = flags
-    given = [k for k, default in _NOT_STREAMED.items() if f[k] != default]
+    given = _given(stack, f, _NOT_STREAMED)
     if given:
-        names = ", ".join("--" + k.replace("_", "-") for k in given)
-        raise NanoctError(f"{names}: not applied when streaming with --out; import with --store NEW_DIR instead")
+        raise NanoctError(
+            f"{', '.join(given)}: not applied when streaming with --out; import with --store NEW_DIR instead"
+        )
     if f["method"] not in ("fbp", "gridrec"):
         raise NanoctError(f"--method {f['method']!r}: streaming with --out runs fbp or gridrec (Fourier space)")
     if fbp_engine("auto") != "gridrec":
@@ -1276,14 +1362,7 @@ def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
         motion_rows = list(_parse_ints(motion_rows, "--motion-slices", low=0))
     elif motion_rows == "all":
         raise NanoctError("--motion-slices all: give auto or the rows to use, e.g. 0,50,100, when streaming")
-    options = _reader_options(
-        f["data_path"], f["image_key_path"], f["angles_path"], f["angles_units"], f["allow_outside"],
-        f["tilt_axis"], f["angles_select"],
-    )  # fmt: skip
-    read = {
-        "fmt": f["fmt"], "angles_file": f["angles"], "degrees": not f["radians"], "flats": f["flats"],
-        "darks": f["darks"], "is_line_integral": f["line_integrals"], "entry": f["entry"], "options": options,
-    }  # fmt: skip
+    read = _read_settings(f)
     written = reconstruct_scan(
         src, out, rows=_parse_range(f["rows"], "--rows", ":"), motion_rows=motion_rows,
         center=None if center == "auto" else float(center), block=16 if f["block"] is None else f["block"],
