@@ -96,3 +96,21 @@ def test_an_interrupted_stack_is_resumed_or_rerun_with_other_options(scan, tmp_p
     # finished slices are work: other options then need --overwrite (or another --name)
     assert run(["stack", str(store), "--center-offset", "0", "-w", "0", "-q"]) == 2
     assert "other parameters" in capsys.readouterr().err
+
+
+def test_dremel_options_on_a_scan_with_air_are_used_with_refine_or_named_as_unused(scan, tmp_path, capsys):
+    """Air around the object: the centroids give the motion, and --binning alone is named as not used;
+    a given --refine runs Dremel and projection matching there (it used to be dropped for the centroids)."""
+    path, _, _ = scan
+    store = tmp_path / "store"
+    argv = ["import", str(path), "--out", str(store), "--angles", "0:180", "--line-integrals", "-q"]
+    assert run(argv) == 0
+    assert run(["stack", str(store), "--binning", "4", "-w", "0", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "note: --binning not used: air is seen" in err and "--refine" in err
+    info = DataStore.open(store).recons.motion_info("fbp_stack")
+    assert info["horizontal_method"] == "centroid"
+    argv = ["stack", str(store), "--refine", "2,1", "--binning", "4", "--name", "refined", "-w", "0", "-q"]
+    assert run(argv) == 0
+    assert "not used" not in capsys.readouterr().err
+    assert DataStore.open(store).recons.motion_info("refined")["horizontal_method"] == "dremel+matching"

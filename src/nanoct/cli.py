@@ -1213,7 +1213,8 @@ def stack(
     refine: str = typer.Option(
         "auto",
         "--refine",
-        help="Dremel + projection matching with these binnings, e.g. 2,2,1 (auto: autofocus + matching, see docs).",
+        help="Dremel + projection matching with these binnings, e.g. 2,2,1, air seen or not (auto: the views' "
+        "centroids where air is seen, else autofocus + matching; see docs).",
     ),
     model: str | None = typer.Option(None, "--model", help="DEGREE,HARMONICS: use a smooth model of the motion."),
     name: str | None = typer.Option(None, "--name", help="Output name (default METHOD_stack).", callback=_check_name),
@@ -1262,8 +1263,12 @@ def stack(
     from .io.store import DataStore
     from .workflows.stack import reconstruct_stack
 
-    source = _stack_source(source, locals())
+    flags = dict(locals())
+    source = _stack_source(source, flags)
     if source is None:  # streamed into --out
+        import zarr
+
+        _note_unused_dremel(flags, dict(zarr.open_group(str(out), mode="r").attrs.get("info") or {}))
         return
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
@@ -1271,7 +1276,23 @@ def stack(
         refine=None if refine == "auto" else _parse_ints(refine, "--refine"),
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
-    typer.echo(_stack_summary(DataStore.open(source), written))
+    store = DataStore.open(source)
+    typer.echo(_stack_summary(store, written))
+    _note_unused_dremel(flags, store.recons.motion_info(written) or {})
+
+
+def _note_unused_dremel(flags: dict[str, Any], info: dict[str, Any]) -> None:
+    """A note where ``--binning`` / ``--coarse-iter`` were given but the views' centroids gave the motion."""
+    if info.get("horizontal_method") != "centroid":
+        return
+    given = _given(stack, flags, ("binning", "coarse_iter"))
+    if given:
+        names = ", ".join(given)
+        typer.echo(
+            f"note: {names} not used: air is seen around the object, so the views' centroids gave the motion; "
+            "add --refine (e.g. 2,2,2,1) for Dremel and projection matching with them",
+            err=True,
+        )
 
 
 def _stack_source(source: Path, flags: dict[str, Any]) -> Any:

@@ -363,9 +363,9 @@ def horizontal_motion(
     the path of :func:`~nanoct.motion.estimate.estimate_motion` on a central block of rows
     (:func:`_focus_matching`: autofocus of the slow motion, projection matching, autofocus with
     the axis; ``horizontal_method`` ``"focus+matching"``, or ``"matching"`` where both autofocus
-    results were rejected); with ``refine`` given, or where a first autofocus runs to its bounds
-    (too little structure to focus on), Dremel and projection matching on the chosen slices
-    (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
+    results were rejected). With ``refine`` given (air seen or not), or where a first autofocus
+    runs to its bounds (too little structure to focus on), Dremel and projection matching on the
+    chosen slices (:func:`~nanoct.motion.stack.estimate_stack_motion`, ``"dremel+matching"``).
 
     With ``progress`` one bar, labelled :func:`_motion_label` of ``name``, counts the stages and
     names the one running. ``centroids`` replaces :func:`centroid_motion_axis` where air is seen (same
@@ -376,9 +376,10 @@ def horizontal_motion(
     with tqdm(total=1, desc=_motion_label(name), disable=not progress, unit="stage") as bar:
         bar.set_postfix_str("open beam, motion slices")
         clean, air = remove_air(read_straight(store, params["motion_slices"], vertical), zero_air=True)
-        bar.total += 1 if air else (6 if params["refine"] is None else 3 + len(refine))  # the stages to come
+        by_centroids = air and params["refine"] is None  # a given refine asks for Dremel and matching
+        bar.total += 1 if by_centroids else (6 if params["refine"] is None else 3 + len(refine))  # the stages to come
         bar.update()
-        if air:
+        if by_centroids:
             return (centroids or centroid_motion_axis)(store, params, vertical, clean, bar)
         info: dict[str, Any] = {}
         if params["refine"] is None:
