@@ -810,7 +810,12 @@ def evaluate(
 
 @app.command()
 def reproduce(
-    preset: str = typer.Option("tiny-parallel", "--preset", "-p", help="Study preset (geometry preset name)."),
+    preset: str = typer.Option(
+        "tiny-parallel",
+        "--preset",
+        "-p",
+        help="Study preset: a geometry preset name, or tiny-quick (a first result in minutes, docs/study.md).",
+    ),
     scale: str | None = typer.Option(
         None, "--scale", help="Run the paper's three settings at a scale (tiny, small, paper) instead of one preset."
     ),
@@ -819,8 +824,11 @@ def reproduce(
     ),
     n: int | None = typer.Option(None, "--n", help="Override the number of samples of the preset."),
     no_motion: bool = typer.Option(False, "--no-motion", help="The unperturbed sanity case."),
-    models: str = typer.Option(
-        "unet,cinn,cinn-res,ciunet,ciunet-res", "--models", help="Comma-separated post-processing networks, or 'none'."
+    models: str | None = typer.Option(
+        None,
+        "--models",
+        help="Comma-separated post-processing networks, or 'none' (default: the preset's; tiny-quick: unet,ciunet-res; "
+        "the others: unet,cinn,cinn-res,ciunet,ciunet-res).",
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the data set(s)."),
     seeds: int = typer.Option(1, "--seeds", help="Training seeds per network row (spread in the conclusion checks)."),
@@ -848,7 +856,7 @@ def reproduce(
     """
     from .study.runner import reproduce_scale, reproduce_study
 
-    chosen = () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
+    chosen = None if models is None else _model_list(models)
     if scale is not None and (n is not None or no_motion):
         raise NanoctError("--n and --no-motion apply to one --preset; --scale runs the study's three settings")
     study = _study_with_precision(scale, preset, precision)
@@ -881,6 +889,11 @@ def reproduce(
         report = reproduce_study(preset, n=n, perturbed=not no_motion, **run)
     typer.echo(report.read_text())
     typer.echo(f"report: {report} (and {report.with_suffix('.html').name})", err=True)
+
+
+def _model_list(models: str) -> tuple[str, ...]:
+    """``reproduce --models``: the comma-separated networks, ``()`` for ``none``."""
+    return () if models.strip() == "none" else tuple(m.strip() for m in models.split(",") if m.strip())
 
 
 def _study_with_precision(scale: str | None, preset: str, precision: str | None) -> Any:

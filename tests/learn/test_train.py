@@ -424,3 +424,35 @@ def test_auto_precision_run_records_what_it_took_and_resumes(store, tmp_path, mo
     monkeypatch.setattr(train_module, "native_bf16", lambda device: True)  # the run moved to a bf16 machine
     with pytest.raises(NanoctError, match="differs in: precision"):
         train(store, run, TrainConfig("unet", "fbp", epochs=4, precision="auto", **FAST))
+
+
+def _kept(env: dict[str, str]) -> dict[str, object]:
+    """keep_freed_memory() in a fresh process with ``env`` added, and a UNet's weights after 3 float32 steps."""
+    code = (
+        "import json, sys, torch\n"
+        "from nanoct.learn.models import build_model\n"
+        "from nanoct.learn.train import keep_freed_memory\n"
+        "kept = keep_freed_memory() if sys.argv[1] == '1' else None\n"
+        "torch.set_num_threads(2); torch.manual_seed(0)\n"
+        "m = build_model('unet', channels=[4, 4, 8, 8, 16]); opt = torch.optim.Adam(m.parameters(), lr=1e-3)\n"
+        "x = torch.rand(4, 1, 63, 63); xt = x + 0.1 * torch.randn(x.shape)\n"
+        "for _ in range(3):\n"
+        "    opt.zero_grad(); loss, _ = m.loss(xt, x); loss.backward(); opt.step()\n"
+        "print(json.dumps({'kept': kept, 'again': keep_freed_memory() if kept is not None else None,\n"
+        "                  'weights': [p.detach().flatten().tolist() for p in m.parameters()]}))\n"
+    )
+    runs = {}
+    for keep in ("0", "1"):
+        out = subprocess.run(
+            [sys.executable, "-c", code, keep], env=os.environ | env, capture_output=True, text=True, check=True
+        )
+        runs[keep] = json.loads(out.stdout.strip().splitlines()[-1])
+    return runs
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_keeping_freed_memory_leaves_the_weights_bit_identical_and_yields_to_the_user():
+    runs = _kept({})
+    assert runs["1"]["kept"] is True and runs["1"]["again"] is True
+    assert runs["1"]["weights"] == runs["0"]["weights"]  # the same bits
+    assert _kept({"MALLOC_TRIM_THRESHOLD_": "1000000"})["1"]["kept"] is False  # the user's setting wins

@@ -26,11 +26,15 @@ __all__ = [
     "DEFAULT_SEED",
     "SCALE_STUDIES",
     "STUDIES",
+    "STUDY_PRESETS",
     "Jobs",
     "Setting",
     "Study",
+    "StudyPreset",
     "calibration_seed",
     "check_models",
+    "preset_models",
+    "preset_names_all",
     "preset_setting",
     "preset_study",
     "scale_settings",
@@ -137,6 +141,58 @@ STUDIES: dict[str, Study] = {
     "paper": Study(n=32095, split_fractions=(0.95, 0.04, 0.01)),
 }
 
+
+@dataclass(frozen=True)
+class StudyPreset:
+    """A one-setting study of ``reproduce --preset NAME`` whose NAME is not a geometry preset.
+
+    Attributes
+    ----------
+    geometry : str
+        The geometry preset it simulates (its data set is that preset's at :attr:`Study.n` and the
+        seed, so its rows without post-processing equal that study's).
+    study : Study
+        Its scale.
+    inputs : tuple of str
+        Its first reconstructions (output names of :func:`_recons`), each an input of every network.
+    models : tuple of str
+        The networks it trains unless ``--models`` says otherwise.
+    note : str
+        A paragraph under the report's title that says what the preset is (and is not).
+    """
+
+    geometry: str
+    study: Study
+    inputs: tuple[str, ...]
+    models: tuple[str, ...]
+    note: str
+
+
+#: ``nanoct reproduce --preset tiny-quick``: a first result in minutes on any 2-core CPU, float32
+#: included (docs/study.md, "tiny-quick"). The tiny-parallel data set (same n, splits and seed:
+#: the FBP, Dremel and RESESOP rows are the tiny study's), three inputs instead of five, two networks
+#: (UNet and CiUNetRes, the tiny study's architectures and learning rates) at a fraction of the
+#: tiny study's epochs, intervals fitted on the validation split (no calibration set).
+STUDY_PRESETS: dict[str, StudyPreset] = {
+    "tiny-quick": StudyPreset(
+        geometry="tiny-parallel",
+        study=replace(
+            STUDIES["tiny"],
+            epochs={"unet": 20, "cinn": 8, "cinn-res": 8, "ciunet": 8, "ciunet-res": 8},
+            n_calibration=0,
+        ),
+        inputs=("fbp", "dremel", "resesop"),
+        models=("unet", "ciunet-res"),
+        note=(
+            "**Quick first-run scale (`tiny-quick`)**, not the reproducible reference: the tiny-parallel data "
+            "set (its FBP, Dremel and RESESOP rows are the tiny study's), three inputs, UNet 20 and CiUNetRes 8 "
+            "epochs (the tiny study: 40 and 32), intervals fitted on the validation split. The learned rows are "
+            "far below the tiny study's (the UNet below Dremel and RESESOP, docs/results.md); the reference "
+            "tables: `nanoct reproduce --preset tiny-parallel` (docs/study.md)."
+        ),
+    ),
+}
+
 #: Studies of ``reproduce --scale`` where they differ from the one-setting study of the same size
 #: (:data:`STUDIES`): at tiny scale the three settings share 45 minutes, so the residual invertible
 #: networks train 24 epochs instead of 32, and the non-residual ones 12 instead of 24, without the
@@ -211,6 +267,10 @@ class Setting:
     paper : str or None
         Key of the paper's table this setting corresponds to (``parallel``, ``fan``,
         ``unperturbed``), None for a setting the paper does not have.
+    name : str or None
+        The study preset's name where it is not :attr:`preset` (:data:`STUDY_PRESETS`).
+    note : str
+        What the report says under its title about the study (:attr:`StudyPreset.note`).
     """
 
     preset: str
@@ -220,6 +280,8 @@ class Setting:
     train_inputs: tuple[str, ...]
     mixing: tuple[str, ...]
     paper: str | None
+    name: str | None = None
+    note: str = ""
 
     @property
     def calibration(self) -> Path:
@@ -227,29 +289,59 @@ class Setting:
         return self.out / "calibration"
 
 
+def preset_names_all() -> list[str]:
+    """The names ``reproduce --preset`` takes: the geometry presets and :data:`STUDY_PRESETS`."""
+    return preset_names() + sorted(STUDY_PRESETS)
+
+
 def preset_study(preset: str) -> Study:
-    """The :data:`STUDIES` entry of a geometry preset (its size prefix).
+    """The study of ``reproduce --preset``: a :data:`STUDY_PRESETS` entry's, else the :data:`STUDIES`
+    entry of a geometry preset (its size prefix).
 
     Raises
     ------
     NanoctError
-        If ``preset`` is not a geometry preset.
+        If ``preset`` is neither a geometry preset nor a study preset.
     """
+    if preset in STUDY_PRESETS:
+        return STUDY_PRESETS[preset].study
     if preset not in preset_names():
-        raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names())}")
+        raise NanoctError(f"unknown preset {preset!r}; choose one of: {', '.join(preset_names_all())}")
     return STUDIES[preset.split("-")[0]]
+
+
+def preset_models(preset: str) -> tuple[str, ...]:
+    """The networks ``reproduce --preset`` trains without ``--models``: a study preset's, else all of them."""
+    preset_study(preset)  # rejects an unknown preset
+    return STUDY_PRESETS[preset].models if preset in STUDY_PRESETS else table_order()
 
 
 def preset_setting(
     preset: str, perturbed: bool, out: Path | None, mixing: tuple[str, ...], seed: int = DEFAULT_SEED
 ) -> Setting:
-    """The setting of ``nanoct reproduce --preset``: every first reconstruction is an input of every network."""
+    """The setting of ``nanoct reproduce --preset``: every first reconstruction is an input of every network.
+
+    A study preset (:data:`STUDY_PRESETS`) simulates its geometry preset with its inputs only; its
+    default directory is ``runs/<study preset>``.
+    """
     preset_study(preset)  # rejects an unknown preset
     suffix = ("" if perturbed else "-nomotion") + ("" if seed == DEFAULT_SEED else f"-seed{seed}")
     recons = _recons(perturbed)
+    named = STUDY_PRESETS.get(preset)
+    geometry = preset if named is None else named.geometry
+    if named is not None:
+        recons = {k: v for k, v in recons.items() if k in named.inputs}
     out = Path(out or Path("runs") / f"{preset}{suffix}")
     return Setting(
-        preset, perturbed, out, recons, tuple(recons), mixing, setting_key(get_preset(preset).kind, perturbed)
+        geometry,
+        perturbed,
+        out,
+        recons,
+        tuple(recons),
+        mixing,
+        setting_key(get_preset(geometry).kind, perturbed),
+        name=None if named is None else preset,
+        note="" if named is None else named.note,
     )
 
 
@@ -272,9 +364,15 @@ def scale_settings(scale: str, out: Path | None = None, seed: int = DEFAULT_SEED
     ]
 
 
-def check_models(models: tuple[str, ...] | None) -> tuple[str, ...]:
-    """The networks of a study (default all, in the paper's order); NanoctError for unknown names."""
-    models = table_order() if models is None else tuple(models)
+def check_models(models: tuple[str, ...] | None, default: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """The networks of a study (``None``: ``default``, else all, in the paper's order).
+
+    Raises
+    ------
+    NanoctError
+        For an unknown network name.
+    """
+    models = (table_order() if default is None else default) if models is None else tuple(models)
     unknown = [m for m in models if m not in table_order()]
     if unknown:
         raise NanoctError(f"unknown model(s) {unknown}; choose from {', '.join(table_order())}")

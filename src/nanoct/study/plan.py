@@ -22,6 +22,7 @@ from .config import (
     Setting,
     Study,
     check_models,
+    preset_models,
     preset_setting,
     preset_study,
     scale_settings,
@@ -210,11 +211,12 @@ def plan_study(
     """
     if cores < 1 or gpus < 0 or (gpu_speedup is not None and not gpu_speedup > 0):
         raise NanoctError(f"--cores {cores} must be >= 1, --gpus {gpus} >= 0 and --gpu-speedup {gpu_speedup} > 0")
-    models = check_models(models)
     if scale is None:
+        models = check_models(models, preset_models(preset))
         study = study or preset_study(preset)
         settings = [preset_setting(preset, perturbed, None, study.mixing)]
     else:
+        models = check_models(models)
         settings = scale_settings(scale)
         study = study or scale_study(scale)
     learn = float(cores) if gpus == 0 else (None if gpu_speedup is None else gpus * gpu_speedup)

@@ -175,10 +175,12 @@ def report_stage(
     remove_stale_temporaries(report_dir)  # left by a kill during an earlier report
     write_report_tables(store, results, report_dir, "test", conclusions=scores.checks, setting=setting.paper)
     mixing = mixing_matrices(results)
-    title = f"{setting.preset}{'' if setting.perturbed else ' (no motion)'}"
+    name = setting.preset if setting.name is None else f"{setting.name} ({setting.preset} geometry)"
+    title = f"{name}{'' if setting.perturbed else ' (no motion)'}"
+    summary = _summary(store, study, models, jobs)
     sections = SettingSections(
         heading=f"## {title}",
-        summary=_summary(store, study, models, jobs),
+        summary=f"{setting.note}\n\n{summary}" if setting.note else summary,
         stage_times=_format_seconds(seconds or {}),
         paper=_paper_sections(setting, results, scores.checks),
     )

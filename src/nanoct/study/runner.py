@@ -26,6 +26,7 @@ from .config import (
     Setting,
     Study,
     check_models,
+    preset_models,
     preset_setting,
     preset_study,
     scale_settings,
@@ -88,8 +89,8 @@ def reproduce_study(
     Parameters
     ----------
     preset : str
-        Geometry preset (``tiny-parallel``, ``paper-fan``, ...); its size prefix picks the
-        scale in :data:`STUDIES`.
+        Geometry preset (``tiny-parallel``, ``paper-fan``, ...), whose size prefix picks the
+        scale in :data:`STUDIES`, or a study preset of :data:`STUDY_PRESETS` (``tiny-quick``).
     out : path, optional
         Output directory (default ``runs/<preset>``, ``-nomotion`` / ``-seed<S>`` appended where
         they apply): the data set is ``<out>/data``, training runs ``<out>/runs/<model>-<input>``,
@@ -99,8 +100,8 @@ def reproduce_study(
     perturbed : bool
         False gives the unperturbed sanity case.
     models : tuple of str, optional
-        Post-processing networks to train (default all of :data:`nanoct.learn.models.MODELS`;
-        ``()`` for none).
+        Post-processing networks to train (default: a study preset's, else all of
+        :data:`nanoct.learn.models.MODELS`; ``()`` for none).
     study : Study, optional
         Scale settings instead of the preset's entry in :data:`STUDIES`.
     seed : int
@@ -110,7 +111,7 @@ def reproduce_study(
     workers, scheduler, progress
         See :func:`nanoct.core.fanout.run_tasks`.
     """
-    models = check_models(models)
+    models = check_models(models, preset_models(preset))
     study = study or preset_study(preset)
     setting = preset_setting(preset, perturbed, None if out is None else Path(out), study.mixing, seed)
     fan = {"workers": workers, "scheduler": scheduler, "progress": progress}

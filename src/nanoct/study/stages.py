@@ -32,8 +32,13 @@ def _run_dir(runs: str, model: str, input_name: str, seed: int) -> Path:
 
 
 def _with_threads(threads: int, job: Callable[[], object]) -> None:
-    """Run ``job()`` with ``threads`` torch threads, restoring the previous count after."""
+    """Run ``job()`` with ``threads`` torch threads, restoring the previous count after; the freed
+    memory of its steps kept for the next (:func:`nanoct.learn.train.keep_freed_memory`)."""
     import torch
+
+    from ..learn.train import keep_freed_memory
+
+    keep_freed_memory()
 
     old = torch.get_num_threads()
     torch.set_num_threads(threads)
