@@ -1,7 +1,6 @@
 """The whole study on a toy scale: every stage runs, the report is complete, a rerun is a no-op."""
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -86,10 +85,8 @@ def test_reproduce_toy_study(tmp_path, monkeypatch):
     # everything is cached: a second run redoes no training and no prediction
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
     (out / "report" / ".report.md.tmp-0a1b2c3d").write_text("half a report from a killed run")
-    t = time.perf_counter()
     reproduce_study("tiny-parallel", out=out, models=("unet", "cinn-res"), study=TOY, workers=0, progress=False)
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")} == stamps
-    assert time.perf_counter() - t < 30
     assert not [p.name for p in (out / "report").iterdir() if p.name.startswith(".")]
     # the study folder moved elsewhere resumes there: nothing trained, calibrated or predicted again
     before = json.loads((out / "report" / "evaluation.json").read_text())["results"]
