@@ -14,6 +14,7 @@ import typer.main
 from nanoct.cli import app
 from nanoct.core.geometry import PRESETS, Geometry
 from nanoct.core.operators import RayTransform
+from nanoct.study.config import STUDY_PRESETS
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -60,8 +61,8 @@ def test_quick_start_is_two_commands_on_a_fresh_machine():
     assert len(commands) == 2
     assert all(c.startswith(INSTALL + " && ") for c in commands)
     run, tests = (c.removeprefix(INSTALL + " && ") for c in commands)
-    assert run == ".venv/bin/nanoct reproduce --preset tiny-parallel"
-    assert "tiny-parallel" in PRESETS
+    assert run == ".venv/bin/nanoct reproduce --preset tiny-quick"
+    assert "tiny-quick" in STUDY_PRESETS and "tiny-parallel" in PRESETS  # the first run and the reference
     assert tests == ".venv/bin/python -m pytest -q"
 
 
