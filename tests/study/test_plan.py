@@ -168,3 +168,17 @@ def test_a_calibration_set_is_simulated_reconstructed_and_sampled_in_the_plan():
     plain = {p.stage: p for p in plan_study(None, preset="tiny-parallel", models=("unet",), study=study, cores=1)}
     assert plain["data"].jobs == 200 and plain["reconstructions"].jobs == 5 * 200
     assert STUDIES["tiny"].n_calibration == 100
+
+
+def test_cli_plan_of_tiny_quick_trains_its_two_networks_by_default(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-quick", "--plan")
+    assert code == 0, err
+    rows = {line.split()[1]: line.split() for line in out.splitlines() if line.startswith("tiny-quick ")}
+    assert rows["training"][3] == "6" and rows["prediction"][2] == "12"
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-quick", "--plan", "--models", "unet")
+    assert code == 0, err
+    assert next(line for line in out.splitlines() if " training " in line).split()[3] == "3"
+    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-parallel", "--plan")
+    assert code == 0 and next(line for line in out.splitlines() if " training " in line).split()[3] == "25"
+    assert list(tmp_path.iterdir()) == []

@@ -1,13 +1,11 @@
 """The study presets of ``nanoct reproduce --preset``: the tiny study pinned, ``tiny-quick`` beside it."""
 
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from nanoct.cli import main
 from nanoct.core.errors import NanoctError
 from nanoct.learn.models import table_order
 from nanoct.study.config import (
@@ -87,31 +85,6 @@ def test_tiny_quick_plan_counts_its_jobs_and_is_a_fraction_of_the_tiny_study():
     seconds = {p.stage: p.seconds for p in quick}
     assert seconds["training"] < 0.2 * next(p.seconds for p in tiny if p.stage == "training")
     assert sum(seconds.values()) < 10 * 60
-
-
-def _cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["nanoct", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def test_cli_plan_of_tiny_quick_trains_its_two_networks_by_default(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-quick", "--plan")
-    assert code == 0, err
-    rows = {line.split()[1]: line.split() for line in out.splitlines() if line.startswith("tiny-quick ")}
-    assert rows["training"][3] == "6" and rows["prediction"][2] == "12"
-    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-quick", "--plan", "--models", "unet")
-    assert code == 0, err
-    assert next(line for line in out.splitlines() if " training " in line).split()[3] == "3"
-    code, out, err = _cli(monkeypatch, capsys, "reproduce", "--preset", "tiny-parallel", "--plan")
-    assert code == 0 and next(line for line in out.splitlines() if " training " in line).split()[3] == "25"
-    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.slow
