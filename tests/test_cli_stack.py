@@ -106,11 +106,11 @@ def test_dremel_options_on_a_scan_with_air_are_used_with_refine_or_named_as_unus
     argv = ["import", str(path), "--out", str(store), "--angles", "0:180", "--line-integrals", "-q"]
     assert run(argv) == 0
     assert run(["stack", str(store), "--binning", "4", "-w", "0", "-q"]) == 0
-    err = capsys.readouterr().err
-    assert "note: --binning not used: air is seen" in err and "--refine" in err
+    out = capsys.readouterr().out
+    assert "note     --binning not used: air is seen" in out and "--refine" in out
     info = DataStore.open(store).recons.motion_info("fbp_stack")
     assert info["horizontal_method"] == "centroid"
     argv = ["stack", str(store), "--refine", "2,1", "--binning", "4", "--name", "refined", "-w", "0", "-q"]
     assert run(argv) == 0
-    assert "not used" not in capsys.readouterr().err
+    assert "not used" not in capsys.readouterr().out
     assert DataStore.open(store).recons.motion_info("refined")["horizontal_method"] == "dremel+matching"

@@ -112,3 +112,12 @@ def test_a_scan_file_needs_out_or_store_and_a_store_takes_no_out(scan, tmp_path,
     assert run(["import", str(path), "--out", str(tmp_path / "store"), "--rows", "0:2", "-q", *read]) == 0
     assert run(["stack", str(tmp_path / "store"), "--out", str(tmp_path / "o.zarr"), "-q"]) == 2
     assert "is a data set" in capsys.readouterr().err
+
+
+def test_a_streamed_stack_names_dremel_options_the_centroids_left_unused(scan, tmp_path, capsys):
+    path, read, *_ = scan
+    argv = ["--rows", "0:6", "--block", "6", "--center-offset", "1.2", "--coarse-iter", "2", "-w", "0", "-q"]
+    assert run(["stack", str(path), "--out", str(tmp_path / "s.zarr"), *argv, *read]) == 0
+    out = capsys.readouterr().out
+    info = dict(zarr.open_group(str(tmp_path / "s.zarr"), mode="r").attrs["info"])
+    assert info["horizontal_method"] == "centroid" and "note     --coarse-iter not used" in out, out

@@ -1279,9 +1279,6 @@ def stack(
     flags = dict(locals())
     source = _stack_source(source, flags)
     if source is None:  # streamed into --out
-        import zarr
-
-        _note_unused_dremel(flags, dict(zarr.open_group(str(out), mode="r").attrs.get("info") or {}))
         return
     written = reconstruct_stack(
         source, method=method, center=_parse_center(center_offset), motion_slices=motion_slices,
@@ -1290,22 +1287,19 @@ def stack(
         name=name, overwrite=overwrite, workers=workers, scheduler=scheduler, progress=not quiet,
     )  # fmt: skip
     store = DataStore.open(source)
-    typer.echo(_stack_summary(store, written))
-    _note_unused_dremel(flags, store.recons.motion_info(written) or {})
+    typer.echo(_stack_summary(store, written) + _note_unused_dremel(flags, store.recons.motion_info(written) or {}))
 
 
-def _note_unused_dremel(flags: dict[str, Any], info: dict[str, Any]) -> None:
-    """A note where ``--binning`` / ``--coarse-iter`` were given but the views' centroids gave the motion."""
-    if info.get("horizontal_method") != "centroid":
-        return
-    given = _given(stack, flags, ("binning", "coarse_iter"))
-    if given:
-        names = ", ".join(given)
-        typer.echo(
-            f"note: {names} not used: air is seen around the object, so the views' centroids gave the motion; "
-            "add --refine (e.g. 2,2,2,1) for Dremel and projection matching with them",
-            err=True,
-        )
+def _note_unused_dremel(flags: dict[str, Any], info: dict[str, Any]) -> str:
+    """A summary line where ``--binning`` / ``--coarse-iter`` were given but the views' centroids gave the
+    motion ("" elsewhere)."""
+    given = _given(stack, flags, ("binning", "coarse_iter")) if info.get("horizontal_method") == "centroid" else {}
+    if not given:
+        return ""
+    return (
+        f"\n  note     {', '.join(given)} not used: air is seen around the object, so the views' centroids gave "
+        "the motion; add --refine (e.g. 2,2,2,1) for Dremel and projection matching with them"
+    )
 
 
 def _stack_source(source: Path, flags: dict[str, Any]) -> Any:
@@ -1405,7 +1399,10 @@ def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
                 "refine": None if f["refine"] == "auto" else _parse_ints(f["refine"], "--refine")},
         overwrite=f["overwrite"], workers=f["workers"], scheduler=f["scheduler"], progress=not f["quiet"],
     )  # fmt: skip
-    return _slab_summary(written)
+    import zarr
+
+    info = dict(zarr.open_group(str(written), mode="r").attrs.get("info") or {})
+    return _slab_summary(written) + _note_unused_dremel(f, info)
 
 
 def _slab_summary(out: Path) -> str:
