@@ -1399,14 +1399,11 @@ def _stream_stack(src: Path, out: Path, flags: dict[str, Any]) -> str:
                 "refine": None if f["refine"] == "auto" else _parse_ints(f["refine"], "--refine")},
         overwrite=f["overwrite"], workers=f["workers"], scheduler=f["scheduler"], progress=not f["quiet"],
     )  # fmt: skip
-    import zarr
-
-    info = dict(zarr.open_group(str(written), mode="r").attrs.get("info") or {})
-    return _slab_summary(written) + _note_unused_dremel(f, info)
+    return _slab_summary(written, f)
 
 
-def _slab_summary(out: Path) -> str:
-    """What the streaming stack found and wrote."""
+def _slab_summary(out: Path, flags: dict[str, Any]) -> str:
+    """What the streaming stack found and wrote (``flags``: the command's, for :func:`_note_unused_dremel`)."""
     import numpy as np
     import zarr
 
@@ -1414,16 +1411,16 @@ def _slab_summary(out: Path) -> str:
     info, meta = dict(group.attrs.get("info") or {}), dict(group.attrs["nanoct"])
     shifts = info.get("shifts") or [0.0]
     first, stop = meta["rows"]
-    flags = np.asarray(group["done"][:])  # type: ignore[index]
+    done = np.asarray(group["done"][:])  # type: ignore[index]
     lines = [
         f"wrote {out}: rows {first}:{stop} in blocks of {meta['block']}, axis offset "
         f"{info.get('center_offset', float('nan')):+.3f} px, {_how_found(info.get('center_method'))}",
         f"  motion   {min(shifts):+.3f} to {max(shifts):+.3f} px over {len(shifts)} views "
         f"(from rows {info.get('motion_rows')})",
         *_motion_lines(info),
-        f"  slices   {int(flags.sum())} of {flags.size} blocks done; the images are the array 'slices' of {out}",
+        f"  slices   {int(done.sum())} of {done.size} blocks done; the images are the array 'slices' of {out}",
     ]
-    return "\n".join(lines)
+    return "\n".join(lines) + _note_unused_dremel(flags, info)
 
 
 def _parse_model(model: str | None) -> tuple[int, ...] | None:
