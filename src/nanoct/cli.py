@@ -1456,7 +1456,9 @@ def _motion_lines(info: dict[str, Any]) -> list[str]:
     if "tilt_deg" in tilt:
         lines.append(f"  tilt     {tilt['tilt_deg']:+.3f} degrees of the axis on the detector")
     lines.append(f"  shifts   by {info.get('horizontal_method', 'an unrecorded method')}")
-    return lines
+    from .workflows.stack import consistency_lines
+
+    return lines + consistency_lines(info)
 
 
 def _stack_summary(store: Any, name: str) -> str:

@@ -36,11 +36,21 @@ The estimators (each in detector pixels from the detector centre, positive to th
     at the grid's bound is no minimum and is not used; the untrusted centroid is then the axis,
     with a warning, and without it no estimator applies (an error asks for the offset).
 
-The axis is the centroid's where it is trusted: of the four, only the centroid is not biased by
-motion (the fit on ``(1, cos phi, sin phi)`` separates the axis from the shifts, which it leaves
-without a constant), while the others assume a still object. Elsewhere it is the median of the
-estimators that apply. When the estimators differ by more than 0.5 pixel (the usual standard of a
-beamline's quality check) the estimate carries a warning: motion, or a wrong axis.
+The axis is the estimate the data support best: each one is scored by the held-out misfit of
+:mod:`nanoct.motion.consistency` (reconstruct from one half of the views, predict the other, both
+ways) on the same rows, and the lowest score is kept, whether or not the estimator was trusted by
+its own rule, as a still object and (the trusted centroid) with the motion it implies, the better
+of the two counting (where the mirror match and ``find_center_vo`` disagree by 144 px on an object wider
+than the field of view, the score keeps the mirror's; no median of disagreeing estimators is
+taken). Estimates the score cannot tell apart from the chosen one (within
+:data:`~nanoct.motion.consistency.NOISE_FACTOR` times its noise and more than :data:`TIE_PX`
+away) are named in the notes and the estimate is marked undecided. Scans of fewer than
+:data:`MIN_SCORED_VIEWS` views, and limited-angle series (less than a half turn: no mirror pair
+and no ``find_center_vo``), keep the estimators' own rule: the centroid where it is trusted, else
+the median of the others (on a +-60 degree series of a phantom wider than the detector the score
+preferred the untrusted centroid, 0.84 px off, to the sharpness, 0.3 px off). When the
+estimators differ by more than 0.5 pixel (the usual standard of a beamline's quality check) the
+estimate carries a warning: motion, or a wrong axis.
 """
 
 from __future__ import annotations
@@ -97,6 +107,13 @@ VO_MAX_ROWS = 4
 #: rows are binned to it (:func:`_sharpness`).
 SHARPNESS_MAX_COLS = 512
 
+#: Scans of fewer views keep the old rule (the centroid where trusted, else the median of the others):
+#: the held-out score needs two halves of at least four views.
+MIN_SCORED_VIEWS = 8
+
+#: Estimates closer than this (pixels) to the chosen one are not reported as undecided against it.
+TIE_PX = 0.25
+
 #: Columns on each side of the detector that :func:`air_at_zero` reads.
 AIR_BAND = 8
 
@@ -114,17 +131,21 @@ class AxisEstimate:
     Attributes
     ----------
     offset : float
-        Rotation axis minus the detector centre (detector pixels): the median of ``used``.
+        Rotation axis minus the detector centre (detector pixels): the value of ``used``.
     estimates : dict of str to float
         Every estimator that ran, with its value.
     used : tuple of str
-        The estimators the axis comes from (the centroid alone where it is trusted, else the
-        median of the others).
+        The estimator the axis comes from: the most consistent one (below :data:`MIN_SCORED_VIEWS`
+        views, the centroid where it is trusted, else the median of the others).
     notes : tuple of str
         Why an estimator was left out, and a warning when the used ones disagree.
     air_removed : bool
         Whether air was seen around the object: an open beam found and removed first, or the
         detector's outer columns at zero within the noise (:func:`air_at_zero`).
+    scores : dict of str to float
+        Each estimate's held-out misfit (:func:`~nanoct.motion.consistency.heldout_misfit`).
+    decided : bool
+        ``False`` where the score cannot tell the chosen estimate from another one.
     """
 
     offset: float
@@ -132,6 +153,8 @@ class AxisEstimate:
     used: tuple[str, ...]
     notes: tuple[str, ...] = field(default_factory=tuple)
     air_removed: bool = False
+    scores: dict[str, float] = field(default_factory=dict)
+    decided: bool = True
 
     @property
     def spread(self) -> float:
@@ -148,6 +171,8 @@ class AxisEstimate:
             "spread": self.spread,
             "notes": list(self.notes),
             "air_removed": self.air_removed,
+            "scores": dict(self.scores),
+            "decided": self.decided,
         }
 
 
@@ -368,7 +393,7 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = CE
     else:
         estimates["vo"] = vo
         used.append("vo")
-    _centroid(clean, phi, air, centroid_tolerance, estimates, used, notes)
+    shifts = _centroid(clean, phi, air, centroid_tolerance, estimates, used, notes)
     if not used:
         estimates["sharpness"], found = _sharpness(clean[:4], phi)
         if found:
@@ -386,15 +411,56 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = CE
             "no estimator of the rotation axis applies to these views (" + "; ".join(notes) + "); give the axis "
             "offset in pixels (--center-offset)"
         )
-    chosen = ["centroid"] if "centroid" in used else used
-    offset = float(np.median([estimates[name] for name in chosen]))
-    result = AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
     spread = float(np.ptp([estimates[name] for name in used]))
     if spread > AGREEMENT_PX:
         values = ", ".join(f"{name} {estimates[name]:+.2f}" for name in used)
         notes.append(f"warning: the axis estimators disagree by {spread:.2f} px ({values}); motion or a wrong axis")
-        result = AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
-    return result
+    if phi.size < MIN_SCORED_VIEWS or not {"mirror", "vo"} & set(estimates):
+        chosen = ["centroid"] if "centroid" in used else used
+        offset = float(np.median([estimates[name] for name in chosen]))
+        notes.append(f"consistency: not scored (fewer than {MIN_SCORED_VIEWS} views, or less than a half turn)")
+        return AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
+    motions = {"centroid": shifts} if "centroid" in used else {}
+    chosen, scores, undecided = _most_consistent(clean, phi, estimates, motions, used)
+    rejected = [name for name in estimates if name not in chosen and name not in undecided and name in used]
+    if rejected:
+        notes.append(f"consistency: {', '.join(rejected)} rejected (the held-out views fit worse beyond the noise)")
+    if undecided:
+        notes.append(f"consistency: the data cannot tell {', '.join(undecided)} from the chosen axis")
+    offset = float(np.median([estimates[name] for name in chosen]))
+    return AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air, scores, not undecided)
+
+
+def _most_consistent(
+    clean: np.ndarray,
+    phi: np.ndarray,
+    estimates: dict[str, float],
+    motions: dict[str, np.ndarray | None],
+    used: list[str],
+) -> tuple[list[str], dict[str, float], list[str]]:
+    """The estimates the held-out misfit (:mod:`~nanoct.motion.consistency`) keeps, the scores, and the undecided ones.
+
+    Each estimate (the sharpness only where it found a minimum) is scored as a still object and,
+    where it comes with a motion (the trusted centroid's shifts), with that motion too; the better
+    of the two counts. Kept: those not worse than the best beyond the score's noise; of them the
+    estimators' own rule picks (the trusted centroid, else the median of the trusted others, else
+    the best score).
+    """
+    from .consistency import compare, heldout_misfit, score_binning
+
+    binning = score_binning(clean.shape[2])
+    proposed = {name: value for name, value in estimates.items() if name in used or name == "centroid"}
+    scored = {name: heldout_misfit(clean, phi, value, binning=binning) for name, value in proposed.items()}
+    for name, shifts in motions.items():
+        moving = heldout_misfit(clean, phi, estimates[name], shifts, binning=binning)
+        scored[name] = min(scored[name], moving, key=lambda result: result.score)
+    best = min(scored, key=lambda name: scored[name].score)
+    kept = [name for name in scored if name == best or not compare(scored[best], scored[name]).better]
+    trusted = [name for name in used if name in kept]
+    chosen = ["centroid"] if "centroid" in trusted else (trusted or [best])
+    offset = float(np.median([estimates[name] for name in chosen]))
+    undecided = [name for name in kept if name not in chosen and abs(estimates[name] - offset) > TIE_PX]
+    return chosen, {name: value.score for name, value in scored.items()}, undecided
 
 
 def _centroid(
@@ -405,16 +471,16 @@ def _centroid(
     estimates: dict[str, float],
     used: list[str],
     notes: list[str],
-) -> None:
-    """The centroid estimate over the rows that hold the object; used when it can be trusted."""
+) -> np.ndarray | None:
+    """The centroid estimate over the rows that hold the object; its shifts where it can be trusted."""
     rows = object_rows(clean)
     if not rows.any():
         notes.append("centroid: no row holds an object")
-        return
-    offset, _, spread = centroid_motion(clean[rows], phi)
+        return None
+    offset, shifts, spread = centroid_motion(clean[rows], phi)
     if not np.isfinite(spread):
         notes.append("centroid: a view has no mass")
-        return
+        return None
     estimates["centroid"] = offset
     if not air:
         notes.append("centroid: not used (no air seen: the object may be wider than the field of view)")
@@ -422,6 +488,8 @@ def _centroid(
         notes.append(f"centroid: not used (the views' mass varies by {spread:.1%}, above {tolerance:.0%})")
     else:
         used.append("centroid")
+        return shifts
+    return None
 
 
 @dataclass(frozen=True)

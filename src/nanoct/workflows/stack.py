@@ -43,8 +43,17 @@ from ..core.errors import NanoctError
 from ..core.fanout import run_tasks, usable_cpus, worker_threads
 from ..io.lock import exclusive
 from ..io.store import DataStore, open_cached
-from ..motion.axis import axis_rows, axis_tilt, estimate_axis, limited_angle_tilt, object_rows, remove_air
+from ..motion.axis import (
+    MIN_SCORED_VIEWS,
+    axis_rows,
+    axis_tilt,
+    estimate_axis,
+    limited_angle_tilt,
+    object_rows,
+    remove_air,
+)
 from ..motion.center import centroid_motion, opposite_pairs
+from ..motion.consistency import Candidate, compare, heldout_misfit, score_binning, select
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..names import stack_name
@@ -57,6 +66,7 @@ __all__ = [
     "MIN_VERTICAL_SLICES",
     "STACK_METHODS",
     "centroid_motion_axis",
+    "consistency_lines",
     "fbp_engine",
     "horizontal_motion",
     "read_straight",
@@ -80,6 +90,12 @@ AUTO_ETA_FRACTION = 0.5
 #: Vertical motion is estimated from the row profiles of stacks of at least this many slices
 #: (a profile of fewer rows holds too little structure to register).
 MIN_VERTICAL_SLICES = 16
+
+#: The consistency check of the motion reads at most this many rows (:func:`_most_consistent`).
+SCORE_ROWS = 4
+
+#: The smooth candidate: :func:`~nanoct.motion.model.fit_motion_model` of this degree and harmonics.
+SMOOTH_MODEL = (3, 3)
 
 #: Where no air is seen, the autofocus and projection matching read a central block of at most
 #: this many contiguous rows (all rows of the I13 crop wider than the field of view, 59) ...
@@ -449,6 +465,87 @@ def _dremel_matching(
     return motion.shifts, info
 
 
+def _still_axis(store: DataStore, params: dict[str, Any], clean: np.ndarray) -> float:
+    """The axis of a still object: the given one, the import's estimate, else every axis estimator's on ``clean``."""
+    if params["center"] != "auto":
+        return float(params["center"])
+    if (getattr(store, "meta", None) or {}).get("scan", {}).get("axis"):
+        return float(store.geometry.center_offset)
+    return estimate_axis(clean, store.geometry.angles).offset
+
+
+def _candidates(
+    store: DataStore, start: float, params: dict[str, Any], shifts: np.ndarray, center: float
+) -> list[Candidate]:
+    """No motion at the still axis (:func:`_still_axis`), the estimated axis alone, a smooth model, the shifts."""
+    found = [Candidate("none", start, None, "none")]
+    if abs(center - start) > 1e-6:
+        found.append(Candidate("axis only", center, None, "axis"))
+    if not np.any(shifts):
+        return found
+    if params["model"] is not None:
+        return [*found, Candidate("motion model", center, shifts, "model")]
+    smooth = fit_motion_model(shifts, store.geometry.angles, *SMOOTH_MODEL).shifts
+    return [*found, Candidate("smooth motion", center, smooth, "model"), Candidate("shifts", center, shifts, "shifts")]
+
+
+def _most_consistent(
+    store: DataStore, params: dict[str, Any], vertical: np.ndarray, shifts: np.ndarray, info: dict[str, Any]
+) -> np.ndarray:
+    """The estimated motion, or a simpler candidate where the data do not support it beyond the noise.
+
+    Every candidate of :func:`_candidates` is scored by its held-out misfit
+    (:func:`~nanoct.motion.consistency.heldout_misfit`) on the rows the axis is estimated from
+    (:func:`~nanoct.motion.axis.axis_rows`, at most :data:`SCORE_ROWS`), moved back vertically,
+    air at zero; :func:`~nanoct.motion.consistency.select` finds the simplest one that no more
+    complex one beats beyond the noise. The estimate (the last candidate) is replaced by it only
+    where the estimate fits worse than it beyond the noise ("never worse than no correction");
+    where the data cannot tell them apart the estimate stays and the record says undecided. The
+    choice, every score and the check on another interleave of the views go into
+    ``info["consistency"]``; ``info["center_offset"]`` becomes the kept candidate's axis. Returns
+    the kept shifts (zero for a still object).
+    """
+    angles = store.geometry.angles
+    if angles.size < MIN_SCORED_VIEWS:
+        info["consistency"] = {"note": f"not scored: fewer than {MIN_SCORED_VIEWS} views"}
+        return shifts
+    rows = [int(i) for i in axis_rows(store.n, SCORE_ROWS)]
+    clean, _ = remove_air(read_straight(store, rows, vertical), zero_air=True)
+    binning = score_binning(clean.shape[2])
+
+    def score(candidate: Candidate, split: str) -> Any:
+        return heldout_misfit(clean, angles, candidate.center_offset, candidate.shifts, split=split, binning=binning)
+
+    start = _still_axis(store, params, clean)
+    candidates = _candidates(store, start, params, shifts, float(info["center_offset"]))
+    selection = select(candidates, score)
+    estimate, simpler = candidates[-1], selection.chosen
+    record = {**selection.to_dict(), "rows": rows, "binning": binning, "estimate": estimate.name}
+    if simpler is not estimate:
+        versus = compare(score(estimate, "alternate"), score(simpler, "alternate"))
+        record["estimate_vs_chosen"] = {"difference": versus.difference, "noise": versus.noise}
+        if not versus.worse:  # undecided: the estimate stays, marked so
+            record.update(chosen=estimate.name, center_offset=estimate.center_offset, decided=False)
+            simpler = estimate
+    info["consistency"] = record
+    if simpler.shifts is None:
+        info["center_offset"] = simpler.center_offset
+        return np.zeros_like(shifts)
+    return simpler.shifts
+
+
+def consistency_lines(info: dict[str, Any]) -> list[str]:
+    """The summary lines of a stack's consistency check (``nanoct stack`` and ``nanoct info`` print them)."""
+    record = info.get("consistency")
+    if not record or "scores" not in record:
+        return [f"  check    {record['note']}"] if record else []
+    scores = ", ".join(f"{name} {value:.5f}" for name, value in record["scores"].items())
+    verdict = "" if record["decided"] else " (the data cannot tell it from a simpler one)"
+    lines = [f"  check    held-out misfit {scores}; kept {record['chosen']}{verdict}"]
+    lines += [f"           {note}" for note in record["notes"]]
+    return lines
+
+
 def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: bool) -> None:
     """Estimate the stack's vertical and horizontal motion and its axis, and record them with ``name``."""
     vertical = np.zeros(store.geometry.n_angles)
@@ -457,6 +554,12 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
         estimate = vertical_motion(_profiles(store))
         vertical, guard = estimate.shifts, estimate.to_dict()
     shifts, info = horizontal_motion(store, params, vertical, progress, name)
+    if params["model"] is not None:
+        degree, harmonics = params["model"]
+        model = fit_motion_model(shifts, store.geometry.angles, degree, harmonics)
+        shifts = model.shifts
+        info["model_residual_rms"] = model.residual_rms
+    shifts = _most_consistent(store, params, vertical, shifts, info)
     if params["center"] == "auto" and store.n >= MIN_VERTICAL_SLICES and store.done.all():
         if info["horizontal_method"] == "centroid":
             info.update(_tilt(store, vertical, shifts))
@@ -466,11 +569,6 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
     info["vertical_guard"] = guard
     info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     info["vertical"] = [float(v) for v in vertical]
-    if params["model"] is not None:
-        degree, harmonics = params["model"]
-        model = fit_motion_model(shifts, store.geometry.angles, degree, harmonics)
-        shifts = model.shifts
-        info["model_residual_rms"] = model.residual_rms
     store.recons.set_shared_shifts(name, shifts)
     store.recons.set_motion_info(name, info)
 

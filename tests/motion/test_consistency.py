@@ -1,0 +1,102 @@
+"""The held-out consistency score and the selection by it, on exact line integrals of ellipses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nanoct.core.errors import NanoctError
+from nanoct.motion.consistency import Candidate, compare, heldout_misfit, score_binning, search_axis, select
+from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
+
+L, K, OFFSET = 96, 120, 4.3
+ANGLES = np.arange(K) * np.pi / K
+
+
+def _sinograms(shifts=None, offset=OFFSET, noise=0.0, seed=0):
+    rows = np.stack(
+        [ellipse_sinogram(e, ANGLES, L, center_offset=offset, shifts=shifts) for e in stack_phantom(72, 2, seed=3)]
+    )
+    return rows + noise * np.random.default_rng(seed).standard_normal(rows.shape)
+
+
+def _motion():
+    return 2.0 * np.sin(3 * ANGLES) * np.exp(-ANGLES) + 0.4 * np.random.default_rng(1).standard_normal(K)
+
+
+def test_the_true_axis_scores_best():
+    sino = _sinograms()
+    scores = {c: heldout_misfit(sino, ANGLES, c).score for c in (OFFSET - 2, OFFSET - 0.5, OFFSET, OFFSET + 0.5)}
+    assert min(scores, key=scores.get) == OFFSET
+    better = compare(heldout_misfit(sino, ANGLES, OFFSET), heldout_misfit(sino, ANGLES, OFFSET + 2))
+    assert better.better and not better.worse
+
+
+def test_the_true_motion_beats_none_and_its_opposite():
+    """A sign error in how the shifts enter the reconstruction or the reprojection would favour ``-d``."""
+    d = _motion()
+    sino = _sinograms(shifts=d)
+    true, none, opposite = (heldout_misfit(sino, ANGLES, OFFSET, s) for s in (d, None, -d))
+    assert compare(true, none).better and compare(true, opposite).better
+    assert true.per_view.sum() == pytest.approx(true.score) and true.per_view.shape == (K,)
+
+
+def test_the_other_interleave_agrees():
+    d = _motion()
+    sino = _sinograms(shifts=d)
+    pairs = [heldout_misfit(sino, ANGLES, OFFSET, s, split="pairs") for s in (d, None)]
+    assert compare(*pairs).better
+
+
+def test_selection_keeps_no_motion_on_a_still_noisy_scan():
+    sino = _sinograms(noise=0.02)
+    spurious = 0.8 * np.random.default_rng(5).standard_normal(K)
+    candidates = [Candidate("none", OFFSET, None, "none"), Candidate("shifts", OFFSET, spurious, "shifts")]
+    selection = select(
+        candidates, lambda c, split: heldout_misfit(sino, ANGLES, c.center_offset, c.shifts, split=split)
+    )
+    assert selection.chosen.name == "none" and selection.decided
+    assert selection.scores["shifts"] > selection.scores["none"]
+    assert any("shifts fits worse" in note for note in selection.notes)
+
+
+def test_selection_takes_the_motion_where_the_data_support_it():
+    d = _motion()
+    sino = _sinograms(shifts=d, noise=0.02)
+    candidates = [
+        Candidate("none", OFFSET, None, "none"),
+        Candidate("axis only", OFFSET + 0.1, None, "axis"),
+        Candidate("shifts", OFFSET, d, "shifts"),
+    ]
+    selection = select(
+        candidates, lambda c, split: heldout_misfit(sino, ANGLES, c.center_offset, c.shifts, split=split)
+    )
+    assert selection.chosen.name == "shifts"
+    assert selection.check["against"] == "none" and not selection.check["worse"]
+    record = selection.to_dict()
+    assert record["chosen"] == "shifts" and set(record["scores"]) == {"none", "axis only", "shifts"}
+
+
+def test_search_finds_the_axis_coarse_to_fine():
+    best, trials = search_axis(_sinograms(), ANGLES, span=30)
+    assert best == pytest.approx(OFFSET, abs=0.3)
+    assert {binning for _, _, binning in trials} == {1}  # 96 columns: one stage at full resolution
+    wide = np.repeat(_sinograms(offset=OFFSET / 4), 1, axis=0)
+    best, trials = search_axis(wide, ANGLES, span=20, coarse_columns=24)
+    assert len({binning for _, _, binning in trials}) == 3 and best == pytest.approx(OFFSET / 4, abs=0.5)
+
+
+def test_binning_and_bad_input():
+    assert score_binning(512) == 1 and score_binning(513) == 2 and score_binning(2048) == 4
+    sino = _sinograms()
+    with pytest.raises(NanoctError, match="need .S, K, L."):
+        heldout_misfit(sino[:, :4], ANGLES[:4], 0.0)
+    with pytest.raises(NanoctError, match="shifts of shape"):
+        heldout_misfit(sino, ANGLES, 0.0, np.zeros(3))
+    with pytest.raises(NanoctError, match="shifts"):
+        heldout_misfit(sino, ANGLES, 0.0, np.full(K, np.nan))
+    a = heldout_misfit(sino, ANGLES, 0.0)
+    with pytest.raises(NanoctError, match="same views and split"):
+        compare(a, heldout_misfit(sino, ANGLES, 0.0, split="pairs"))
+    with pytest.raises(NanoctError, match="no candidate"):
+        select([], lambda c, s: a)
