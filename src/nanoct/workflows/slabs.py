@@ -40,7 +40,7 @@ from ..io.scanio import read_scan
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..recon.slab import SLAB_FORMAT, check_selection, read_block, reconstruct_slabs, slab_blocks
-from .stack import MIN_VERTICAL_SLICES, horizontal_motion
+from .stack import MIN_VERTICAL_SLICES, consistent_motion, horizontal_motion
 
 __all__ = ["ScanRows", "reconstruct_scan", "scan_profiles", "slab_centroids"]
 
@@ -122,10 +122,11 @@ def _estimate(source: dict[str, Any], geometry: Geometry, selection: tuple[int, 
     shifts, info = horizontal_motion(rows, motion, vertical, progress, "motion", slab_centroids)  # type: ignore[arg-type]
     info["vertical_method"] = "row profiles" if np.any(vertical) else "none"
     info["vertical_guard"] = guard
-    info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     if params["model"] is not None:
         model = fit_motion_model(shifts, geometry.angles, *params["model"])
         shifts, info["model_residual_rms"] = model.shifts, model.residual_rms
+    shifts = consistent_motion(rows, motion, vertical, shifts, info)  # type: ignore[arg-type]
+    info["shift_rms"] = float(np.sqrt(np.mean(shifts**2)))
     info.update(shifts=[float(v) for v in shifts], vertical=[float(v) for v in vertical])
     info.update(motion_rows=[selection[0] + i for i in motion["motion_slices"]], params=params)
     return info

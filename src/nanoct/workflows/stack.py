@@ -14,7 +14,12 @@ autofocus of the slow motion, projection matching, and the autofocus again with 
 on a limited-angle series from the views' centroids (:func:`~nanoct.motion.axis.axis_tilt`), only
 where air is seen (on a truncated object the opposite views gave -6.2 degrees where the scan has
 none). The horizontal motion may be replaced by a smooth model
-(:func:`~nanoct.motion.model.fit_motion_model`).
+(:func:`~nanoct.motion.model.fit_motion_model`). The result is then checked against the data
+(:func:`consistent_motion`): no motion at the still object's axis, the axis alone, a smooth model
+and the shifts are scored by how well half of the views predict the other half
+(:mod:`~nanoct.motion.consistency`), and a motion that fits worse than a simpler candidate beyond
+the score's noise is dropped (on PSI's static basalt scan the views' centroids proposed a motion
+whose held-out misfit was 43 % above that of none: 0.00437 against 0.00305, noise 0.00006).
 Both are recorded with the reconstruction
 (``shared_shifts`` and ``motion_info`` attributes of ``reconstructions/<name>``). Every slice is
 then reconstructed with the motion fixed, one task per slice (Dask across slices, a progress bar
@@ -67,6 +72,7 @@ __all__ = [
     "STACK_METHODS",
     "centroid_motion_axis",
     "consistency_lines",
+    "consistent_motion",
     "fbp_engine",
     "horizontal_motion",
     "read_straight",
@@ -91,7 +97,7 @@ AUTO_ETA_FRACTION = 0.5
 #: (a profile of fewer rows holds too little structure to register).
 MIN_VERTICAL_SLICES = 16
 
-#: The consistency check of the motion reads at most this many rows (:func:`_most_consistent`).
+#: The consistency check of the motion reads at most this many rows (:func:`consistent_motion`).
 SCORE_ROWS = 4
 
 #: The smooth candidate: :func:`~nanoct.motion.model.fit_motion_model` of this degree and harmonics.
@@ -489,7 +495,7 @@ def _candidates(
     return [*found, Candidate("smooth motion", center, smooth, "model"), Candidate("shifts", center, shifts, "shifts")]
 
 
-def _most_consistent(
+def consistent_motion(
     store: DataStore, params: dict[str, Any], vertical: np.ndarray, shifts: np.ndarray, info: dict[str, Any]
 ) -> np.ndarray:
     """The estimated motion, or a simpler candidate where the data do not support it beyond the noise.
@@ -559,7 +565,7 @@ def _estimate(store: DataStore, name: str, params: dict[str, Any], progress: boo
         model = fit_motion_model(shifts, store.geometry.angles, degree, harmonics)
         shifts = model.shifts
         info["model_residual_rms"] = model.residual_rms
-    shifts = _most_consistent(store, params, vertical, shifts, info)
+    shifts = consistent_motion(store, params, vertical, shifts, info)
     if params["center"] == "auto" and store.n >= MIN_VERTICAL_SLICES and store.done.all():
         if info["horizontal_method"] == "centroid":
             info.update(_tilt(store, vertical, shifts))
