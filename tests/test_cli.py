@@ -179,10 +179,10 @@ def test_predict_passes_the_sampling_options(monkeypatch, capsys, tmp_path, flag
 def test_param_values_are_json_or_booleans_in_any_case():
     """``--param`` values: JSON where they parse, True / FALSE (Python's spelling, any case) as booleans, and other
     words, ``none`` among them (a Dremel weighting), as strings."""
-    from nanoct.cli import _parse_params
+    from nanoct.cli.parsing import parse_params
 
     items = ["a=0.2", "b=[16,32]", "c=False", "d=TRUE", "e=false", "f=none", "g=word", "h=x=y"]
-    assert _parse_params(items) == {
+    assert parse_params(items) == {
         "a": 0.2,
         "b": [16, 32],
         "c": False,

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nanoct.cli import _expected_error, run
+from nanoct.cli import run
+from nanoct.cli.entry import expected_error
 from nanoct.core.geometry import get_preset
 from nanoct.io.store import DataStore
 from nanoct.learn.train import TrainConfig, train
@@ -345,11 +346,11 @@ def test_train_after_divergence_accepts_a_corrected_rerun(work, capsys):
 
 
 def test_os_errors_name_the_file():
-    assert _expected_error(PermissionError(13, "Permission denied", "/data/x")) == (
+    assert expected_error(PermissionError(13, "Permission denied", "/data/x")) == (
         "Permission denied: /data/x; check its permissions, or write somewhere else"
     )
-    assert "No space" in _expected_error(OSError(28, "No space left on device", "/d"))
-    assert _expected_error(RuntimeError("a bug")) is None
+    assert "No space" in expected_error(OSError(28, "No space left on device", "/d"))
+    assert expected_error(RuntimeError("a bug")) is None
 
 
 def test_bug_shows_traceback(monkeypatch, capsys):
@@ -431,7 +432,7 @@ def test_main_prints_warnings_as_lines_and_ends_at_once_after_ctrl_c(monkeypatch
     the process ends with os._exit(130), not through the interpreter's teardown of running threads."""
     import warnings
 
-    import nanoct.cli as cli
+    import nanoct.cli.entry as cli
 
     monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main replaces it: restored afterwards
 

@@ -154,7 +154,8 @@ STACK: dict[str, Any] = {
     },
     "--center-offset": Case(CHANGES, ("--center-offset", "0.5")),
     "--motion-slices": Case(CHANGES, ("--motion-slices", "0,1")),
-    "--binning": Case(CHANGES, ("--binning", "2"), **REFINED),
+    "--dremel-binning": Case(CHANGES, ("--dremel-binning", "2"), **REFINED),
+    "--binning": Case(CHANGES, ("--binning", "2"), **REFINED),  # the former spelling of --dremel-binning (hidden)
     "--coarse-iter": Case(CHANGES, ("--coarse-iter", "2"), **REFINED),
     "--refine": Case(CHANGES, ("--refine", "1"), **REFINED),
     "--model": Case(CHANGES, ("--model", "2,1")),

@@ -99,18 +99,25 @@ def test_an_interrupted_stack_is_resumed_or_rerun_with_other_options(scan, tmp_p
 
 
 def test_dremel_options_on_a_scan_with_air_are_used_with_refine_or_named_as_unused(scan, tmp_path, capsys):
-    """Air around the object: the centroids give the motion, and --binning alone is named as not used;
+    """Air around the object: the centroids give the motion, and --dremel-binning alone is named as not used;
     a given --refine runs Dremel and projection matching there (it used to be dropped for the centroids)."""
     path, _, _ = scan
     store = tmp_path / "store"
     argv = ["import", str(path), "--out", str(store), "--angles", "0:180", "--line-integrals", "-q"]
     assert run(argv) == 0
-    assert run(["stack", str(store), "--binning", "4", "-w", "0", "-q"]) == 0
+    assert run(["stack", str(store), "--dremel-binning", "4", "-w", "0", "-q"]) == 0
     out = capsys.readouterr().out
-    assert "note     --binning not used: air is seen" in out and "--refine" in out
+    assert "note     --dremel-binning not used: air is seen" in out and "--refine" in out
     info = DataStore.open(store).recons.motion_info("fbp_stack")
     assert info["horizontal_method"] == "centroid"
-    argv = ["stack", str(store), "--refine", "2,1", "--binning", "4", "--name", "refined", "-w", "0", "-q"]
+    # the former spelling --binning still works, named as typed, with a note on its new name
+    assert run(["stack", str(store), "--binning", "4", "--name", "old", "-w", "0", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "note     --binning not used: air is seen" in out
+    assert "note     --binning is the former spelling of --dremel-binning" in out
+    assert run(["stack", str(store), "--binning", "4", "--dremel-binning", "2", "--name", "both", "-w", "0"]) == 2
+    assert "--binning: the former spelling of --dremel-binning" in capsys.readouterr().err
+    argv = ["stack", str(store), "--refine", "2,1", "--dremel-binning", "4", "--name", "refined", "-w", "0", "-q"]
     assert run(argv) == 0
     assert "not used" not in capsys.readouterr().out
     assert DataStore.open(store).recons.motion_info("refined")["horizontal_method"] == "dremel+matching"

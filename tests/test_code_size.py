@@ -1,4 +1,5 @@
-"""The layout rule: no function over 80 lines of code and no class over 200 in src/ (docstrings not counted)."""
+"""The layout rules: no function over 80 lines of code and no class over 200 in src/ (docstrings not counted),
+and no module of the command-line interface (src/nanoct/cli/) over 400 lines."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "nanoct"
 MAX_FUNCTION, MAX_CLASS = 80, 200
+#: The command-line interface is a package of small modules, one per group of commands.
+MAX_CLI_MODULE = 400
 
 
 def _docstring_lines(node: ast.AST) -> set[int]:
@@ -46,6 +49,13 @@ def _oversized() -> list[str]:
 
 def test_no_oversized_function_or_class():
     assert _oversized() == []
+
+
+def test_the_command_line_interface_is_a_package_of_small_modules():
+    assert not (SRC / "cli.py").exists()
+    lines = {path.name: len(path.read_text().splitlines()) for path in sorted((SRC / "cli").glob("*.py"))}
+    assert {"__init__.py", "entry.py", "options.py"} <= set(lines)
+    assert {name: n for name, n in lines.items() if n > MAX_CLI_MODULE} == {}
 
 
 def test_the_counter_counts_code_only():

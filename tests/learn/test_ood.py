@@ -169,12 +169,12 @@ def test_the_footprint_check_skips_a_mean_whose_sampling_noise_makes_its_support
         # a later check of the other sample keeps the record of the unchecked one
         assert ood_check(store, name, np.array([1]))["footprint"]["unchecked"] == {"0": pytest.approx(ratios[0])}
         # nanoct info (and predict) summarise the note
-        from nanoct.cli import _ood_line
+        from nanoct.cli.output import ood_line
 
         brief = store.info()["reconstructions"][name]["ood"]
         flagged = store.reconstruction_note(name, "ood")["flagged"]
         assert brief == {"checks": ["std", "footprint"], "checked": 2, "flagged": flagged, "unchecked": [0]}
-        assert _ood_line(brief) == (
+        assert ood_line(brief) == (
             f"{len(flagged)} of 2 flagged: {', '.join(map(str, flagged))}; checks std, footprint; 1 left out by "
             "footprint (mean too noisy)"
         )

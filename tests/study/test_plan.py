@@ -146,12 +146,12 @@ def test_cli_precision_option_reaches_the_plan_and_unknown_ones_are_refused(tmp_
     ],
 )
 def test_reproduce_says_which_precision_its_training_takes(monkeypatch, capsys, native, precision, said):
-    from nanoct.cli import _precision_note
+    from nanoct.cli.study import precision_note
     from nanoct.learn import train as train_module
 
     monkeypatch.setattr(train_module, "native_bf16", lambda device: native)
     monkeypatch.setattr(train_module, "resolve_device", lambda *a: train_module.torch.device("cpu"))
-    _precision_note(precision)
+    precision_note(precision)
     assert capsys.readouterr().err.startswith(f"note: training precision {said}")
 
 

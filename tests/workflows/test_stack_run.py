@@ -68,7 +68,10 @@ def test_stack_with_a_given_axis_and_a_smooth_model(store):
 
 
 def test_cli_stack_and_its_errors(store, tmp_path, capsys):
-    assert run(["stack", str(store), "--binning", "4", "--refine", "1", "--motion-slices", "1", "-w", "0", "-q"]) == 0
+    assert (
+        run(["stack", str(store), "--dremel-binning", "4", "--refine", "1", "--motion-slices", "1", "-w", "0", "-q"])
+        == 0
+    )
     assert "axis offset" in capsys.readouterr().out
     assert run(["stack", str(store), "--method", "sirt", "-w", "0", "-q"]) == 2
     assert "not a stack method" in capsys.readouterr().err

@@ -42,7 +42,7 @@ from ..core.geometry import Geometry
 from ..io.rawscan import check_span
 from ..io.scanio import line_integrals, read_scan
 
-__all__ = ["SLAB_FORMAT", "check_selection", "read_block", "reconstruct_slabs", "slab_blocks"]
+__all__ = ["SLAB_FORMAT", "check_selection", "read_block", "read_slab_record", "reconstruct_slabs", "slab_blocks"]
 
 #: Version of the output layout.
 SLAB_FORMAT = 1
@@ -172,6 +172,13 @@ def _open_output(out: Path, meta: dict[str, Any], shape: tuple[int, int, int], b
     group.create_array("done", shape=(n_blocks,), chunks=(1,), dtype="bool", fill_value=False)
     os.replace(tmp, out)
     return zarr.open_group(str(out), mode="r+")
+
+
+def read_slab_record(out: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
+    """What a slab output records: its parameters (attribute ``nanoct``), the motion and axis it was made with
+    (attribute ``info``; empty where there is none) and the progress flag of each block."""
+    group = zarr.open_group(str(out), mode="r")
+    return dict(group.attrs["nanoct"]), dict(group.attrs.get("info") or {}), np.asarray(group["done"][:])  # type: ignore[index]
 
 
 def reconstruct_slabs(

@@ -67,6 +67,7 @@ set that differs is refused naming the nested keys that differ (e.g. ``simulatio
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 from dataclasses import dataclass
@@ -103,6 +104,7 @@ __all__ = [
     "generate_like",
     "reference_view",
     "matched_source",
+    "samples_made",
     "measured_pair",
     "parse_mix",
     "parse_rows",
@@ -530,6 +532,23 @@ def generate_like(
         array.attrs["complete"] = True
     fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
     return DataStore.open(store.path, mode="r+")
+
+
+def samples_made(
+    out: str | os.PathLike[str], plan: MatchedPlan, n: int, *, seed: int, split_fractions: tuple[float, float, float]
+) -> int | None:
+    """How many samples of the set ``plan`` describes (``n`` samples, ``seed``, ``split_fractions``) the data set at
+    ``out`` holds already: 0 where there is none yet, None where ``out`` holds another data set (which
+    :func:`generate_like` would refuse). What ``generate --like --plan`` reports; nothing is written."""
+    out = Path(out)
+    if not (out / "zarr.json").is_file():
+        return 0
+    old = DataStore.open(out)
+    simulation = comparable_description({"simulation": json.loads(json.dumps(plan.simulation))})
+    wanted = (simulation, plan.geometry, n, seed, list(split_fractions))
+    have = (comparable_description({"simulation": old.meta.get("simulation")}), old.geometry, old.n, old.seed,
+            old.meta.get("split_fractions"))  # fmt: skip
+    return int(old.done.sum()) if have == wanted else None
 
 
 def _check_same_set(out: Path, plan: MatchedPlan, n: int, seed: int, fractions: tuple[float, float, float]) -> None:
