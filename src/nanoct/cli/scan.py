@@ -303,11 +303,11 @@ def _stream_stack(src: Path, out: Path, request: StackRequest) -> str:
         motion_rows = list(parse_ints(motion_rows, "--motion-slices", low=0))
     elif motion_rows == "all":
         raise NanoctError("--motion-slices all: give auto or the rows to use, e.g. 0,50,100, when streaming")
-    read = reading.read_settings()
+    read, block = reading.read_settings(), request.target.block
     written = reconstruct_scan(
         src, out, rows=reading.row_range(), motion_rows=motion_rows,
-        center=None if center == "auto" else float(center), block=16 if request.target.block is None else
-        request.target.block, read={k: v for k, v in read.items() if v is not None},
+        center=None if center == "auto" else float(center), block=16 if block is None else block,
+        read={k: v for k, v in read.items() if v is not None},
         motion={"binning": settings.coarse_binning(), "coarse_iter": settings.coarse_iter,
                 "model": parse_model(settings.model), "refine": settings.refine_binnings()},
         overwrite=settings.overwrite, workers=run.workers, scheduler=run.scheduler, progress=run.progress,
