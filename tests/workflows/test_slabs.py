@@ -82,6 +82,7 @@ def test_no_air_the_motion_slices_are_read_and_cleaned_once_on_one_bar(tmp_path,
     monkeypatch.setattr(stack_wf, "remove_air", no_air)
     found = (np.zeros(K), {"center_offset": 0.0, "horizontal_method": "focus+matching"})
     monkeypatch.setattr(stack_wf, "_focus_matching", lambda *a: found)
+    monkeypatch.setattr(slabs, "consistent_motion", lambda rows, params, vertical, shifts, info: shifts)  # own rows
     out = slabs.reconstruct_scan(scan, tmp_path / "out", motion_rows=3, block=3, read=read, vertical=False)
     assert len(calls) == 1 and dict(zarr.open_group(str(out), mode="r").attrs["info"])["center_offset"] == 0.0
     assert "motion:" in capsys.readouterr().err
