@@ -87,7 +87,7 @@ def test_search_finds_the_axis_coarse_to_fine():
 
 
 def test_binning_and_bad_input():
-    assert score_binning(512) == 1 and score_binning(513) == 2 and score_binning(2048) == 4
+    assert score_binning(256) == 1 and score_binning(257) == 2 and score_binning(627) == 3 and score_binning(2048) == 8
     sino = _sinograms()
     with pytest.raises(NanoctError, match="need .S, K, L."):
         heldout_misfit(sino[:, :4], ANGLES[:4], 0.0)

@@ -519,8 +519,14 @@ def consistent_motion(
     clean, _ = remove_air(read_straight(store, rows, vertical), zero_air=True)
     binning = score_binning(clean.shape[2])
 
-    def score(candidate: Candidate, split: str) -> Any:
-        return heldout_misfit(clean, angles, candidate.center_offset, candidate.shifts, split=split, binning=binning)
+    scored: dict[tuple[str, str], Any] = {}
+
+    def score(candidate: Candidate, split: str) -> Any:  # each candidate and split scored once
+        if (candidate.name, split) not in scored:
+            scored[candidate.name, split] = heldout_misfit(
+                clean, angles, candidate.center_offset, candidate.shifts, split=split, binning=binning
+            )
+        return scored[candidate.name, split]
 
     start = _still_axis(store, params, clean)
     candidates = _candidates(store, start, params, shifts, float(info["center_offset"]))
