@@ -6,7 +6,7 @@ is its own):
 
 * baseline: reading the whole detector (``read_scan(path)``: what an import of any rows costs
   when the reader loads every pixel and cuts afterwards);
-* nanoct: ``nanoct.io.scanio.import_scan(path, out, rows=slice(r, r + S))``, which reads only
+* nanoct: ``nanoct.workflows.importscan.import_scan(path, out, rows=slice(r, r + S))``, which reads only
   the selected rows from disk (an HDF5 hyperslab);
 * the same process with the same imports and no work (the libraries' own memory);
 
@@ -32,7 +32,8 @@ import json, resource, sys, time
 from pathlib import Path
 mode, path, out, first, stop = sys.argv[1:]
 from nanoct.core.geometry import Geometry
-from nanoct.io.scanio import import_scan, read_scan
+from nanoct.io.scanio import read_scan
+from nanoct.workflows.importscan import import_scan
 from nanoct.io.store import create_scan
 start = time.perf_counter()
 if mode == "full":

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nanoct.cli import run
-from nanoct.io.scanio import _axis_after
+from nanoct.io.rawscan import axis_after
 from nanoct.io.store import DataStore
 from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 
@@ -26,7 +26,7 @@ def test_import_finds_the_axis(tmp_path, crop):
     assert run(args) == 0
     store = DataStore.open(tmp_path / "store")
     assert store.meta["scan"]["center_offset_raw"] == pytest.approx(OFFSET, abs=0.05)
-    assert store.geometry.center_offset == pytest.approx(_axis_after(OFFSET, L, crop, 2), abs=0.03)
+    assert store.geometry.center_offset == pytest.approx(axis_after(OFFSET, L, crop, 2), abs=0.03)
 
 
 def test_import_refuses_a_bad_center_offset(tmp_path, capsys):

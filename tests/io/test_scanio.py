@@ -285,7 +285,7 @@ def test_the_flat_tolerance_is_apart_from_the_transmissions(truth):
 
 
 def test_selection_outside_the_detector_and_bad_options_are_refused(tmp_path, truth):
-    from nanoct.io.scanio import import_scan
+    from nanoct.workflows.importscan import import_scan
 
     np.save(tmp_path / "p.npy", truth["sino"])
     np.savetxt(tmp_path / "a.txt", truth["deg"])

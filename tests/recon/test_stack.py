@@ -8,7 +8,7 @@ import pytest
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
 from nanoct.core.operators import RayTransform
-from nanoct.io.scanio import _axis_after
+from nanoct.io.rawscan import axis_after
 from nanoct.motion.stack import estimate_stack_motion
 from nanoct.recon.fbp import fbp
 from nanoct.recon.stack import (
@@ -72,7 +72,7 @@ def test_binning_keeps_the_axis_where_the_import_puts_it():
     geometry = Geometry("parallel", 256, 10, 256, center_offset=3.25)
     small = bin_geometry(geometry, 4)
     assert (small.n, small.n_det) == (64, 64)
-    assert small.center_offset == pytest.approx(_axis_after(3.25, 256, None, 4))
+    assert small.center_offset == pytest.approx(axis_after(3.25, 256, None, 4))
     assert bin_sinograms(np.arange(8.0)[None], 4).tolist() == [[1.5, 5.5]]
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from nanoct.core.errors import NanoctError
 from nanoct.core.geometry import Geometry
-from nanoct.io.scanio import _axis_after
+from nanoct.io.rawscan import axis_after
 from nanoct.sim.analytic import Ellipse, ellipse_sinogram
 from nanoct.sim.scan_stats import air_noise, bin_sinograms, binned_geometry, binned_offset, motion_stats
 
@@ -26,7 +26,7 @@ def test_binning_averages_columns_and_slices(rng):
 @pytest.mark.parametrize(("offset", "binning"), [(0.0, 2), (6.16, 2), (-3.3, 4), (2.5, 5)])
 def test_binned_offset_follows_the_axis_seen_on_the_detector(offset, binning):
     n_det = 80
-    assert binned_offset(offset, n_det, binning) == pytest.approx(_axis_after(offset, n_det, None, binning))
+    assert binned_offset(offset, n_det, binning) == pytest.approx(axis_after(offset, n_det, None, binning))
     # a disc on the axis projects to the axis column in every view: its centroid after binning
     sino = ellipse_sinogram([Ellipse(0, 0, 10.0, 10.0, 0, 1.0)], np.linspace(0, 3, 7), n_det,
                             center_offset=offset, subsamples=16)  # fmt: skip

@@ -48,7 +48,7 @@ class ImportSettings:
     )
 
     def keywords(self) -> dict[str, Any]:
-        """These settings as keywords of :func:`~nanoct.io.scanio.import_scan`."""
+        """These settings as keywords of :func:`~nanoct.workflows.importscan.import_scan`."""
         return {
             "binning": self.binning, "center_offset": parse_center(self.center_offset), "size": self.size,
             "tolerance": self.tolerance, "drop_bad": self.drop_bad_views,
@@ -89,9 +89,10 @@ def import_(
 
 
 def import_scan_file(src: Path, out: Path, reading: ScanReading, corrections: ScanCorrections, **settings: Any) -> Any:
-    """:func:`~nanoct.io.scanio.import_scan` with the reading and correction options ``import`` and ``stack`` share;
-    ``settings``: the import's other keywords (binning, axis, ...), which only ``import`` offers."""
-    from ..io.scanio import import_scan
+    """:func:`~nanoct.workflows.importscan.import_scan` with the reading and correction options that
+    ``import`` and ``stack`` share; ``settings``: the import's other keywords (binning, axis, ...), which only
+    ``import`` offers."""
+    from ..workflows.importscan import import_scan
 
     row_range = reading.row_range()
     corrections.check_needs()

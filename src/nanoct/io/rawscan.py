@@ -6,7 +6,8 @@ view angles in radians. :func:`check_angles` refuses angles that cannot be what 
 :func:`drop_bad_views` frames with NaN or infinite values, :func:`drop_repeated_views` views
 whose angle repeats an earlier one, and :func:`detector_window` checks a ``--rows`` / ``--crop``
 selection against the detector (:func:`check_span`: one line naming the flag, its value and the range
-the scan holds).
+the scan holds). :func:`axis_after` and :func:`raw_axis` convert a rotation-axis offset between the raw
+detector and the detector an import kept (cropped and binned).
 """
 
 from __future__ import annotations
@@ -21,12 +22,16 @@ from ..core.errors import NanoctError
 
 __all__ = [
     "RawScan",
+    "angle_count_error",
+    "axis_after",
     "check_angles",
     "check_span",
     "detector_window",
     "drop_bad_views",
     "drop_repeated_views",
     "listed",
+    "raw_axis",
+    "store_raw_axis",
 ]
 
 _MIN_VIEWS_UNIT_CHECK = 8  # fewer views than this may span a few degrees on purpose (a test, an alignment)
@@ -293,3 +298,41 @@ def detector_window(
         return (rows if rows is not None else slice(None)), (slice(*crop) if crop is not None else slice(None))
 
     return window
+
+
+def angle_count_error(n_angles: int, n_views: int, lead: str = "") -> NanoctError:
+    """The refusal of ``n_angles`` angles for ``n_views`` projections; more angles than views point to
+    ``--angles-select`` (an angles file that lists the flats' and darks' lines too)."""
+    pick = ", or pick the projections' lines with --angles-select FIRST:STOP" if n_angles > n_views else ""
+    return NanoctError(f"{lead}{n_angles} angle(s) for {n_views} projection(s); give one angle per view{pick}")
+
+
+def axis_after(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
+    """The rotation-axis offset (from the detector centre) after cropping and binning, in new pixels: an
+    ``offset`` of the raw detector (``--center-offset``) as the import converts it (:func:`raw_axis` inverts it)."""
+    axis = (n_cols - 1) / 2 + offset  # raw column where the axis is seen
+    first, width = _kept_columns(n_cols, crop, binning)
+    return ((axis - first + 0.5) / binning - 0.5) - (width - 1) / 2
+
+
+def raw_axis(offset: float, n_cols: int, crop: tuple[int, int] | None, binning: int) -> float:
+    """The rotation-axis offset of the raw detector (pixels from its centre, ``--center-offset``) of an
+    ``offset`` on the detector after cropping and binning: the inverse of the import's conversion."""
+    first, width = _kept_columns(n_cols, crop, binning)
+    return (offset + (width - 1) / 2 + 0.5) * binning - 0.5 + first - (n_cols - 1) / 2
+
+
+def _kept_columns(n_cols: int, crop: tuple[int, int] | None, binning: int) -> tuple[int, int]:
+    """The first raw column kept and the number of binned columns after ``crop`` and ``binning``."""
+    first, stop = crop if crop is not None else (0, n_cols)
+    return first, (stop - first) // binning
+
+
+def store_raw_axis(store: Any, offset: float) -> float:
+    """:func:`raw_axis` of an ``offset`` on data set ``store``'s detector (a simulated data set: as it is)."""
+    scan = store.meta.get("scan") or {}
+    shape = scan.get("detector_shape")
+    if not shape:
+        return float(offset)
+    crop = scan.get("crop")
+    return raw_axis(float(offset), int(shape[1]), None if crop is None else tuple(crop), int(scan.get("binning") or 1))

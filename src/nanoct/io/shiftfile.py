@@ -251,7 +251,7 @@ def write_stack_shifts(store: Any, name: str, out: str | os.PathLike[str]) -> Pa
     Path or None
         The file written, or None when ``name`` holds no shared motion (not a stack result).
     """
-    from .scanio import store_raw_axis
+    from .rawscan import store_raw_axis
 
     present = name in store.reconstruction_names()
     shifts = store.recons.shared_shifts(name) if present else None

@@ -23,7 +23,7 @@ the method's own parameters before anything is written (:func:`check_motion_para
     simulated store: each sample its own motion.
 ``shifts_from``
     A shifts file (nabu's ``translation_movements_file`` layout, or the two-column ``view
-    shift_px`` files, :func:`nanoct.io.scanio.read_shifts`): the starting motion of every
+    shift_px`` files, :func:`nanoct.io.shiftfile.read_shifts`): the starting motion of every
     estimate, or with ``fix_shifts=true`` (a parameter of Dremel itself) the motion used as
     given; e.g. a beamline's estimate from nabu.
 
@@ -43,8 +43,8 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from ..core.geometry import Geometry
-from ..io.scanio import read_shifts, store_raw_axis, write_shifts
-from ..io.shiftfile import shifts_axis
+from ..io.rawscan import store_raw_axis
+from ..io.shiftfile import read_shifts, shifts_axis, write_shifts
 from ..io.store import DataStore
 from .dremel import dremel
 from .params import MethodParams
@@ -110,7 +110,7 @@ def parse_slices(value: Any) -> str | None:
 def read_shifts_file(
     path: str | os.PathLike[str], geometry: Geometry, binning: int = 1, left_out: Any = ()
 ) -> np.ndarray:
-    """A shifts file (detector pixels, :func:`~nanoct.io.scanio.read_shifts`) as Dremel shifts, float64.
+    """A shifts file (detector pixels, :func:`~nanoct.io.shiftfile.read_shifts`) as Dremel shifts, float64.
 
     Dremel's shifts are image pixels along the detector axis. ``binning`` and ``left_out``
     describe how an import made the data set from the scan (:func:`scan_layout`): nabu's raw
@@ -236,7 +236,7 @@ def write_store_shifts(
     """Write the shifts of reconstruction ``name`` of a store as nabu's ``translation_movements_file``.
 
     The rows are in raw detector pixels (the data set's pixels times its binning), nabu's sign
-    (:func:`nanoct.io.scanio.write_shifts`); an imported scan with a pixel size adds nm.
+    (:func:`nanoct.io.shiftfile.write_shifts`); an imported scan with a pixel size adds nm.
 
     Parameters
     ----------
@@ -245,7 +245,7 @@ def write_store_shifts(
     name : str
         A reconstruction with shifts (Dremel's).
     out : path
-        The text file to write (detector pixels, :func:`nanoct.io.scanio.write_shifts`).
+        The text file to write (detector pixels, :func:`nanoct.io.shiftfile.write_shifts`).
     sample : int, optional
         Which sample's shifts; may be omitted when the reconstruction has one motion shared by
         all slices (an imported stack) or the store has a single sample.
