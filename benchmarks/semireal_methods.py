@@ -54,7 +54,7 @@ import numpy as np
 from scipy import ndimage
 
 import nanoct
-from nanoct.core.geometry import Geometry
+from nanoct.core.geometry import Geometry, remove_translation
 from nanoct.evaluation.metrics import register
 from nanoct.io.scanio import line_integrals, read_scan
 from nanoct.motion.stack import estimate_stack_motion
@@ -63,7 +63,7 @@ from nanoct.recon.eta import eta_from_residual
 from nanoct.recon.fbp import fbp
 from nanoct.recon.measured import air_level
 from nanoct.recon.resesop import resesop
-from nanoct.recon.shared import joint_shifts, remove_translation
+from nanoct.recon.shared import joint_shifts
 from nanoct.workflows.stack import _dremel_slice, _resesop_slice
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "realdata" / "i13-24737-tiff"

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
-from nanoct.core.geometry import get_preset
+from nanoct.core.geometry import get_preset, remove_translation
 from nanoct.core.operators import RayTransform
 from nanoct.io.scanio import read_shifts, write_shifts
 from nanoct.io.store import DataStore, create_scan
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.recon.dremel import dremel
-from nanoct.recon.shared import remove_translation, write_store_shifts
+from nanoct.recon.shared import write_store_shifts
 from nanoct.sim.motion import MotionParams, sample_motion
 from nanoct.sim.phantoms import random_phantom
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .validation import check_int
 
-__all__ = ["PRESETS", "UNIFORM_ATOL", "Geometry", "get_preset", "preset_names"]
+__all__ = ["PRESETS", "UNIFORM_ATOL", "Geometry", "get_preset", "preset_names", "remove_translation"]
 
 #: Angles within this many radians of a uniform scan are taken as that scan (1e-6 rad: far
 #: below any motor's accuracy, far above float rounding of degrees read from a file).
@@ -324,3 +324,28 @@ def get_preset(name: str) -> Geometry:
         return PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(preset_names())}") from None
+
+
+def remove_translation(shifts: Any, angles: Any) -> np.ndarray:
+    """``shifts`` minus their least-squares fit ``a cos(phi) + b sin(phi)`` (a translation of the object).
+
+    An object moved by ``(a, b)`` is seen at ``s = a cos(phi) + b sin(phi)`` along the detector (the
+    conventions above), so per-view shifts that differ by this term describe the same motion up to where
+    the object sits: what Dremel estimates per slice, and what the motion estimators compare.
+
+    Parameters
+    ----------
+    shifts : array_like of shape (K,)
+        Per-view shifts along the detector axis.
+    angles : array_like of shape (K,)
+        View angles in radians.
+
+    Returns
+    -------
+    ndarray of shape (K,), float64
+    """
+    phi = np.asarray(angles, dtype=np.float64)
+    s = np.asarray(shifts, dtype=np.float64)
+    basis = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, s, rcond=None)
+    return s - basis @ coef

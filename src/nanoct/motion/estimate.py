@@ -47,7 +47,7 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
-from ..recon.shared import remove_translation
+from ..core.geometry import remove_translation
 from .axis import AxisEstimate, axis_rows, estimate_axis, limited_angle_tilt, object_rows, remove_air
 from .center import centroid_motion, fourier_shift, opposite_pairs
 from .focus import focus_smooth

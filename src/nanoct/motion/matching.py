@@ -38,10 +38,9 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ..core.errors import NanoctError
-from ..core.geometry import Geometry
+from ..core.geometry import Geometry, remove_translation
 from ..core.validation import check_int
 from ..recon.fbp import ramp_filter
-from ..recon.shared import remove_translation
 from ..recon.stack import corrected_fbp, reproject
 from .registration import register_shifts
 

@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import NanoctError
-from ..core.geometry import Geometry
+from ..core.geometry import Geometry, remove_translation
 from ..recon.dremel import DremelParams
-from ..recon.shared import joint_shifts, remove_translation
+from ..recon.shared import joint_shifts
 from ..recon.stack import bin_geometry, bin_sinograms, corrected_fbp, reproject, with_center
 from .center import centroid_motion, fit_center, separate_center, xcorr_shifts
 

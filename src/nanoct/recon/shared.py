@@ -5,7 +5,7 @@ were all recorded at once, so they share one per-view object shift. Dremel run o
 alone estimates it once per slice, each estimate up to a translation common to all views,
 ``a cos(phi_k) + b sin(phi_k)``, that the slice's image absorbs (see :func:`~nanoct.recon.dremel.dremel`).
 :func:`joint_shifts` runs Dremel on the chosen slices, removes that term from each estimate
-(:func:`remove_translation`) and takes the per-view median, which is robust to a slice with
+(:func:`~nanoct.core.geometry.remove_translation`) and takes the per-view median, which is robust to a slice with
 little structure whose estimate is noise. Every slice of a simulation is then reconstructed
 with these shifts held fixed (``fix_shifts=True``), so all slices of the stack are corrected
 alike; on measured data (:func:`~nanoct.recon.eta_source.carries_motion`) each slice starts from
@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import NanoctError
-from ..core.geometry import Geometry
+from ..core.geometry import Geometry, remove_translation
 from ..io.rawscan import store_raw_axis
 from ..io.shiftfile import read_shifts, shifts_axis, write_shifts
 from ..io.store import DataStore
@@ -56,7 +56,6 @@ __all__ = [
     "parse_slices",
     "read_shifts_file",
     "read_store_shifts",
-    "remove_translation",
     "scan_layout",
     "write_store_shifts",
 ]
@@ -64,27 +63,6 @@ __all__ = [
 
 def _det_per_obj(geometry: Geometry) -> float:
     return geometry.magnification / geometry.det_spacing
-
-
-def remove_translation(shifts: Any, angles: Any) -> np.ndarray:
-    """``shifts`` minus their least-squares fit ``a cos(phi) + b sin(phi)`` (a translation of the object).
-
-    Parameters
-    ----------
-    shifts : array_like of shape (K,)
-        Per-view shifts along the detector axis.
-    angles : array_like of shape (K,)
-        View angles in radians.
-
-    Returns
-    -------
-    ndarray of shape (K,), float64
-    """
-    phi = np.asarray(angles, dtype=np.float64)
-    s = np.asarray(shifts, dtype=np.float64)
-    basis = np.stack([np.cos(phi), np.sin(phi)], axis=1)
-    coef, *_ = np.linalg.lstsq(basis, s, rcond=None)
-    return s - basis @ coef
 
 
 def parse_slices(value: Any) -> str | None:
