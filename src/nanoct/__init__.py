@@ -13,13 +13,9 @@ and the motion of a measured scan from its projections (views, rows, columns)::
     motion.horizontal, motion.vertical, motion.axis.offset
 """
 
-from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
-try:
-    __version__ = version("nanoct")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.0.0+unknown"
+from .core.version import __version__
 
 _API = ("fbp", "gridrec", "kaczmarz", "dremel", "resesop", "make_geometry")
 

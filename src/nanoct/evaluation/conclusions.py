@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import NanoctError
-from ..names import SETTINGS, parse_name, prediction_name
+from ..core.names import SETTINGS, parse_name, prediction_name
 from .paper import INPUTS, MODELS, paper_mixing, paper_rows
 
 __all__ = [

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import NanoctError
+from ..core.names import parse_name, setting_key
 from ..io.fileio import atomic_write_text
 from ..io.provenance import environment_info
 from ..io.store import DataStore
-from ..names import parse_name, setting_key
 from .conclusions import format_conclusions
 from .conformal import half_width_of
 from .metrics import EDGE_SIGMA, edge_std, summarize, truth_support, uncertainty_summary

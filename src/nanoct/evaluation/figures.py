@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from ..core.names import parse_name, prediction_name
 from ..io.fileio import atomic_write_bytes
 from ..io.store import DataStore
 
 # the figures read predictions, whose intervals the calibration defines
 from ..learn.calibration import half_width  # noqa: E402
-from ..names import parse_name, prediction_name
 from ..recon.fbp import fbp
 from ..sim.motion import plot_motion
 from .evaluate import format_uncertainty_table

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from ..core.errors import NanoctError
-from ..names import SETTINGS, parse_name, prediction_name
+from ..core.names import SETTINGS, parse_name, prediction_name
 
 __all__ = [
     "INPUTS",

@@ -44,9 +44,9 @@ from typing import Any
 import numpy as np
 import zarr
 
-from .. import __version__
 from ..core.errors import StoreError
 from ..core.geometry import Geometry
+from ..core.version import __version__
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
 from .fileio import cached_by_file
 from .lock import pid_alive

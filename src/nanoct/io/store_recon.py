@@ -27,7 +27,7 @@ import numpy as np
 import zarr
 
 from ..core.errors import NanoctError, StoreError
-from ..names import is_prediction
+from ..core.names import is_prediction
 from .chunks import find_damaged, read_flags, read_samples, remove_partial_writes
 
 __all__ = ["ReconstructionArrays", "check_name"]

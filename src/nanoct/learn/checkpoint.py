@@ -29,8 +29,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from .. import __version__
 from ..core.errors import NanoctError
+from ..core.version import __version__
 from ..io.fileio import atomic_write_bytes
 from .base import PostProcessor
 from .models import build_model

@@ -22,7 +22,7 @@ from torch.utils.data import Dataset
 
 from ..core.errors import NanoctError, StoreError
 from ..io.store import SPLITS, DataStore
-from ..names import predict_command
+from ..recon.names import predict_command
 
 __all__ = ["PatchDataset", "ReconDataset", "check_input", "grid_starts", "grid_windows"]
 

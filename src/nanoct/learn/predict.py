@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from ..core.errors import NanoctError, StoreError
+from ..core.names import prediction_name
 from ..evaluation.conformal import (
     DEFAULT_DELTA,
     DEFAULT_LEVELS,
@@ -47,7 +48,6 @@ from ..io.fileio import disk_space_needed
 from ..io.lock import exclusive
 from ..io.store import SPLITS, DataStore
 from ..io.store_recon import check_name, differing_keys, same_content
-from ..names import prediction_name
 from .calibration import Inference, image_statistic, ood_p_values, tiled_outputs, training_store
 from .calibration import calibrate as calibrate_run
 from .checkpoint import load_checkpoint, model_from_checkpoint

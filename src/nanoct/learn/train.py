@@ -40,8 +40,8 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler, Subset
 
-from .. import __version__
 from ..core.errors import NanoctError
+from ..core.version import __version__
 from ..io.fileio import atomic_link, atomic_write_bytes, remove_stale_temporaries
 from ..io.lock import exclusive
 from ..io.provenance import environment_info

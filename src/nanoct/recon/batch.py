@@ -39,8 +39,8 @@ from ..core.geometry import Geometry
 from ..io.fileio import disk_space_needed, file_sha256
 from ..io.lock import exclusive
 from ..io.store import DataStore, Sample, open_cached
-from ..names import reconstruction_name
 from .eta_source import EtaPlan, carries_motion, plan_eta
+from .names import reconstruction_name
 from .registry import check_method_params, method_spec
 from .result import ReconResult
 from .shared import joint_shifts, read_store_shifts

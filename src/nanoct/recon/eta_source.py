@@ -33,9 +33,9 @@ from ..core.errors import NanoctError
 from ..core.geometry import Geometry
 from ..io.store import DataStore
 from ..io.store_recon import check_name
-from ..names import reconstruct_command
 from .eta import eta_from_reference, eta_from_residual
 from .measured import looks_measured
+from .names import reconstruct_command
 from .params import MethodParams
 from .registry import methods_with_motion
 

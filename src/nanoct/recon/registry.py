@@ -11,7 +11,7 @@ entry (``docs/adding_a_method.md``)::
 
     "sart": MethodSpec("sart", "nanoct.recon.sart:sart", "nanoct.recon.sart:SartParams", "SART"),
 
-Result names (``resesop_eta0.8``) and the commands that make them are in :mod:`nanoct.names`.
+Result names (``resesop_eta0.8``) and the commands that make them are in :mod:`nanoct.recon.names`.
 """
 
 from __future__ import annotations

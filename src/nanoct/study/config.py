@@ -16,8 +16,9 @@ from typing import Any
 
 from ..core.errors import NanoctError
 from ..core.geometry import get_preset, preset_names
+from ..core.names import setting_key
 from ..learn.models import model_class, table_order
-from ..names import reconstruction_name, setting_key
+from ..recon.names import reconstruction_name
 from ..recon.registry import method_spec
 
 __all__ = [

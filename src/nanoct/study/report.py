@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.names import parse_name, prediction_name, seed_name, strip_seed
 from ..evaluation.conclusions import check_conclusions, format_conclusions
 from ..evaluation.evaluate import (
     evaluate_store,
@@ -23,7 +24,6 @@ from ..io.fileio import atomic_write_text, remove_stale_temporaries
 from ..io.provenance import environment_info, format_environment
 from ..io.store import SPLITS, DataStore
 from ..learn.models import table_order
-from ..names import parse_name, prediction_name, seed_name, strip_seed
 from .config import CONCLUSION_K, Jobs, Setting, Study
 from .report_html import write_html_report
 

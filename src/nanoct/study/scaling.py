@@ -30,11 +30,12 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from ..core.geometry import get_preset
+from ..core.names import scaling_name
 from ..io.fileio import atomic_write_text
 from ..io.store import DataStore
 from ..learn.models import build_model, model_class, model_spec
-from ..names import reconstruction_name, scaling_name
 from ..recon.batch import reconstruct_dataset
+from ..recon.names import reconstruction_name
 from ..sim.generate import generate_dataset
 from ..sim.simulate import SimulationConfig
 from .config import STUDIES, Study

@@ -9,12 +9,12 @@ from typing import Any
 
 import numpy as np
 
+from ..core.names import prediction_name
 from ..evaluation.conclusions import check_conclusions
 from ..evaluation.evaluate import evaluate_store
 from ..evaluation.paper import paper_value
 from ..io.fileio import atomic_target, atomic_write_text
 from ..io.store import DataStore
-from ..names import prediction_name
 from .config import CONCLUSION_K
 from .scaling import ScalingStudy, ScalingUnit, scaling_units
 

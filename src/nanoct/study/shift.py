@@ -24,12 +24,12 @@ from typing import Any
 
 from ..core.errors import NanoctError
 from ..core.geometry import get_preset
+from ..core.names import prediction_name
 from ..evaluation.evaluate import evaluate_store
 from ..io.fileio import atomic_write_text
 from ..io.store import DataStore
 from ..learn.models import model_class
 from ..learn.predict import predict
-from ..names import prediction_name
 from ..recon.batch import reconstruct_dataset
 from ..sim.generate import generate_dataset
 from ..sim.simulate import SimulationConfig

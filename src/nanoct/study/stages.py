@@ -16,9 +16,9 @@ from typing import Any
 
 from ..core.fanout import run_tasks, usable_cpus
 from ..core.geometry import get_preset
+from ..core.names import prediction_name, seed_name
 from ..io.store import DataStore
 from ..learn.models import model_class
-from ..names import prediction_name, seed_name
 from ..recon.batch import reconstruct_dataset
 from ..sim.generate import generate_dataset
 from ..sim.simulate import SimulationConfig

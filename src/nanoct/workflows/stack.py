@@ -61,9 +61,9 @@ from ..motion.center import centroid_motion, opposite_pairs
 from ..motion.consistency import Candidate, compare, heldout_misfit, score_binning, select
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
-from ..names import stack_name
 from ..recon.batch import shift_check_recorder
 from ..recon.measured import read_moved
+from ..recon.names import stack_name
 from ..recon.stack import corrected_fbp, reproject, with_center
 
 __all__ = [
