@@ -217,8 +217,9 @@ def test_paper_comparison_keeps_the_papers_convention():
 def test_intervals_whose_support_is_found_from_the_mean_are_scored(rng):
     """A calibration fitted on measured references finds the support from the prediction's mean (relative to each
     image's level): ``uncertainty_scores`` passes the mean, and scores the half-widths ``half_width`` gives."""
+    from nanoct.evaluation.conformal import half_width
     from nanoct.evaluation.evaluate import uncertainty_scores
-    from nanoct.learn.calibration import fit_intervals, half_width
+    from nanoct.learn.calibration import fit_intervals
 
     yy, xx = np.mgrid[:24, :24] - 12
     disc = np.hypot(xx, yy) <= 6

@@ -21,6 +21,7 @@ from nanoct.evaluation.conformal import (
     fit_group_intervals,
     fit_width_map,
     group_labels,
+    half_width,
     support_of,
 )
 from nanoct.evaluation.metrics import interval_scores, support_mask, truth_support
@@ -30,7 +31,6 @@ from nanoct.learn.calibration import (
     CALIBRATION_FORMAT,
     calibrate,
     fit_intervals,
-    half_width,
     load_calibration,
 )
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint

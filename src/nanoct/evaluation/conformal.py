@@ -17,7 +17,8 @@ the std, fitted on validation outputs in two ways.
   although the pixels of one image are dependent.
 
 :func:`guaranteed_coverage` states the guarantee a given multiplier comes with: the coverage
-that holds with probability ``1 - delta`` (one minus the bound on its loss).
+that holds with probability ``1 - delta`` (one minus the bound on its loss); :func:`half_width` the
+half-width of a stored prediction's interval from the calibration recorded with it.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from scipy import ndimage
 from scipy.optimize import brentq
 from scipy.stats import binom
 
+from ..core.errors import NanoctError
 from .metrics import support_mask
 
 __all__ = [
@@ -59,6 +61,7 @@ __all__ = [
     "apply_width_map",
     "conformal_multiplier",
     "fit_width_map",
+    "half_width",
     "half_width_of",
     "guaranteed_coverage",
     "hb_upper_bound",
@@ -235,6 +238,49 @@ def half_width_of(
         return q * np.where(on_object, apply_width_map(std, maps[1]), apply_width_map(std, maps[0]))
     base = apply_width_map(std, entry["map"]) if entry.get("map") else np.asarray(std, dtype=np.float64)
     return float(entry[multiplier]) * base
+
+
+def half_width(
+    params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False, mean: np.ndarray | None = None
+) -> np.ndarray:
+    """The half-width of the interval of ``level`` of a prediction (float64, the shape of ``std``).
+
+    ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
+    std, one image (H, W) or a stack (n, H, W) (the support of a group-conditional calibration is
+    found per image); ``mean``: its stored mean, needed only where the calibration's support is
+    defined on the mean. ``guaranteed`` takes the risk-controlling multipliers (coverage
+    guaranteed with probability ``1 - delta``) instead of the split-conformal ones
+    (:func:`nanoct.evaluation.conformal.half_width_of`).
+
+    Raises
+    ------
+    NanoctError
+        If the prediction has no calibration, was not calibrated at ``level``, (``guaranteed``) the
+        validation split was too small for a guarantee at that level, or the support needs the mean.
+    """
+    cal = params.get("calibration") or {}
+    levels = cal.get("levels")
+    if not levels:
+        raise NanoctError("this prediction has no interval calibration; predict it again without --no-calibrate")
+    key = level_key(level)
+    if key not in levels:
+        raise NanoctError(
+            f"no interval of level {key} was calibrated (levels: {', '.join(levels)}); predict again with "
+            f"--levels including {key}"
+        )
+    which = "rcps_multiplier" if guaranteed else "multiplier"
+    entry = levels[key]
+    missing = None in entry["groups"]["rcps_multipliers"] if guaranteed and "groups" in entry else entry[which] is None
+    if missing:
+        raise NanoctError(
+            f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
+            f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
+            "leave out --guaranteed or choose a lower level"
+        )
+    try:
+        return half_width_of(std, entry, which, image=mean)
+    except ValueError as exc:
+        raise NanoctError(f"cannot compute the interval: {exc}") from exc
 
 
 def image_miscoverage(

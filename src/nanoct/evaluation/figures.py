@@ -13,11 +13,9 @@ import numpy as np
 from ..core.names import parse_name, prediction_name
 from ..io.fileio import atomic_write_bytes
 from ..io.store import DataStore
-
-# the figures read predictions, whose intervals the calibration defines
-from ..learn.calibration import half_width  # noqa: E402
 from ..recon.fbp import fbp
 from ..sim.motion import plot_motion
+from .conformal import half_width
 from .evaluate import format_uncertainty_table
 from .metrics import reliability
 
@@ -186,7 +184,7 @@ def uncertainty_maps(store: DataStore, names: list[str], indices: list[int], out
 
     One row per (name, sample). The input is ``reconstructions/<input>`` of the name
     (:func:`nanoct.names.parse_name`; an empty panel if absent); the last panel is the half-width
-    of the calibrated 90 % interval (:func:`nanoct.learn.calibration.half_width` of the stored
+    of the calibrated 90 % interval (:func:`nanoct.evaluation.conformal.half_width` of the stored
     std; the stored std itself where the result has no calibration). Error and
     half-width share a colour scale per row so they can be compared directly.
     """
@@ -237,7 +235,7 @@ def reliability_diagram(
     One column per panel (e.g. per model), one line per reconstruction name. Top row: the stored
     std read as a Gaussian std (interval of level p ``|err| <= k_p std``, ``k_p`` the two-sided
     Gaussian quantile, :func:`nanoct.evaluation.metrics.reliability`); bottom row: the calibrated intervals
-    (:func:`nanoct.learn.calibration.half_width`) at their levels, with the coverage guaranteed on the validation
+    (:func:`nanoct.evaluation.conformal.half_width`) at their levels, with the coverage guaranteed on the validation
     split (open markers). Pixels of all ``indices`` are pooled. On the diagonal a map is
     calibrated; above it too wide, below too narrow.
     """

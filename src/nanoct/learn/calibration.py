@@ -90,7 +90,6 @@ __all__ = [
     "calibrate",
     "entry_name",
     "fit_intervals",
-    "half_width",
     "image_statistic",
     "load_calibration",
     "ood_p_values",
@@ -421,49 +420,6 @@ def fit_intervals(
         "edge_multipliers": edge_fit,
         "ood": {"statistic": "mean_std", "alpha": OOD_ALPHA, "val": sorted(image_statistic(stds).tolist())},
     } | ({} if known is None else {"known_pixels": int(np.count_nonzero(keep))})
-
-
-def half_width(
-    params: dict[str, Any], std: np.ndarray, level: float, guaranteed: bool = False, mean: np.ndarray | None = None
-) -> np.ndarray:
-    """The half-width of the interval of ``level`` of a prediction (float64, the shape of ``std``).
-
-    ``params``: the prediction's stored parameters (with its ``calibration``); ``std``: its stored
-    std, one image (H, W) or a stack (n, H, W) (the support of a group-conditional calibration is
-    found per image); ``mean``: its stored mean, needed only where the calibration's support is
-    defined on the mean. ``guaranteed`` takes the risk-controlling multipliers (coverage
-    guaranteed with probability ``1 - delta``) instead of the split-conformal ones
-    (:func:`nanoct.evaluation.conformal.half_width_of`).
-
-    Raises
-    ------
-    NanoctError
-        If the prediction has no calibration, was not calibrated at ``level``, (``guaranteed``) the
-        validation split was too small for a guarantee at that level, or the support needs the mean.
-    """
-    cal = params.get("calibration") or {}
-    levels = cal.get("levels")
-    if not levels:
-        raise NanoctError("this prediction has no interval calibration; predict it again without --no-calibrate")
-    key = level_key(level)
-    if key not in levels:
-        raise NanoctError(
-            f"no interval of level {key} was calibrated (levels: {', '.join(levels)}); predict again with "
-            f"--levels including {key}"
-        )
-    which = "rcps_multiplier" if guaranteed else "multiplier"
-    entry = levels[key]
-    missing = None in entry["groups"]["rcps_multipliers"] if guaranteed and "groups" in entry else entry[which] is None
-    if missing:
-        raise NanoctError(
-            f"the validation split ({cal.get('n_images')} images) is too small to guarantee "
-            f"{float(key):.0%} coverage with probability {1 - cal['delta']:.0%}; "
-            "leave out --guaranteed or choose a lower level"
-        )
-    try:
-        return half_width_of(std, entry, which, image=mean)
-    except ValueError as exc:
-        raise NanoctError(f"cannot compute the interval: {exc}") from exc
 
 
 def load_calibration(run_dir: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:

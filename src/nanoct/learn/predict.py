@@ -12,7 +12,7 @@ stored std is the network's own (raw) std; the calibration fitted on the validat
 (:mod:`nanoct.learn.calibration`: per interval level a multiplier per group of pixels, the
 background (for measured references split at the sample's footprint) and the std fifths of the
 object) is stored with the parameters (the half-width:
-:func:`nanoct.learn.calibration.half_width`), and images whose std level is unlike the
+:func:`nanoct.evaluation.conformal.half_width`), and images whose std level is unlike the
 validation split's, whose sinogram shows more apparent motion than the training scans, or (for
 intervals calibrated on one scan's measured pairs) whose object leaves that scan's footprint, are
 flagged (a warning, and the note ``ood`` of the result: :func:`ood_check`).

@@ -72,7 +72,7 @@ def export_images(
     if (std or interval is not None) and not store.has_uncertainty(name):
         raise NanoctError(f"reconstructions/{name} has no std (only invertible networks give one)")
     if interval is not None:
-        from ..learn.calibration import half_width
+        from ..evaluation.conformal import half_width
 
         spread, mean = store.read_uncertainty(name, idx), store.read_reconstruction(name, idx)
         images = half_width(store.reconstruction_params(name), spread, interval, guaranteed, mean=mean)
