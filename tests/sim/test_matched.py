@@ -13,6 +13,7 @@ from nanoct.core.operators import RayTransform
 from nanoct.io.store import DataStore
 from nanoct.recon.measured import looks_measured
 from nanoct.sim import matched
+from nanoct.sim.generate import fill_dataset
 from nanoct.sim.matched import generate_like, parse_mix, plan_matched
 from nanoct.sim.scan_stats import air_noise, binned_offset
 from scan_like import AIR, ANGLES_DEG, N_DET, OFFSET, SIGMA, SLICES, scan_store
@@ -81,6 +82,8 @@ def test_the_generated_noise_and_geometry_equal_the_scans(scan, tmp_path):
     assert air_noise(y)["sigma"] == pytest.approx(sigma, rel=0.15)
     phantoms = store.read_phantoms(range(8))
     assert phantoms.max() <= plan.simulation["like"]["value_scale"] * 1.5 and phantoms.min() >= 0
+    with pytest.raises(NanoctError, match="matched to a measured scan"):  # its samples are not the paper's
+        fill_dataset(store, workers=0, progress=False)
 
 
 def test_the_simulated_sinograms_carry_the_scans_open_beam(scan, tmp_path):

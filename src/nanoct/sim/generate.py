@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -10,31 +11,50 @@ from ..core.errors import NanoctError
 from ..core.fanout import run_tasks
 from ..core.geometry import Geometry
 from ..io.fileio import disk_space_needed
-from ..io.store import DataStore, open_cached
+from ..io.store import DataStore, Sample, open_cached
 from .simulate import SimulationConfig, simulate_sample
 
-__all__ = ["check_run", "fill_dataset", "generate_dataset"]
+__all__ = ["Simulator", "check_run", "fill_dataset", "generate_dataset"]
 
 
-def _simulate_into(path: str, index: int) -> int:
+#: How one sample of a data set is made: ``simulate(store, index) -> Sample``.
+Simulator = Callable[[DataStore, int], Sample]
+
+
+def _simulate_into(path: str, index: int, simulate: Simulator | None = None) -> int:
     store = open_cached(path)
-    if "like" in store.meta["simulation"]:  # a set matched to a measured scan
-        from .matched import simulate_matched_sample
-
-        sample = simulate_matched_sample(store, index)
-    else:
+    if simulate is None:
         config = SimulationConfig.from_dict(store.meta["simulation"])
         sample = simulate_sample(store.geometry, config, store.seed, index)
+    else:
+        sample = simulate(store, index)
     store.write_sample(index, sample)
     return index
 
 
-def fill_dataset(store: DataStore, *, workers: int = 2, scheduler: str | None = None, progress: bool = True) -> None:
-    """Simulate the samples of ``store`` not flagged done (over Dask; see :func:`nanoct.core.fanout.run_tasks`)."""
+def fill_dataset(
+    store: DataStore,
+    *,
+    simulate: Simulator | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> None:
+    """Simulate the samples of ``store`` not flagged done (over Dask; see :func:`nanoct.core.fanout.run_tasks`).
+
+    Each sample is ``simulate(store, index)``, a module-level function (the workers import it), e.g.
+    :func:`nanoct.sim.matched.simulate_matched_sample` for a set matched to a measured scan; by default
+    :func:`~nanoct.sim.simulate.simulate_sample` with the store's simulation settings, which a matched set
+    does not have (refused).
+    """
+    if simulate is None and "like" in store.meta["simulation"]:
+        raise NanoctError(
+            f"{store.path} is a set matched to a measured scan: 'nanoct generate --like' makes its samples"
+        )
     pending = [int(i) for i in (~store.done).nonzero()[0]]
     with disk_space_needed(store.path, store.sample_nbytes * len(pending)):
         run_tasks(
-            partial(_simulate_into, str(store.path)),
+            partial(_simulate_into, str(store.path), simulate=simulate),
             pending,
             workers=workers,
             scheduler=scheduler,

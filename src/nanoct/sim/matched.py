@@ -86,6 +86,7 @@ from ..io.store_recon import differing_keys
 from ..recon.fbp import fbp
 from ..recon.measured import air_level, read_moved
 from ..recon.stack import corrected_fbp
+from .generate import check_run, fill_dataset
 from .motion import MotionParams, sample_motion
 from .phantoms import random_ellipse_phantom, random_phantom
 from .scan_stats import air_noise, bin_sinograms, binned_geometry, motion_stats, open_beam_level
@@ -510,8 +511,6 @@ def generate_like(
         :class:`~nanoct.core.errors.StoreError` naming the values that differ, e.g.
         ``simulation.like.motion.from``, and the ``--motion-from`` that resumes it).
     """
-    from .generate import check_run, fill_dataset
-
     check_run(n, seed, workers)
     _check_same_set(Path(out), plan, n, seed, split_fractions)
     store = DataStore.create(Path(out), plan.geometry, n, seed, plan.simulation, split_fractions)
@@ -530,7 +529,7 @@ def generate_like(
         array.attrs["shifts"] = [float(v) for v in plan.shifts]
         array.attrs["rows"] = [int(v) for v in plan.rows]
         array.attrs["complete"] = True
-    fill_dataset(store, workers=workers, scheduler=scheduler, progress=progress)
+    fill_dataset(store, simulate=simulate_matched_sample, workers=workers, scheduler=scheduler, progress=progress)
     return DataStore.open(store.path, mode="r+")
 
 
