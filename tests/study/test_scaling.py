@@ -10,7 +10,8 @@ from nanoct.learn.data import ReconDataset
 from nanoct.learn.train import resolve_precision
 from nanoct.study import scaling as scaling_module
 from nanoct.study.config import STUDIES
-from nanoct.study.scaling import ScalingStudy, plan_scaling, run_scaling, scaling_units
+from nanoct.study.scaling import plan_scaling, run_scaling
+from nanoct.study.scaling_config import ScalingStudy, scaling_units
 
 TOY = ScalingStudy(
     sizes=(4, 8),

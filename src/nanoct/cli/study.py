@@ -208,7 +208,8 @@ def scaling(
     gives the gain over the input per size with the spread over seeds, the paper's gain and the
     paper's conclusion checks at each size.
     """
-    from ..study.scaling import ScalingStudy, format_scaling_plan, plan_scaling, run_scaling
+    from ..study.scaling import format_scaling_plan, plan_scaling, run_scaling
+    from ..study.scaling_config import ScalingStudy
 
     try:
         study = ScalingStudy(

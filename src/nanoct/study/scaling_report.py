@@ -16,7 +16,7 @@ from ..evaluation.paper import paper_value
 from ..io.fileio import atomic_target, atomic_write_text
 from ..io.store import DataStore
 from .config import CONCLUSION_K
-from .scaling import ScalingStudy, ScalingUnit, scaling_units
+from .scaling_config import ScalingStudy, ScalingUnit, scaling_units
 
 __all__ = ["scaling_points", "write_scaling_report"]
 
