@@ -5,15 +5,13 @@
 it into ``-log((p - d) / (f - d))`` and :func:`sinograms` into one ``(K, L)`` sinogram per
 detector row, cropped and binned. Importing a scan into a data set (all three, the corrections,
 the axis and the store) is :func:`nanoct.workflows.importscan.import_scan`.
-Each format has its own reader module:
-
-* HDF5 / NeXus (:mod:`nanoct.io.nxtomo` for NXtomo, :mod:`nanoct.io.hdf5_layouts` for
-  Diamond's scan NeXus, Data Exchange and any layout given by dataset paths), read through
-  :class:`~nanoct.io.h5tree.H5Tree` (external links and virtual data sets only below the
-  scan's folder);
-* TIFF stacks, folders of TIFFs and ``.npy`` (:mod:`nanoct.io.tiffio`);
-* MRC / IMOD tilt series (:mod:`nanoct.io.mrcio`);
-* angles from text files, IMOD ``.tlt`` / ``.rawtlt`` or an HDF5 dataset (:mod:`nanoct.io.angles`).
+Each format has its reader, registered in :mod:`nanoct.io.readers` (one module a format:
+NXtomo, the HDF5 layouts of Diamond and Data Exchange and any layout given by dataset paths, TIFF,
+``.npy``, MRC tilt series), which says how it recognises a file (:func:`detect_format`) and reads
+it; HDF5 files are read through :class:`~nanoct.io.h5tree.H5Tree` (external links and virtual data
+sets only below the scan's folder). :func:`read_scan` checks the options against the reader's,
+reads the angles given from outside the file (text files, IMOD ``.tlt`` / ``.rawtlt``, an HDF5
+dataset or ``FIRST:STOP``: :mod:`nanoct.io.angles`) and hands the rest to the reader.
 
 Results out: :mod:`nanoct.io.imagefiles` (images) and :mod:`nanoct.io.shiftfile` (nabu's
 shifts files); their names are re-exported here.
@@ -38,7 +36,7 @@ has one view per direction.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,18 +44,13 @@ import numpy as np
 
 from ..core.errors import NanoctError
 from .angles import H5_SUFFIXES, read_angles, split_h5_spec, uniform_spec
-from .h5tree import H5Tree
-from .hdf5_layouts import LAYOUTS, custom_layout, detect_layout, read_layout
 from .imagefiles import EXPORT_FORMATS, write_images
-from .mrcio import MRC_SUFFIXES, count_views, find_tilt_file, read_mrc
-from .nxtomo import read_nxtomo, to_unit
 from .rawscan import RawScan, angle_count_error, check_angles, detector_window, drop_bad_views, drop_repeated_views
+from .readers import Reader, ReaderOptions, ReadRequest, detect_format, reader
 from .shiftfile import LEFT_OUT, SHIFTS_HEADER, read_shifts, write_shifts
-from .tiffio import read_array, read_field, read_tiff_folder
 
 __all__ = [
     "EXPORT_FORMATS",
-    "FORMATS",
     "LEFT_OUT",
     "MAX_TRANSMISSION",
     "SHIFTS_HEADER",
@@ -76,105 +69,6 @@ __all__ = [
     "write_images",
     "write_shifts",
 ]
-
-HDF5_FORMATS = ("nxtomo", *LAYOUTS, "hdf5")
-FORMATS = (*HDF5_FORMATS, "tiff", "npy", "mrc")
-
-
-@dataclass(frozen=True)
-class ReaderOptions:
-    """How to read a file beyond its format: HDF5 dataset paths, angle units, tilt axis, links.
-
-    Attributes
-    ----------
-    data_path, image_key_path, angles_path : str, optional
-        HDF5 datasets of the frames, their NXtomo image keys and the angles (``--data-path``
-        ...): they override a known layout's paths, or describe a file of no known layout.
-    angle_units : {"deg", "rad"}, optional
-        Unit of the angles, as the user states it (overrides the file's ``units`` attribute
-        and ``--radians``; the check that the span fits the unit is then skipped).
-    tilt_axis : {"columns", "rows"}
-        MRC tilt series: along which image direction the tilt axis runs (:mod:`nanoct.io.mrcio`).
-    allow : tuple of str
-        Folders outside the scan's own that external links and virtual data sets may read.
-    angles_select : (int, int), optional
-        Use only the values ``[FIRST, STOP)`` of the angles file (0-based), e.g. the
-        projections' lines of a file that also lists the flats' and darks' angles.
-    """
-
-    data_path: str | None = None
-    image_key_path: str | None = None
-    angles_path: str | None = None
-    angle_units: str | None = None
-    tilt_axis: str = "columns"
-    allow: tuple[str, ...] = ()
-    angles_select: tuple[int, int] | None = None
-
-    @property
-    def has_paths(self) -> bool:
-        """Whether any HDF5 dataset path was given."""
-        return any((self.data_path, self.image_key_path, self.angles_path))
-
-
-def detect_format(path: str | os.PathLike[str], allow: tuple[str, ...] = ()) -> str:
-    """Guess a scan's format from its path (and, for HDF5, its content).
-
-    Raises
-    ------
-    NanoctError
-        For a missing path, an unknown extension (the message lists :data:`FORMATS`), or an
-        HDF5 file of no known layout (the message says which options read it).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise NanoctError(f"{path} does not exist; give the scan file or TIFF folder")
-    suffix = path.suffix.lower()
-    if path.is_dir() or suffix in (".tif", ".tiff"):
-        return "tiff"
-    if suffix == ".npy":
-        return "npy"
-    if suffix in MRC_SUFFIXES:
-        return "mrc"
-    if suffix in H5_SUFFIXES:
-        with H5Tree(path, allow) as tree:
-            found = detect_layout(tree)
-        if found is None:
-            known = ", ".join(f"{n} ({v.data})" for n, v in LAYOUTS.items())
-            raise NanoctError(
-                f"{path} is HDF5 but of no known layout (NXtomo; {known}); give the dataset paths with "
-                "--data-path (and --image-key-path, --angles-path)"
-            )
-        return found
-    raise NanoctError(f"cannot tell the format of {path} from its extension; pass --format ({', '.join(FORMATS)})")
-
-
-def _read_hdf5(path: Path, fmt: str, entry: str | None, window: Any, opts: ReaderOptions, need_angles: bool) -> RawScan:
-    """An HDF5 scan: NXtomo by :mod:`~nanoct.io.nxtomo`, any other layout by :mod:`~nanoct.io.hdf5_layouts`."""
-    with H5Tree(path, opts.allow) as tree:
-        if fmt == "nxtomo" and not opts.has_paths:
-            frames = read_nxtomo(tree, entry, window)
-            scan = RawScan(
-                frames.projections,
-                frames.angles if opts.angle_units is None else _restated(frames, opts.angle_units),
-                flats=frames.flats,
-                darks=frames.darks,
-                source={"file": str(path), "format": "nxtomo", **frames.source},
-            )
-            if need_angles and opts.angle_units is None:
-                units = frames.source["angle_units"]
-                deg = bool(np.isclose(to_unit(1.0, units.split(" ")[0], "degree", default="degree", where=units), 1))
-                where = f"{path}:{frames.source['entry']}/sample/rotation_angle"
-                check_angles(scan.angles, degrees=deg, where=where, fix="correct its units attribute or pass --angles")
-            return scan
-        layout = custom_layout(LAYOUTS.get(fmt), opts.data_path, opts.image_key_path, opts.angles_path, None)
-        return read_layout(tree, layout, window, units=opts.angle_units, need_angles=need_angles)
-
-
-def _restated(frames: Any, units: str) -> np.ndarray:
-    """NXtomo angles re-read in the unit the user states (the file's ``units`` attribute ignored)."""
-    stored = frames.source["angle_units"].split(" ")[0]
-    raw = to_unit(frames.angles, "radian", stored, default="degree", where=str(stored))
-    return np.deg2rad(raw) if units == "deg" else raw
 
 
 def read_scan(
@@ -201,7 +95,8 @@ def read_scan(
         name, one projection each), a ``.npy`` stack ``(K, R, L)`` / sinogram ``(K, L)``, or an
         MRC tilt series.
     fmt : str, optional
-        One of :data:`FORMATS`; guessed from the path (and an HDF5 file's content) by default.
+        A reader's name (:data:`nanoct.io.readers.READERS`); by default :func:`detect_format` tells it
+        from the path (and an HDF5 file's content).
     angles_file : path, optional
         View angles: a text file (IMOD ``.tlt`` / ``.rawtlt`` too) or ``FILE.h5:/dataset``;
         required for TIFF and ``.npy``, found next to an MRC stack; given anyway, it overrides
@@ -238,21 +133,15 @@ def read_scan(
     """
     opts = options or ReaderOptions()
     fmt = fmt or ("hdf5" if opts.data_path and _is_h5(path) else detect_format(path, opts.allow))
-    if fmt not in FORMATS:
-        raise NanoctError(f"--format {fmt!r} is unknown; use one of {', '.join(FORMATS)}")
-    if entry is not None and fmt != "nxtomo":
+    chosen = reader(fmt)
+    if entry is not None and "entry" not in chosen.takes:
         raise NanoctError(f"--entry {entry!r} is for NXtomo files; {path} is {fmt}")
-    if opts.has_paths and fmt not in HDF5_FORMATS:
+    if opts.has_paths and "data_path" not in chosen.takes:
         raise NanoctError(f"--data-path, --image-key-path and --angles-path are for HDF5 files; {path} is {fmt}")
-    _check_unused(path, fmt, angles_file, degrees, (flats, darks), is_line_integral, opts)
+    _check_unused(path, chosen, angles_file, degrees, (flats, darks), is_line_integral, opts)
     window = detector_window(rows, crop)
     given = None if angles_file is None else _given_angles(angles_file, degrees, opts)
-    if fmt in HDF5_FORMATS:
-        scan = _read_hdf5(Path(path), fmt, entry, window, opts, need_angles=given is None)
-    elif fmt == "mrc":
-        scan = _read_mrc(Path(path), window, given, opts)
-    else:
-        scan = _read_stack(Path(path), fmt, window, given, flats, darks)
+    scan = chosen.read(Path(path), ReadRequest(window, given, flats, darks, entry, opts))
     if given is not None:
         values = given(scan.n_views) if callable(given) else given
         if values.size != scan.n_views:
@@ -264,26 +153,28 @@ def read_scan(
 
 
 def _check_unused(
-    path: Any, fmt: str, angles_file: Any, degrees: bool, fields: tuple[Any, Any], line: bool, opts: ReaderOptions
+    path: Any, chosen: Reader, angles_file: Any, degrees: bool, fields: tuple[Any, Any], line: bool, opts: ReaderOptions
 ) -> None:
     """Refuse the reading options that the file's format and the other options leave unused (each silently
     ignored otherwise): flat and dark files beside an HDF5 or MRC scan or with line integrals, ``--tilt-axis``
     of another format than MRC, ``--allow-outside`` without an HDF5 file, ``--angles-select`` and ``--radians``
-    without an angles file they apply to."""
+    without an angles file they apply to. What the format takes is its reader's
+    (:attr:`~nanoct.io.readers.base.Reader.takes`)."""
+    fmt = chosen.name
     given = [flag for flag, value in zip(("--flats", "--darks"), fields) if value is not None]
     them = "them" if len(given) > 1 else "it"
-    if given and fmt not in ("tiff", "npy"):
+    if given and not {"flats", "darks"} <= chosen.takes:
         raise NanoctError(f"{' and '.join(given)}: for TIFF and .npy scans; {path} is {fmt} (drop {them})")
     if given and line:
         raise NanoctError(f"{' and '.join(given)}: --line-integrals takes no flat/dark correction (drop {them})")
-    if opts.tilt_axis != "columns" and fmt != "mrc":
+    if opts.tilt_axis != "columns" and "tilt_axis" not in chosen.takes:
         raise NanoctError(f"--tilt-axis {opts.tilt_axis}: for MRC tilt series; {path} is {fmt} (drop it)")
     h5_angles = angles_file is not None and split_h5_spec(angles_file) is not None
-    if opts.allow and fmt not in HDF5_FORMATS and not h5_angles:
+    if opts.allow and "allow" not in chosen.takes and not h5_angles:
         raise NanoctError(f"--allow-outside: for HDF5 files (the folders their links may read); {path} is {fmt}")
     if opts.angles_select is not None:
         first, stop = opts.angles_select
-        if angles_file is None and fmt != "mrc":
+        if angles_file is None and "angles_select" not in chosen.takes:
             raise NanoctError(
                 f"--angles-select {first}:{stop}: picks values of an --angles file (or of an MRC stack's tilt file); "
                 f"{path} is {fmt} and no --angles is given (drop it, or give --angles FILE)"
@@ -324,56 +215,6 @@ def _given_angles(angles_file: str | os.PathLike[str], degrees: bool, opts: Read
         allow = (*allow, str(spec[0].resolve().parent))
     values = read_angles(angles_file, degrees=degrees, units=opts.angle_units, allow=allow, select=opts.angles_select)
     return values
-
-
-def _read_mrc(path: Path, window: Any, given: np.ndarray | None, opts: ReaderOptions) -> RawScan:
-    source = {}
-    if given is None:
-        tilt = find_tilt_file(path)
-        if tilt is None:
-            raise NanoctError(
-                f"{path}: no {path.with_suffix('.rawtlt').name} or {path.with_suffix('.tlt').name} next to it; "
-                "pass --angles FILE (one angle per view)"
-            )
-        given = read_angles(tilt, degrees=True, units=opts.angle_units, select=opts.angles_select)
-        source["angles_from"] = str(tilt)
-    n_views = count_views(path)  # a non-standard header is read permissively (read_mrc warns)
-    given = given(n_views) if callable(given) else given
-    if given.size != n_views:
-        raise NanoctError(f"{path}: {n_views} images but {given.size} tilt angle(s); give one angle per image")
-    scan = read_mrc(path, window, given, tilt_axis=opts.tilt_axis)
-    return replace(scan, source={**scan.source, **source})
-
-
-def _read_stack(path: Path, fmt: str, window: Any, given: np.ndarray | None, flats: Any, darks: Any) -> RawScan:
-    """A TIFF stack or folder, or a ``.npy`` array, with separate flat and dark files."""
-    if given is None:
-        raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
-    folder = fmt == "tiff" and path.is_dir()
-    if folder:  # one file per projection: each cut as it is read
-        stack, detector = read_tiff_folder(path, window)
-    else:
-        stack = read_array(path, fmt, mmap=True)
-        stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
-        detector = stack.shape[1:]
-    if stack.ndim != 3:
-        raise NanoctError(f"{path} holds an array of shape {stack.shape}; expected (views, rows, columns)")
-    r, c = window(detector)
-    stack = stack if folder else stack[:, r, c]
-
-    def frames(file: str | os.PathLike[str] | None, what: str) -> np.ndarray | None:
-        return None if file is None else read_field(Path(file), what, detector)[:, r, c]
-
-    given = given(stack.shape[0]) if callable(given) else given
-    if given.size != stack.shape[0]:
-        raise angle_count_error(given.size, stack.shape[0])
-    return RawScan(
-        np.asarray(stack, dtype=np.float32),
-        given,
-        flats=frames(flats, "flats"),
-        darks=frames(darks, "darks"),
-        source={"file": str(path), "format": fmt, "detector_shape": list(detector)},
-    )
 
 
 #: Without flats the projections are taken as transmissions; a median above this is raw counts

@@ -8,15 +8,53 @@ than raises, some damage: those log messages are caught).
 from __future__ import annotations
 
 import logging
+import os
 import struct
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.errors import NanoctError
+from .rawscan import RawScan, angle_count_error
 
-__all__ = ["read_array", "read_field", "read_tiff", "read_tiff_folder"]
+__all__ = ["read_array", "read_field", "read_stack", "read_tiff", "read_tiff_folder"]
+
+
+def read_stack(path: Path, fmt: str, window: Any, given: Any, flats: Any = None, darks: Any = None) -> RawScan:
+    """A TIFF stack or folder (``fmt`` ``"tiff"``), or a ``.npy`` array (``"npy"``), with separate flat and dark files.
+
+    ``window``: the part of the detector (:func:`~nanoct.io.rawscan.detector_window`); ``given``: the angles
+    (radians), or a function of the number of views; these formats have none of their own.
+    """
+    if given is None:
+        raise NanoctError(f"a {fmt} scan has no angles; pass --angles FILE (one angle per view)")
+    folder = fmt == "tiff" and path.is_dir()
+    if folder:  # one file per projection: each cut as it is read
+        stack, detector = read_tiff_folder(path, window)
+    else:
+        stack = read_array(path, fmt, mmap=True)
+        stack = stack[:, None, :] if stack.ndim == 2 else stack  # one sinogram (K, L): one detector row
+        detector = stack.shape[1:]
+    if stack.ndim != 3:
+        raise NanoctError(f"{path} holds an array of shape {stack.shape}; expected (views, rows, columns)")
+    r, c = window(detector)
+    stack = stack if folder else stack[:, r, c]
+
+    def frames(file: str | os.PathLike[str] | None, what: str) -> np.ndarray | None:
+        return None if file is None else read_field(Path(file), what, detector)[:, r, c]
+
+    given = given(stack.shape[0]) if callable(given) else given
+    if given.size != stack.shape[0]:
+        raise angle_count_error(given.size, stack.shape[0])
+    return RawScan(
+        np.asarray(stack, dtype=np.float32),
+        given,
+        flats=frames(flats, "flats"),
+        darks=frames(darks, "darks"),
+        source={"file": str(path), "format": fmt, "detector_shape": list(detector)},
+    )
 
 
 def read_field(path: Path, what: str, detector: tuple[int, ...]) -> np.ndarray:
