@@ -11,10 +11,12 @@ from nanoct.cli import run
 from nanoct.core.geometry import Geometry, get_preset
 from nanoct.core.operators import RayTransform
 from nanoct.evaluation.metrics import psnr
+from nanoct.io.readers import READERS
 from nanoct.io.store import DataStore
 from nanoct.recon.batch import reconstruct_dataset
 from nanoct.sim.motion import MotionParams, sample_motion
 from nanoct.sim.phantoms import random_phantom
+from scan_files import WRITERS, ScanData
 
 OFFSET = 2.0  # rotation axis 2 raw detector pixels right of the detector centre
 SLICES = 3
@@ -42,6 +44,7 @@ def scan():
 
 
 def _write(tmp_path, scan, fmt):
+    """An NXtomo file (``fmt`` "nxtomo") or a ``.npy`` stack with its angles, flats and darks files beside it."""
     if fmt == "nxtomo":
         path = tmp_path / "scan.nxs"
         frames = np.concatenate([scan["darks"], scan["flats"], scan["proj"]])
@@ -51,31 +54,21 @@ def _write(tmp_path, scan, fmt):
             f["entry/instrument/detector/image_key"] = keys
             f["entry/sample/rotation_angle"] = np.r_[np.zeros(4), scan["deg"]]
         return path, []
-    if fmt == "dxchange":
-        path = tmp_path / "scan.h5"
-        with h5py.File(path, "w") as f:
-            f["exchange/data"], f["exchange/theta"] = scan["proj"], scan["deg"]
-            f["exchange/data_white"], f["exchange/data_dark"] = scan["flats"], scan["darks"]
-        return path, []
     np.savetxt(tmp_path / "angles.txt", scan["deg"])
     extra = ["--angles", str(tmp_path / "angles.txt"), "--flats", str(tmp_path / "f.npy"), "--darks"]
     np.save(tmp_path / "f.npy", scan["flats"])
     np.save(tmp_path / "d.npy", scan["darks"])
     extra.append(str(tmp_path / "d.npy"))
-    if fmt == "npy":
-        np.save(tmp_path / "scan.npy", scan["proj"])
-        return tmp_path / "scan.npy", extra
-    folder = tmp_path / "tiffs"
-    folder.mkdir()
-    for k, image in enumerate(scan["proj"]):
-        tifffile.imwrite(folder / f"p_{k:04d}.tif", image)
-    return folder, extra
+    np.save(tmp_path / "scan.npy", scan["proj"])
+    return tmp_path / "scan.npy", extra
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fmt", ["nxtomo", "dxchange", "tiff", "npy"])
+@pytest.mark.parametrize("fmt", READERS)
 def test_import_every_format(tmp_path, scan, fmt, capsys):
-    src, extra = _write(tmp_path, scan, fmt)
+    """Every registered format, written by its writer (``scan_files.WRITERS``) from the same intensities."""
+    written = WRITERS[fmt](tmp_path, ScanData(scan["proj"], scan["flats"], scan["darks"], scan["deg"]))
+    src, extra = written.path, written.cli_args()
     out = tmp_path / "data"
     assert run(["import", str(src), "--out", str(out), "--center-offset", str(OFFSET), *extra]) == 0
     store = DataStore.open(out)

@@ -12,6 +12,7 @@ from typing import Any
 import typer
 
 from ..core.errors import NanoctError
+from ..io.readers import READERS
 from .flags import given, long_flag, option
 from .parsing import parse_ints, parse_range
 
@@ -38,7 +39,7 @@ class ScanReading:
     fmt: str | None = option(
         None,
         "--format",
-        help="nxtomo | diamond | diamond-nxtomo | dxchange | hdf5 | tiff | npy | mrc (default: from the file).",
+        help=f"{' | '.join(READERS)} (default: from the file).",
     )
     angles: str | None = option(
         None,

@@ -9,9 +9,9 @@ name in rank order; :func:`detect_format` asks each in turn whether it recognise
 (``tests/io/test_readers.py`` holds the table to the registry).
 
 Adding a format: a module here whose ``READERS`` holds its reader (name, title, extensions, how it
-recognises a file, how it reads one), a writer of a small file of it in ``tests/io/test_readers.py``
-(its contract test runs every registered reader: round trip, angles, pixel size, a truncated file, an
-untrusted link), and its row in the docs' table.
+recognises a file, how it reads one), a writer of a small file of it in ``tests/scan_files.py``
+(``tests/io/test_readers.py`` runs every registered reader over its file: round trip, angles, pixel
+size, a truncated file, an untrusted link), and its row in the docs' table.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ class MrcReader(Reader):
     name = "mrc"
     title = "MRC / IMOD tilt series"
     extensions = MRC_SUFFIXES
-    recognised_by = "the extension; the angles from `<name>.rawtlt` (or `.tlt`) beside it"
+    recognised_by = "the extension"
     rank = 60
     takes = frozenset({"tilt_axis", "angles_select"})
 
