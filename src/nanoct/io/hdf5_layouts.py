@@ -5,7 +5,8 @@ Beamlines write tomography to HDF5 in a few layouts. NXtomo (an ``NXentry`` whos
 :data:`LAYOUTS` (the paths of the frames, their image keys, the angles and, for Data Exchange,
 separate flats and darks), chosen automatically when the file holds that layout's frames and
 angles (:func:`detect_layout`), or given path by path (``--data-path``, ``--image-key-path``,
-``--angles-path``, ``--angles-units``), which also override a detected layout's paths.
+``--angles-path``, ``--angles-units``), which also override a detected layout's paths. Each row is
+a ``--format`` of its own (:mod:`nanoct.io.readers.layouts`).
 
 Image keys follow NXtomo (0 projection, 1 flat, 2 dark, 3 invalid and -1 alignment left out);
 without a key every frame is a projection. Angles are read in the unit given by

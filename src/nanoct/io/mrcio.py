@@ -1,4 +1,5 @@
-"""MRC / IMOD tilt series: an image stack read with ``mrcfile``, its angles from an IMOD angle file.
+"""MRC / IMOD tilt series: an image stack read with ``mrcfile``, its angles from an IMOD angle file (``--format
+mrc``: :mod:`nanoct.io.readers.mrc`).
 
 An MRC stack (``.mrc``, IMOD's raw ``.st`` and aligned ``.ali``) holds one image per tilt,
 ``(nz, ny, nx)`` = (views, image rows, image columns). IMOD lists the tilt angles (degrees,

@@ -1,4 +1,5 @@
-"""NXtomo files as ESRF's ``nxtomo`` library (and other NeXus writers) lay them out.
+"""NXtomo files as ESRF's ``nxtomo`` library (and other NeXus writers) lay them out (``--format nxtomo``:
+:mod:`nanoct.io.readers.nxtomo`).
 
 The NXtomo application definition lets the ``NXentry`` have any name (``nxtomo`` writes
 ``entry0000``); an entry is recognised by its ``NX_class`` attribute ``NXentry`` and its

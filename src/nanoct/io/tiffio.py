@@ -1,4 +1,5 @@
-"""TIFF stacks and ``.npy`` arrays: projections, flat and dark fields, read with tifffile and numpy.
+"""TIFF stacks and ``.npy`` arrays: projections, flat and dark fields, read with tifffile and numpy (``--format
+tiff`` and ``npy``: :mod:`nanoct.io.readers.tiff`, :mod:`nanoct.io.readers.npy`).
 
 A multi-page TIFF is one stack; a folder of TIFFs (sorted by name) holds one projection per
 file. A truncated or damaged file is refused rather than read in part (tifffile logs, rather
