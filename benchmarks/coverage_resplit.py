@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from nanoct.evaluation.conformal import half_width
 from nanoct.evaluation.metrics import interval_scores, support_mask
 from nanoct.io.store import DataStore
-from nanoct.learn.calibration import fit_intervals, half_width, sample_outputs
+from nanoct.learn.calibration import fit_intervals, sample_outputs
 from nanoct.learn.checkpoint import load_checkpoint, model_from_checkpoint
 
 BAND = (0.87, 0.93)

@@ -66,10 +66,10 @@ from skimage.metrics import structural_similarity
 
 from cli_run import cli
 from nanoct.core.geometry import Geometry
-from nanoct.evaluation.conformal import FOOTPRINT_TOLERANCE, footprint_outside, group_labels
+from nanoct.evaluation.conformal import FOOTPRINT_TOLERANCE, footprint_outside, group_labels, half_width
 from nanoct.evaluation.metrics import register, truth_support
 from nanoct.io.store import DataStore, create_scan
-from nanoct.learn.calibration import fit_intervals, half_width, reference_rule
+from nanoct.learn.calibration import fit_intervals, reference_rule
 from nanoct.recon.fbp import fbp
 from nanoct.sim.matched import fov_disc, matched_source
 from nanoct.sim.scan_stats import bin_sinograms, binned_offset

@@ -26,8 +26,9 @@ import numpy as np
 
 import semireal_networks as sr
 from cli_run import cli
+from nanoct.evaluation.conformal import half_width
 from nanoct.io.store import DataStore
-from nanoct.learn.calibration import fit_intervals, half_width
+from nanoct.learn.calibration import fit_intervals
 
 NAME = "dremel+ciunet-res"
 
