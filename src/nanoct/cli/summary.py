@@ -4,14 +4,11 @@ the slices are, and the notes on options that were not used."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import typer
 
 from .flags import given
-
-if TYPE_CHECKING:
-    from .scan import StackSettings
 
 
 def echo_import(store: Any) -> None:
@@ -32,7 +29,7 @@ def echo_import(store: Any) -> None:
             typer.echo(note + raw, err=True)
 
 
-def _notes(settings: StackSettings, info: dict[str, Any]) -> str:
+def _notes(settings: Any, info: dict[str, Any]) -> str:
     """The summary's closing note lines: the Dremel options given but left unused where the views' centroids gave
     the motion, and the former spelling ``--binning`` where it was used ("" where neither)."""
     text = ""
@@ -80,7 +77,7 @@ def _motion_lines(info: dict[str, Any]) -> list[str]:
     return lines + consistency_lines(info)
 
 
-def stack_summary(store: Any, name: str, settings: StackSettings, info: dict[str, Any]) -> str:
+def stack_summary(store: Any, name: str, settings: Any, info: dict[str, Any]) -> str:
     """What 'nanoct stack' found and wrote on a data set (``info``: the motion recorded with ``name``): axis, how
     it was found, the motion's range, where the slices are."""
     import numpy as np
@@ -112,7 +109,7 @@ def stack_summary(store: Any, name: str, settings: StackSettings, info: dict[str
     return "\n".join(lines) + _notes(settings, info)
 
 
-def slab_summary(out: Path, settings: StackSettings) -> str:
+def slab_summary(out: Path, settings: Any) -> str:
     """What the streaming stack (``--out``) found and wrote."""
     from ..recon.slab import read_slab_record
 
