@@ -5,9 +5,9 @@ running back up: ``preprocess`` and ``io`` need only ``core``; the solvers (``re
 through ``io``; ``sim`` (matched sets reconstruct the scan) and ``motion`` (its estimators run FBP
 and Dremel) stand on ``recon``; ``evaluation`` (metrics, intervals) needs none of the workflows;
 ``workflows`` joins reading, corrections, motion, solvers and the intervals' export; ``learn``
-calibrates its networks with ``evaluation``; ``study`` runs everything. No subpackage imports a top-level module (:data:`TOP`: the package's
-``__init__``, the names it gathers, the array API, the CLI): those stand above every layer. Inside a
-layer, no modules import each other in a circle.
+calibrates its networks with ``evaluation``; ``study`` runs everything. No subpackage imports a
+top-level module (:data:`TOP`: the package's ``__init__``, the names it gathers, the array API, the
+CLI): those stand above every layer. Inside a layer, no modules import each other in a circle.
 """
 
 from __future__ import annotations
