@@ -83,10 +83,29 @@ def test_stale_locks_are_broken(tmp_path):
         assert not lock.exists()
 
 
-def test_a_waiting_writer_gets_the_lock_once_it_is_released(tmp_path):
+class _Clock:
+    """The lock module's ``time`` on a clock of its own: ``sleep`` advances it without waiting."""
+
+    def __init__(self):
+        self.now, self.slept = 1000.0, 0.0
+
+    def monotonic(self):
+        return self.now
+
+    def sleep(self, seconds):
+        self.now += seconds
+        self.slept += seconds
+
+    def __getattr__(self, name):
+        return getattr(time, name)
+
+
+def test_a_waiting_writer_gets_the_lock_once_it_is_released(tmp_path, monkeypatch):
     """``wait``: a block of milliseconds (a small file's update) waits for the holder instead of failing; past
     the wait, or with none, it is refused as before."""
     import threading
+
+    import nanoct.io.lock as lock_module
 
     held, release = threading.Event(), threading.Event()
 
@@ -99,12 +118,14 @@ def test_a_waiting_writer_gets_the_lock_once_it_is_released(tmp_path):
     thread.start()
     held.wait(10)
     try:
-        for wait in (0.0, 0.2):
-            start = time.monotonic()
+        for wait in (0.0, 0.2):  # refused once the wait is spent, on the lock's clock (none spent for no wait)
+            clock = _Clock()
+            monkeypatch.setattr(lock_module, "time", clock)
             with pytest.raises(BusyError, match="the file is being written"):
                 with exclusive(tmp_path, "calibration.json", "the file", wait=wait):
                     pass
-            assert time.monotonic() - start >= wait
+            assert clock.slept >= wait and (clock.slept == 0) == (wait == 0)
+        monkeypatch.undo()
         threading.Timer(0.3, release.set).start()
         with exclusive(tmp_path, "calibration.json", "the file", wait=10.0) as lock:
             assert release.is_set() and json.loads(lock.read_text())["pid"] == os.getpid()

@@ -240,8 +240,7 @@ def test_resume_after_sigkill(store, tmp_path):
     ]
     proc = subprocess.Popen([*cmd, "--epochs", "10000"], stderr=subprocess.PIPE)
     try:
-        deadline = time.time() + 60
-        while time.time() < deadline and not (run / "log.csv").exists():
+        while not (run / "log.csv").exists():  # the first epoch, however long it takes (pytest-timeout bounds it)
             assert proc.poll() is None, proc.stderr.read().decode()
             time.sleep(0.05)
         time.sleep(0.3)

@@ -57,8 +57,7 @@ def test_kill_and_resume_gives_the_same_bytes(tmp_path):
     ]
     killed = tmp_path / "killed"
     proc = subprocess.Popen([*cmd, "--out", str(killed)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while _done_count(killed) < 20 and time.time() < deadline and proc.poll() is None:
+    while _done_count(killed) < 20 and proc.poll() is None:  # no deadline: pytest-timeout bounds a hang
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
