@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
+# torch's OpenMP threads wait passively (as under ``nanoct.study``), set before torch is first imported: with
+# libgomp's spinning default, the training tests' tiny steps ran several times slower on a shared 2-core machine.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import sys
 from pathlib import Path
 
