@@ -5,6 +5,7 @@ The code blocks of each document are run in order, as a shell would run them, in
 so that a command written for a cluster or a paper-scale run finishes in seconds, is listed in
 :data:`REWRITES` (and docs/commands.md, "The documented commands are tested"):
 
+* workers: a command that fans out over local Dask workers runs in this process (``--workers 0``);
 * shell: ``A=x B=y`` and ``export A=x`` set variables, ``$A`` is replaced, a ``for`` loop runs
   its body for each value of its variable (the first value only where the body trains or
   predicts: one network per pass), ``torchrun ... -m nanoct`` and
@@ -18,7 +19,8 @@ so that a command written for a cluster or a paper-scale run finishes in seconds
   simulated with the geometry of the data set it is applied to (``predict`` refuses a run of
   another geometry) and calibrated by a prediction on that simulated set;
 * sizes: ``generate`` uses the tiny preset of the same beam and at most 50 samples (the
-  fewest that leave one test sample), ``--epochs`` is 1, ``--scheduler ADDRESS`` becomes
+  fewest that leave one test sample), 8 for a set nothing trains on (``--split-fractions 0,...``),
+  ``--epochs`` is 1, ``--scheduler ADDRESS`` becomes
   ``--workers 0``, and a whole study (``reproduce`` or ``scaling`` without ``--plan``, 45
   minutes at tiny scale) is run with ``--plan``.
 
@@ -47,6 +49,10 @@ REWRITES = (
     (r"--epochs \d+", "--epochs 1", "one epoch"),
 )
 MAX_SAMPLES = 50
+#: The commands that fan out over local Dask workers (``--workers``, default 2): run in this process instead.
+FANNING_OUT = ("generate", "reconstruct", "reproduce", "scaling", "shift-test", "stack")
+#: At most this many samples for a set nothing trains on (``--split-fractions 0,...``: test or calibration pairs).
+MAX_UNTRAINED_SAMPLES = 8
 
 
 SHELL_BLOCKS = ("", "bash", "sh", "shell", "console")
@@ -159,7 +165,11 @@ def _rewrite(argv: list[str], root: Path) -> list[str]:
     words = shlex.split(text)
     if words[0] == "generate" and "--n" in words:
         i = words.index("--n") + 1
-        words[i] = str(min(int(words[i]), MAX_SAMPLES))
+        fractions = words[words.index("--split-fractions") + 1] if "--split-fractions" in words else "1"
+        untrained = float(fractions.split(",")[0]) == 0
+        words[i] = str(min(int(words[i]), MAX_UNTRAINED_SAMPLES if untrained else MAX_SAMPLES))
+    if words[0] in FANNING_OUT and not any(w in ("--workers", "-w") or w.startswith("--workers=") for w in words):
+        words += ["--workers", "0"]  # a Dask cluster's start costs more than the command's work at these sizes
     if words[0] in ("reproduce", "scaling") and "--plan" not in words:
         words.append("--plan")
     # absolute paths (alone or after "=") inside the document's folder; the vendored real scans from the repository
@@ -232,8 +242,12 @@ def test_the_rewrites_keep_a_command_and_shrink_its_size(tmp_path):
         ["generate", "--preset", "paper-fan", "--n", "32095", "--out", "/data/x", "--scheduler", "tcp://H:1"], tmp_path
     )
     assert argv == ["generate", "--preset", "tiny-fan", "--n", "50", "--out", f"{tmp_path}/data/x", "--workers", "0"]
+    assert _rewrite(["generate", "--n", "24", "--split-fractions", "0,0,1", "--out", "t"], tmp_path)[2] == "8"
+    assert _rewrite(["generate", "--n", "24", "--split-fractions", "0.5,0,0.5", "--out", "t"], tmp_path)[2] == "24"
+    assert _rewrite(["reconstruct", "d", "--method", "fbp"], tmp_path)[-2:] == ["--workers", "0"]
+    assert _rewrite(["stack", "d", "-w", "1"], tmp_path) == ["stack", "d", "-w", "1"]
     assert _rewrite(["reproduce", "--scale", "paper"], tmp_path)[-1] == "--plan"
-    assert _rewrite(["reconstruct", "d", "--eta", "estimate:reference=/tmp/r"], tmp_path)[-1] == (
+    assert _rewrite(["reconstruct", "d", "--eta", "estimate:reference=/tmp/r"], tmp_path)[3] == (
         f"estimate:reference={tmp_path}/tmp/r"
     )
 
