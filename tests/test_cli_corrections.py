@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from nanoct.cli import run
 from nanoct.io.store import DataStore
@@ -30,6 +31,7 @@ def test_open_beam_normalisation_takes_i13_air_to_zero(tmp_path):
     assert "corrections" not in raw.meta["scan"]
 
 
+@pytest.mark.slow
 def test_stripe_removal_lowers_the_ring_metric_of_the_neutron_slice(tmp_path):
     neutron = REAL / "neutron-360-sinogram" / "sinogram_360_neutron_image.tif"
     argv = ["import", str(neutron), "--angles", "0:360", "--open-beam", "--center-offset", "auto", "-q"]

@@ -74,6 +74,7 @@ def test_the_i13_angles_file_lists_more_values_than_projections(tmp_path, capsys
     assert "111 angle(s) for 91 projection(s)" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_diamond_nexus_file_from_raw_file_to_slices(tmp_path, capsys):
     nxs = REAL / "k11-18014-nexus" / "k11-18014.nxs"
     argv = ["stack", str(nxs), "--store", str(tmp_path / "k11"), "--rows", "8:11", "-w", "0", "-q"]
@@ -85,6 +86,7 @@ def test_the_diamond_nexus_file_from_raw_file_to_slices(tmp_path, capsys):
     assert np.loadtxt(tmp_path / "m.txt").shape == (3001, 2)
 
 
+@pytest.mark.slow
 def test_dremel_keeps_its_start_where_the_shift_estimate_runs_away(tmp_path, capsys):
     """The noise-dominated 26-column K11 crop: every slice's estimate ran to about 43 px; each is
     rejected (a quarter of the detector, 6.5 px), the joint motion stays at zero, and the CLI warns."""
@@ -99,6 +101,7 @@ def test_dremel_keeps_its_start_where_the_shift_estimate_runs_away(tmp_path, cap
     assert np.isfinite(store.read_reconstruction("dremel")).all()
 
 
+@pytest.mark.slow
 def test_a_rejected_slice_stays_pending_until_it_is_noted(tmp_path, capsys, monkeypatch):
     """A run stopped after a slice was written but before its rejection was noted redoes that slice: the note
     counts every rejected slice once, over the stopped run and the resumed one."""
@@ -131,6 +134,7 @@ def test_a_rejected_slice_stays_pending_until_it_is_noted(tmp_path, capsys, monk
     assert sorted(DataStore.open(tmp_path / "k").reconstruction_note("dremel", "sample_shift_check")) == ["0", "1", "2"]
 
 
+@pytest.mark.slow
 def test_the_axis_warning_of_a_binned_import_says_its_pixels(tmp_path, capsys):
     """The estimators run on the unbinned columns read; the headline offset is in binned pixels (the mirror
     match's -6.08 unbinned: the held-out views reject find_center_vo's -5.25)."""

@@ -32,6 +32,7 @@ def _chunks(out):
     return {p.relative_to(out): p.read_bytes() for p in sorted((out / "slices").rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_streamed_stack_finds_the_stacks_motion_and_matches_the_store_path(scan, tmp_path, capsys):
     """The same vertical motion as `stack --store` (and the true one), the same shifts, the same images."""
     path, read, phi, d, v = scan

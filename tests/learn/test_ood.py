@@ -228,6 +228,7 @@ def motion_stores(tmp_path_factory):
     }
 
 
+@pytest.mark.slow
 def test_scan_features_scale_with_the_simulated_motion(motion_stores, tmp_path):
     """The same samples simulated with motion x 1.5 (the same draws, scaled): every feature about x 1.5."""
     store = motion_stores["same"]
@@ -252,6 +253,7 @@ def test_scan_features_scale_with_the_simulated_motion(motion_stores, tmp_path):
     assert np.median(ratio, axis=0) == pytest.approx([1.5, 1.5], rel=0.05)
 
 
+@pytest.mark.slow
 def test_ood_check_flags_more_motion_by_the_scan_statistic(motion_stores):
     """Motion x 1.5 is flagged (>= 90 %) by the scan statistic, fresh in-distribution samples rarely (<= 10 %)."""
     reference = scan_reference(motion_stores["reference"])

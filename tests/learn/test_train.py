@@ -449,6 +449,7 @@ def _kept(env: dict[str, str]) -> dict[str, object]:
     return runs
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_keeping_freed_memory_leaves_the_weights_bit_identical_and_yields_to_the_user():
     runs = _kept({})

@@ -68,6 +68,7 @@ def test_limited_angle_uses_the_sharpness_of_reconstructions():
     assert estimate.offset == pytest.approx(OFFSET, abs=0.5)
 
 
+@pytest.mark.slow
 def test_real_i13_cut_to_120_degrees_does_not_take_a_sharpness_bound_for_the_axis(i13):
     """The first 61 views (-88 to +32 degrees) of rows 60:75: the sharpness score falls to its
     search bound (+20 px); the axis (+6.2 on the whole scan) comes from the centroid, with a warning."""

@@ -39,6 +39,7 @@ def test_estimate_motion_bad_input():
         estimate_motion(np.zeros((4, 8, 8)), np.zeros(4), horizontal="magic")
 
 
+@pytest.mark.slow
 def test_limited_angle_tilt_series_with_jumps_between_frames():
     from scan_cases import analytic_projections
 
@@ -67,6 +68,7 @@ def test_top_level_names():
     assert {"estimate_motion", "estimate_axis"} <= set(nanoct.__all__)
 
 
+@pytest.mark.slow
 def test_real_tilt_series_matches_the_acquiring_groups_alignment():
     """ETSpy's STEM needle (+-76 degrees, jumps of ~20 px), binned 4 x 4: nanoct's automatic alignment
     against the group's, per component in full-size pixels (targets 1.5 px and 0.5 degree)."""

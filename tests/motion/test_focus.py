@@ -62,6 +62,7 @@ def test_smooth_basis():
     assert np.allclose(basis.T @ basis, np.diag([10, 5, 5, 5]))  # the DCT-II cosines are orthogonal
 
 
+@pytest.mark.slow
 def test_focus_recovers_slow_motion_of_a_real_scan_wider_than_the_field_of_view(i13):
     li, angles = i13
     t = np.linspace(-1, 1, angles.size)

@@ -49,7 +49,7 @@ def test_auto_relaxation():
 
 
 # ---------------------------------------------------------------------------------- projectors
-@pytest.mark.parametrize("method", ["kaczmarz", "dremel", "resesop"])
+@pytest.mark.parametrize("method", ["kaczmarz", pytest.param("dremel", marks=pytest.mark.slow), "resesop"])
 def test_matrix_free_projector_gives_the_matrix_results(method: str, tmp_path) -> None:
     """Same iterates within 1e-3 (relative) from the cached matrix and the traced rays."""
     g = get_preset("tiny-parallel")
@@ -71,6 +71,7 @@ def test_matrix_free_projector_gives_the_matrix_results(method: str, tmp_path) -
     assert b.params["projector"] == "matrixfree"
 
 
+@pytest.mark.slow
 def test_matrix_free_dremel_with_threads_per_view_gives_the_same_bytes(monkeypatch) -> None:
     """Splitting each view over threads (forced for a tiny view) changes nothing."""
     import nanoct.core.matrixfree as mf
