@@ -20,6 +20,18 @@ from nanoct.sim.generate import generate_dataset
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # shared test helpers: scan_cases
 
 
+def pytest_runtest_call(item):
+    """One torch thread as every test starts (after its fixtures), once torch is imported: the tests' networks
+    and images are tiny, and a second intra-op thread made their steps 5-15 times slower where another job shared
+    the cores (a UNet step on 4 x 31 x 31 images: 0.14 s with two threads, 0.01 s with one). Set for each test,
+    since numba's OpenMP kernels set the shared OpenMP thread count back to all cores; tests about threads set
+    their own.
+    """
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _operator_cache(tmp_path_factory):
     """Keep the on-disk system-matrix cache out of the home directory."""
