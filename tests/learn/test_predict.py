@@ -21,9 +21,6 @@ from nanoct.sim.generate import generate_dataset
 
 SMALL = {"channels": [4, 4, 8, 8, 16]}
 
-#: every test here predicts with a network trained by the module fixture (and some build on each other)
-pytestmark = pytest.mark.slow
-
 
 def _counting(monkeypatch) -> list[int]:
     """The batch sizes the network is called on from now on (by predict)."""
@@ -42,6 +39,8 @@ def _counting(monkeypatch) -> list[int]:
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
+    """12 tiny samples with FBP and a two-epoch UNet run (seconds with one torch thread): every test here
+    predicts with it, and some build on each other's results."""
     root = tmp_path_factory.mktemp("predict")
     path = root / "tiny"
     generate_dataset(
