@@ -547,7 +547,7 @@ def consistent_motion(
 
 
 def consistency_lines(info: dict[str, Any]) -> list[str]:
-    """The summary lines of a stack's consistency check (``nanoct stack`` and ``nanoct info`` print them)."""
+    """The summary lines of a stack's consistency check (``nanoct stack`` prints them, stored or streamed)."""
     record = info.get("consistency")
     if not record or "scores" not in record:
         return [f"  check    {record['note']}"] if record else []
