@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nanoct.core.errors import NanoctError
-from nanoct.motion.consistency import Candidate, compare, heldout_misfit, score_binning, search_axis, select
+from nanoct.motion.consistency import Candidate, compare, heldout_misfit, score_binning, select
 from nanoct.sim.analytic import ellipse_sinogram, stack_phantom
 
 L, K, OFFSET = 96, 120, 4.3
@@ -75,15 +75,6 @@ def test_selection_takes_the_motion_where_the_data_support_it():
     assert selection.check["against"] == "none" and not selection.check["worse"]
     record = selection.to_dict()
     assert record["chosen"] == "shifts" and set(record["scores"]) == {"none", "axis only", "shifts"}
-
-
-def test_search_finds_the_axis_coarse_to_fine():
-    best, trials = search_axis(_sinograms(), ANGLES, span=30)
-    assert best == pytest.approx(OFFSET, abs=0.3)
-    assert {binning for _, _, binning in trials} == {1}  # 96 columns: one stage at full resolution
-    wide = np.repeat(_sinograms(offset=OFFSET / 4), 1, axis=0)
-    best, trials = search_axis(wide, ANGLES, span=20, coarse_columns=24)
-    assert len({binning for _, _, binning in trials}) == 3 and best == pytest.approx(OFFSET / 4, abs=0.5)
 
 
 def test_binning_and_bad_input():

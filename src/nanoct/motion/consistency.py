@@ -52,7 +52,6 @@ __all__ = [
     "Selection",
     "compare",
     "heldout_misfit",
-    "search_axis",
     "score_binning",
     "select",
 ]
@@ -331,63 +330,3 @@ def select(
         if other.worse:
             notes.append(f"warning: on another interleave of the views {chosen.name} fits worse than {simplest.name}")
     return Selection(chosen, {k: v.score for k, v in scored.items()}, decided, check, tuple(notes))
-
-
-def search_axis(
-    sinograms: Any,
-    angles: Any,
-    span: float,
-    *,
-    start: float = 0.0,
-    coarse_columns: int = 128,
-    max_columns: int = 1024,
-) -> tuple[float, list[tuple[float, float, int]]]:
-    """The axis offset of lowest held-out misfit in ``start +- span``, coarse to fine.
-
-    The detector is binned to about ``coarse_columns`` columns and the range searched at one
-    binned pixel; each next stage halves the binning and searches +-2 of its pixels around the
-    best so far, down to the finest binning that keeps at most ``max_columns`` columns; a
-    parabola through the last three values gives the sub-pixel minimum.
-
-    Parameters
-    ----------
-    sinograms : array_like of shape (S, K, L)
-        Line integrals, air at zero.
-    angles : array_like of shape (K,)
-        View angles (radians).
-    span : float
-        Half-width of the searched range (detector pixels).
-    start : float
-        Centre of the range.
-    coarse_columns, max_columns : int
-        Columns of the coarsest and the finest stage.
-
-    Returns
-    -------
-    tuple
-        The offset, and every trial as ``(offset, score, binning)``.
-    """
-    sino = np.asarray(sinograms, dtype=np.float32)
-    sino = sino[None] if sino.ndim == 2 else sino
-    n_det = sino.shape[-1]
-    binning = max(1, 2 ** int(np.floor(np.log2(max(n_det / coarse_columns, 1)))))
-    finest = max(1, 2 ** int(np.ceil(np.log2(max(n_det / max_columns, 1)))))
-    trials: list[tuple[float, float, int]] = []
-    best, step, low, high = start, float(binning), start - span, start + span
-    while True:
-        grid = np.arange(low, high + step / 2, step)
-        values = [heldout_misfit(sino, angles, float(c), binning=binning).score for c in grid]
-        trials += [(float(c), float(v), binning) for c, v in zip(grid, values)]
-        index = int(np.argmin(values))
-        best = float(grid[index])
-        if binning <= finest:
-            break
-        binning //= 2
-        step = float(binning)
-        low, high = best - 2 * step, best + 2 * step
-    if 0 < index < len(values) - 1:
-        y0, y1, y2 = values[index - 1], values[index], values[index + 1]
-        curvature = y0 - 2 * y1 + y2
-        if curvature > 0:
-            best += 0.5 * step * (y0 - y2) / curvature
-    return best, trials
