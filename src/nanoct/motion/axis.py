@@ -36,18 +36,18 @@ The estimators (each in detector pixels from the detector centre, positive to th
     at the grid's bound is no minimum and is not used; the untrusted centroid is then the axis,
     with a warning, and without it no estimator applies (an error asks for the offset).
 
-The axis is the estimate the data support best: each one is scored by the held-out misfit of
-:mod:`nanoct.motion.consistency` (reconstruct from one half of the views, predict the other, both
-ways) on the same rows, and the lowest score is kept, whether or not the estimator was trusted by
-its own rule, as a still object and (the trusted centroid) with the motion it implies, the better
-of the two counting (where the mirror match and ``find_center_vo`` disagree by 144 px on an object wider
-than the field of view, the score keeps the mirror's; no median of disagreeing estimators is
-taken). Estimates the score cannot tell apart from the chosen one (within
-:data:`~nanoct.motion.consistency.NOISE_FACTOR` times its noise and more than :data:`TIE_PX`
-away) are named in the notes and the estimate is marked undecided. Scans of fewer than
-:data:`MIN_SCORED_VIEWS` views, and limited-angle series (less than a half turn: no mirror pair
-and no ``find_center_vo``), keep the estimators' own rule: the centroid where it is trusted, else
-the median of the others (on a +-60 degree series of a phantom wider than the detector the score
+The axis is the estimate the data support: each proposed one (the estimators that apply, and
+the centroid, trusted or not) is scored by the held-out misfit of :mod:`nanoct.motion.consistency`
+(reconstruct from one half of the views, predict the other, both ways) on the same rows, as a
+still object and, for the trusted centroid, with the motion it implies too (the better counts).
+Estimates that fit worse than the best beyond the score's noise are rejected; of those kept the
+estimators' own rule picks: the trusted centroid, else the median of the trusted others, else the
+best score (where the mirror match and ``find_center_vo`` disagree by 144 px on an object wider
+than the field of view, ``find_center_vo`` is rejected and the mirror's kept). Kept estimates
+more than :data:`TIE_PX` from the axis are named in the notes and the estimate is marked
+undecided. Scans of fewer than :data:`MIN_SCORED_VIEWS` views, and limited-angle series (less
+than a half turn: no mirror pair and no ``find_center_vo``), are not scored and keep the
+estimators' own rule (on a +-60 degree series of a phantom wider than the detector the score
 preferred the untrusted centroid, 0.84 px off, to the sharpness, 0.3 px off). When the
 estimators differ by more than 0.5 pixel (the usual standard of a beamline's quality check) the
 estimate carries a warning: motion, or a wrong axis.
@@ -131,19 +131,20 @@ class AxisEstimate:
     Attributes
     ----------
     offset : float
-        Rotation axis minus the detector centre (detector pixels): the value of ``used``.
+        Rotation axis minus the detector centre (detector pixels): the median of ``used``.
     estimates : dict of str to float
         Every estimator that ran, with its value.
     used : tuple of str
-        The estimator the axis comes from: the most consistent one (below :data:`MIN_SCORED_VIEWS`
-        views, the centroid where it is trusted, else the median of the others).
+        The estimators the axis comes from: of those the held-out score keeps, the trusted
+        centroid alone, else the trusted others, else the best-scored one (see the module docstring).
     notes : tuple of str
         Why an estimator was left out, and a warning when the used ones disagree.
     air_removed : bool
         Whether air was seen around the object: an open beam found and removed first, or the
         detector's outer columns at zero within the noise (:func:`air_at_zero`).
     scores : dict of str to float
-        Each estimate's held-out misfit (:func:`~nanoct.motion.consistency.heldout_misfit`).
+        Each scored estimate's held-out misfit (:func:`~nanoct.motion.consistency.heldout_misfit`;
+        empty where the views are not scored).
     decided : bool
         ``False`` where the score cannot tell the chosen estimate from another one.
     """
@@ -416,35 +417,40 @@ def estimate_axis(sinograms: Any, angles: Any, *, centroid_tolerance: float = CE
         values = ", ".join(f"{name} {estimates[name]:+.2f}" for name in used)
         notes.append(f"warning: the axis estimators disagree by {spread:.2f} px ({values}); motion or a wrong axis")
     if phi.size < MIN_SCORED_VIEWS or not {"mirror", "vo"} & set(estimates):
-        chosen = ["centroid"] if "centroid" in used else used
-        offset = float(np.median([estimates[name] for name in chosen]))
         notes.append(f"consistency: not scored (fewer than {MIN_SCORED_VIEWS} views, or less than a half turn)")
+        chosen = _own_rule(used)
+        offset = float(np.median([estimates[name] for name in chosen]))
         return AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air)
-    motions = {"centroid": shifts} if "centroid" in used else {}
-    chosen, scores, undecided = _most_consistent(clean, phi, estimates, motions, used)
-    rejected = [name for name in estimates if name not in chosen and name not in undecided and name in used]
+    scores, kept = _scored(clean, phi, estimates, {"centroid": shifts} if "centroid" in used else {}, used)
+    chosen = _own_rule([name for name in used if name in kept]) or [min(scores, key=scores.__getitem__)]
+    offset = float(np.median([estimates[name] for name in chosen]))
+    rejected = [name for name in used if name not in kept]
+    undecided = [name for name in kept if name not in chosen and abs(estimates[name] - offset) > TIE_PX]
     if rejected:
         notes.append(f"consistency: {', '.join(rejected)} rejected (the held-out views fit worse beyond the noise)")
     if undecided:
         notes.append(f"consistency: the data cannot tell {', '.join(undecided)} from the chosen axis")
-    offset = float(np.median([estimates[name] for name in chosen]))
     return AxisEstimate(offset, estimates, tuple(chosen), tuple(notes), air, scores, not undecided)
 
 
-def _most_consistent(
+def _own_rule(names: list[str]) -> list[str]:
+    """The estimators' own choice among ``names``: the trusted centroid alone, else all (their median)."""
+    return ["centroid"] if "centroid" in names else names
+
+
+def _scored(
     clean: np.ndarray,
     phi: np.ndarray,
     estimates: dict[str, float],
     motions: dict[str, np.ndarray | None],
     used: list[str],
-) -> tuple[list[str], dict[str, float], list[str]]:
-    """The estimates the held-out misfit (:mod:`~nanoct.motion.consistency`) keeps, the scores, and the undecided ones.
+) -> tuple[dict[str, float], list[str]]:
+    """Each proposed estimate's held-out misfit (:mod:`~nanoct.motion.consistency`), and those it keeps.
 
-    Each estimate (the sharpness only where it found a minimum) is scored as a still object and,
-    where it comes with a motion (the trusted centroid's shifts), with that motion too; the better
-    of the two counts. Kept: those not worse than the best beyond the score's noise; of them the
-    estimators' own rule picks (the trusted centroid, else the median of the trusted others, else
-    the best score).
+    Proposed: the estimators that apply and the centroid, trusted or not (the sharpness only where
+    it found a minimum). Each is scored as a still object and, where it comes with a motion (the
+    trusted centroid's shifts), with that motion too; the better of the two counts. Kept: the best
+    and those not worse than it beyond the score's noise.
     """
     from .consistency import compare, heldout_misfit, score_binning
 
@@ -456,11 +462,7 @@ def _most_consistent(
         scored[name] = min(scored[name], moving, key=lambda result: result.score)
     best = min(scored, key=lambda name: scored[name].score)
     kept = [name for name in scored if name == best or not compare(scored[best], scored[name]).better]
-    trusted = [name for name in used if name in kept]
-    chosen = ["centroid"] if "centroid" in trusted else (trusted or [best])
-    offset = float(np.median([estimates[name] for name in chosen]))
-    undecided = [name for name in kept if name not in chosen and abs(estimates[name] - offset) > TIE_PX]
-    return chosen, {name: value.score for name, value in scored.items()}, undecided
+    return {name: value.score for name, value in scored.items()}, kept
 
 
 def _centroid(
