@@ -77,6 +77,22 @@ def test_selection_takes_the_motion_where_the_data_support_it():
     assert record["chosen"] == "shifts" and set(record["scores"]) == {"none", "axis only", "shifts"}
 
 
+def test_a_preferred_estimate_is_dropped_only_where_it_fits_worse():
+    sino = _sinograms(noise=0.02)
+
+    def score(c, split):
+        return heldout_misfit(sino, ANGLES, c.center_offset, c.shifts, split=split)
+
+    none = Candidate("none", OFFSET, None, "none")
+    spurious = Candidate("shifts", OFFSET, 0.8 * np.random.default_rng(5).standard_normal(K), "shifts")
+    dropped = select([none, spurious], score, prefer=spurious)
+    assert dropped.chosen is none and any("shifts dropped for none" in note for note in dropped.notes)
+    slight = Candidate("shifts", OFFSET, np.full(K, 1e-4), "shifts")  # indistinguishable from none
+    kept = select([none, slight], score, prefer=slight)
+    assert kept.chosen is slight and not kept.decided and kept.check["against"] == "none"
+    assert select([none, slight], score).chosen is none  # without a preference the simpler one
+
+
 def test_binning_and_bad_input():
     assert score_binning(256) == 1 and score_binning(257) == 2 and score_binning(627) == 3 and score_binning(2048) == 8
     sino = _sinograms()

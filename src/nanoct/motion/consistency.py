@@ -280,12 +280,15 @@ class Selection:
 def select(
     candidates: Sequence[Candidate],
     score: Callable[[Candidate, str], Consistency],
+    prefer: Candidate | None = None,
 ) -> Selection:
     """The most consistent candidate, a more complex one only where it is better beyond the noise.
 
     Candidates are taken level by level (:data:`LEVELS`); within a level the lowest score wins. The
-    best of a higher level replaces the current choice only where :func:`compare` finds it better;
-    the final choice is then compared with the simplest candidate on the other split.
+    best of a higher level replaces the current choice only where :func:`compare` finds it better.
+    With ``prefer`` (an estimate to keep unless the data speak against it), that choice replaces
+    ``prefer`` only where ``prefer`` fits worse than it beyond the noise; else ``prefer`` is kept,
+    undecided. The final choice is then compared with the simplest candidate on the other split.
 
     Parameters
     ----------
@@ -293,7 +296,9 @@ def select(
         At least one; names unique.
     score : callable
         ``score(candidate, split)`` -> :class:`Consistency` (e.g. :func:`heldout_misfit` bound to
-        the scan's rows).
+        the scan's rows); each candidate and split is asked for once.
+    prefer : Candidate, optional
+        One of ``candidates``.
 
     Returns
     -------
@@ -322,6 +327,13 @@ def select(
             )
             decided = decided and result.worse
     assert chosen is not None
+    if prefer is not None and chosen is not prefer:
+        result = compare(scored[prefer.name], scored[chosen.name])
+        if result.worse:
+            change = f"{result.difference:+.2e}, noise {result.noise:.1e}"
+            notes.append(f"{prefer.name} dropped for {chosen.name} ({change})")
+        else:
+            chosen, decided = prefer, False
     simplest = order[0]
     check: dict[str, Any] = {"against": simplest.name}
     if chosen is not simplest:

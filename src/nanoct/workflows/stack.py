@@ -58,7 +58,7 @@ from ..motion.axis import (
     remove_air,
 )
 from ..motion.center import centroid_motion, opposite_pairs
-from ..motion.consistency import Candidate, compare, heldout_misfit, score_binning, select
+from ..motion.consistency import Candidate, heldout_misfit, score_binning, select
 from ..motion.model import fit_motion_model
 from ..motion.vertical import vertical_motion
 from ..recon.batch import shift_check_recorder
@@ -504,9 +504,10 @@ def consistent_motion(
     (:func:`~nanoct.motion.consistency.heldout_misfit`) on the rows the axis is estimated from
     (:func:`~nanoct.motion.axis.axis_rows`, at most :data:`SCORE_ROWS`), moved back vertically,
     air at zero; :func:`~nanoct.motion.consistency.select` finds the simplest one that no more
-    complex one beats beyond the noise. The estimate (the last candidate) is replaced by it only
-    where the estimate fits worse than it beyond the noise ("never worse than no correction");
-    where the data cannot tell them apart the estimate stays and the record says undecided. The
+    complex one beats beyond the noise, and replaces the estimate (the last candidate, its
+    ``prefer``) by it only where the estimate fits worse than it beyond the noise ("never worse
+    than no correction"); where the data cannot tell them apart the estimate stays and the record
+    says undecided. The
     choice, every score and the check on another interleave of the views go into
     ``info["consistency"]``; ``info["center_offset"]`` becomes the kept candidate's axis. Returns
     the kept shifts (zero for a still object).
@@ -519,31 +520,16 @@ def consistent_motion(
     clean, _ = remove_air(read_straight(store, rows, vertical), zero_air=True)
     binning = score_binning(clean.shape[2])
 
-    scored: dict[tuple[str, str], Any] = {}
+    def score(candidate: Candidate, split: str) -> Any:
+        return heldout_misfit(clean, angles, candidate.center_offset, candidate.shifts, split=split, binning=binning)
 
-    def score(candidate: Candidate, split: str) -> Any:  # each candidate and split scored once
-        if (candidate.name, split) not in scored:
-            scored[candidate.name, split] = heldout_misfit(
-                clean, angles, candidate.center_offset, candidate.shifts, split=split, binning=binning
-            )
-        return scored[candidate.name, split]
-
-    start = _still_axis(store, params, clean)
-    candidates = _candidates(store, start, params, shifts, float(info["center_offset"]))
-    selection = select(candidates, score)
-    estimate, simpler = candidates[-1], selection.chosen
-    record = {**selection.to_dict(), "rows": rows, "binning": binning, "estimate": estimate.name}
-    if simpler is not estimate:
-        versus = compare(score(estimate, "alternate"), score(simpler, "alternate"))
-        record["estimate_vs_chosen"] = {"difference": versus.difference, "noise": versus.noise}
-        if not versus.worse:  # undecided: the estimate stays, marked so
-            record.update(chosen=estimate.name, center_offset=estimate.center_offset, decided=False)
-            simpler = estimate
-    info["consistency"] = record
-    if simpler.shifts is None:
-        info["center_offset"] = simpler.center_offset
+    candidates = _candidates(store, _still_axis(store, params, clean), params, shifts, float(info["center_offset"]))
+    selection = select(candidates, score, prefer=candidates[-1])
+    info["consistency"] = {**selection.to_dict(), "rows": rows, "binning": binning, "estimate": candidates[-1].name}
+    if selection.chosen.shifts is None:
+        info["center_offset"] = selection.chosen.center_offset
         return np.zeros_like(shifts)
-    return simpler.shifts
+    return selection.chosen.shifts
 
 
 def consistency_lines(info: dict[str, Any]) -> list[str]:
@@ -552,7 +538,7 @@ def consistency_lines(info: dict[str, Any]) -> list[str]:
     if not record or "scores" not in record:
         return [f"  check    {record['note']}"] if record else []
     scores = ", ".join(f"{name} {value:.5f}" for name, value in record["scores"].items())
-    verdict = "" if record["decided"] else " (the data cannot tell it from a simpler one)"
+    verdict = "" if record["decided"] else " (undecided: the data do not separate it from another candidate)"
     lines = [f"  check    held-out misfit {scores}; kept {record['chosen']}{verdict}"]
     lines += [f"           {note}" for note in record["notes"]]
     return lines
