@@ -32,7 +32,8 @@ class ImportSettings:
         "0",
         "--center-offset",
         help="Rotation axis minus the raw detector centre, in raw pixels (TomoPy center - (L-1)/2), or auto "
-        "(every estimator: opposite views, find_center_vo, centroids; see docs/measured_data.md). The default 0 "
+        "(every estimator: opposite views, find_center_vo, centroids, each scored by held-out views; see "
+        "docs/consistency.md). The default 0 "
         "takes the axis at the detector centre ('nanoct stack' estimates it by default).",
     )
     size: int | None = option(
@@ -202,8 +203,11 @@ def stack(
     block, resumable by block; docs/commands.md). Given a scan file and --store, imports it first
     with the reading and correction options of 'nanoct import' (--format, --angles, --data-path,
     --open-beam, --stripes ...; the axis is then estimated here, not at import).
-    Ends with a summary: the axis and how it was found, the range of the motion, where the
-    slices are, and the slices whose Dremel refinement ran away (they keep the stack's motion).
+    The estimated motion is checked against no correction, the axis alone and a smooth model by
+    how well half of the views predict the other half, and dropped where it fits worse beyond the
+    noise (docs/consistency.md). Ends with a summary: the axis and how it was found, the range of
+    the motion, that check, where the slices are, and the slices whose Dremel refinement ran away
+    (they keep the stack's motion).
     """
     from ..io.store import DataStore
     from ..workflows.stack import reconstruct_stack
