@@ -93,6 +93,14 @@ def test_a_preferred_estimate_is_dropped_only_where_it_fits_worse():
     assert select([none, slight], score).chosen is none  # without a preference the simpler one
 
 
+def test_a_full_turn_with_its_last_view_at_360_degrees_is_scored():
+    """Views at 0 and 360 degrees (a real neutron scan's layout) would put one angle twice into a half."""
+    angles = np.linspace(0, 2 * np.pi, 121)
+    sino = np.stack([ellipse_sinogram(e, angles, L, center_offset=OFFSET) for e in stack_phantom(72, 1, seed=3)])
+    true, off = (heldout_misfit(sino, angles, c) for c in (OFFSET, OFFSET + 2))
+    assert true.per_view.shape == (120,) and compare(true, off).better
+
+
 def test_binning_and_bad_input():
     assert score_binning(256) == 1 and score_binning(257) == 2 and score_binning(627) == 3 and score_binning(2048) == 8
     sino = _sinograms()

@@ -88,7 +88,7 @@ class Consistency:
         Mean over the views of one minus the held-out correlation, both halves (0 = perfect).
     per_view : ndarray of shape (K',)
         Each scored view's term of that mean (sums to ``score``; every view, or every
-        ``ceil(K / max_views)``-th).
+        ``ceil(K / max_views)``-th, a repeated angle once).
     split : str
         The interleave of the views (:data:`SPLITS`).
     """
@@ -151,7 +151,8 @@ def heldout_misfit(
     binning : int
         Detector binning applied first (faster, blind below ``binning`` pixels).
     max_views : int
-        At most this many views are scored: every ``ceil(K / max_views)``-th.
+        At most this many views are scored: every ``ceil(K / max_views)``-th, and of views at the
+        same angle (modulo 360 degrees, e.g. a last view at 360) only the first.
 
     Returns
     -------
@@ -167,7 +168,9 @@ def heldout_misfit(
         raise NanoctError(f"shifts of shape {d.shape} do not match {phi.size} views (or are not finite)")
     axis = (sino.shape[2] - 1) / 2 + center_offset  # detector column of the axis, unbinned
     step = -(-phi.size // max_views)  # every step-th view: the cost does not grow with the scan
-    sino, phi, d = sino[:, ::step], phi[::step], d[::step]
+    _, first = np.unique(np.round(np.mod(phi[::step], 2 * np.pi), 12), return_index=True)
+    views = np.arange(phi.size)[::step][np.sort(first)]  # a view at 360 degrees repeats the one at 0: once
+    sino, phi, d = sino[:, views], phi[views], d[views]
     if binning > 1:
         sino = bin_sinograms(sino, binning)
     n_det = sino.shape[2]
